@@ -1,0 +1,102 @@
+//! Environments with Gymnasium's exact semantics.
+//!
+//! Every environment implements [`Env`]. Observations are `f32` (Gymnasium returns float32
+//! arrays), rewards are `f64` (Gymnasium returns Python floats), actions are `f32` (what a policy
+//! network emits). Time limits are part of the environment and are reported as `truncated`, never
+//! as `terminated`: MBPO bootstraps through truncation and stops only at termination.
+//!
+//! ```
+//! use mbpo_envs::{make, Env};
+//! let mut env = make("Pendulum-v1").unwrap();
+//! let mut obs = vec![0.0f32; env.obs_dim()];
+//! env.reset_to(&[0.5, 0.0], &mut obs).unwrap();
+//! let step = env.step(&[1.0], &mut obs);
+//! assert!(!step.terminated && !step.truncated);
+//! ```
+#![warn(missing_docs)]
+
+mod mountain_car;
+mod pendulum;
+mod space;
+
+pub use mountain_car::MountainCarContinuous;
+pub use pendulum::Pendulum;
+pub use space::BoxSpace;
+
+use mbpo_core::Rng;
+
+/// The result of one environment step (the observation is written into the caller's buffer).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Step {
+    /// Reward of the transition, as Gymnasium computes it (f64).
+    pub reward: f64,
+    /// The task reached a terminal state: no bootstrapping past it.
+    pub terminated: bool,
+    /// The time limit was reached: bootstrapping continues through it.
+    pub truncated: bool,
+}
+
+/// Errors of [`Env::reset_to`] and [`make`].
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EnvError {
+    /// The state vector has the wrong length.
+    #[error("{env}: state has {found} values, expected {expected} ({layout})")]
+    StateDim {
+        /// Environment id.
+        env: &'static str,
+        /// Expected number of state values.
+        expected: usize,
+        /// Number given.
+        found: usize,
+        /// What the values mean, e.g. `theta,thetadot`.
+        layout: &'static str,
+    },
+    /// The environment id is not known.
+    #[error("unknown environment '{0}'; known: {known}", known = ENV_IDS.join(", "))]
+    UnknownEnv(String),
+}
+
+/// A single-agent environment with continuous actions.
+pub trait Env: Send {
+    /// Gymnasium id, e.g. `Pendulum-v1`.
+    fn id(&self) -> &'static str;
+    /// Observation space (bounds as Gymnasium declares them).
+    fn observation_space(&self) -> &BoxSpace;
+    /// Action space; actions outside it are clipped by the environment exactly as Gymnasium does.
+    fn action_space(&self) -> &BoxSpace;
+    /// Number of values of the physical state accepted by [`Env::reset_to`].
+    fn state_dim(&self) -> usize;
+    /// Names of the state values, comma-separated (e.g. `theta,thetadot`).
+    fn state_layout(&self) -> &'static str;
+    /// Episode length after which `truncated` is reported.
+    fn max_episode_steps(&self) -> usize;
+    /// Draw a start state from Gymnasium's start distribution and write the observation.
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]);
+    /// Start an episode from the given physical state and write the observation.
+    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError>;
+    /// The current physical state (length [`Env::state_dim`]).
+    fn state(&self) -> Vec<f64>;
+    /// Advance one step with `action` (length `act_dim`) and write the next observation.
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
+
+    /// Observation dimension.
+    fn obs_dim(&self) -> usize {
+        self.observation_space().dim()
+    }
+    /// Action dimension.
+    fn act_dim(&self) -> usize {
+        self.action_space().dim()
+    }
+}
+
+/// Ids of every environment [`make`] knows.
+pub const ENV_IDS: &[&str] = &["Pendulum-v1", "MountainCarContinuous-v0"];
+
+/// Build an environment by its Gymnasium id.
+pub fn make(id: &str) -> Result<Box<dyn Env>, EnvError> {
+    match id {
+        "Pendulum-v1" => Ok(Box::new(Pendulum::new())),
+        "MountainCarContinuous-v0" => Ok(Box::new(MountainCarContinuous::new())),
+        other => Err(EnvError::UnknownEnv(other.to_string())),
+    }
+}

@@ -1,0 +1,340 @@
+//! The environments against Gymnasium itself.
+//!
+//! The fixtures in `tests/fixtures/<EnvId>.json` are Gymnasium 1.4.0 / NumPy 2.4.6 trajectories
+//! written by `tools/gym_reference.py`; regenerate them with
+//! `bash tools/setup_venv.sh && .venv/bin/python tools/gym_reference.py`.
+//! Every episode is replayed with `reset_to` + `step` and compared step by step. The contract is
+//! 1e-6 on observations and (relative) on rewards; the implementation aims at, and currently
+//! reaches, bit-exactness, and the test prints the largest deviations it saw
+//! (`cargo test -p mbpo-envs -- --nocapture`).
+
+use std::path::PathBuf;
+
+use mbpo_core::rng::stream;
+use mbpo_envs::{make, Env, EnvError, MountainCarContinuous, Pendulum, ENV_IDS};
+use serde::Deserialize;
+
+const OBS_TOL: f64 = 1e-6;
+const REWARD_REL_TOL: f64 = 1e-6;
+
+#[derive(Deserialize)]
+struct Fixture {
+    env_id: String,
+    gymnasium_version: String,
+    numpy_version: String,
+    episodes: Vec<Episode>,
+}
+
+#[derive(Deserialize)]
+struct Episode {
+    name: String,
+    state: Vec<f64>,
+    actions: Vec<Vec<f64>>,
+    obs: Vec<Vec<f64>>,
+    rewards: Vec<f64>,
+    terminated: Vec<bool>,
+    truncated: Vec<bool>,
+}
+
+fn load(env_id: &str) -> Fixture {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures")
+        .join(format!("{env_id}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e}; regenerate with `bash tools/setup_venv.sh && .venv/bin/python tools/gym_reference.py`",
+            path.display()
+        )
+    });
+    let fixture: Fixture = serde_json::from_str(&text).expect("fixture parses");
+    assert_eq!(fixture.env_id, env_id);
+    fixture
+}
+
+/// Largest deviations over a replayed fixture.
+#[derive(Debug, Default)]
+struct Deviation {
+    steps: usize,
+    obs_abs: f64,
+    reward_rel: f64,
+    /// Observation values / rewards that are not bit-identical to Gymnasium's.
+    obs_inexact: usize,
+    reward_inexact: usize,
+}
+
+fn check_obs(dev: &mut Deviation, ctx: &str, got: &[f32], want: &[f64]) {
+    assert_eq!(got.len(), want.len(), "{ctx}: observation length");
+    for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
+        let d = (g as f64 - w).abs();
+        assert!(d <= OBS_TOL, "{ctx}: obs[{i}] = {g:e}, gymnasium {w:e} (|Δ| = {d:e})");
+        dev.obs_abs = dev.obs_abs.max(d);
+        if g as f64 != w {
+            dev.obs_inexact += 1;
+        }
+    }
+}
+
+fn replay(env_id: &str) -> Deviation {
+    let fixture = load(env_id);
+    let mut env = make(env_id).unwrap();
+    let mut obs = vec![0.0f32; env.obs_dim()];
+    let mut dev = Deviation::default();
+    assert!(!fixture.episodes.is_empty());
+    for ep in &fixture.episodes {
+        let n = ep.actions.len();
+        assert!(n > 0, "{}: empty episode", ep.name);
+        assert_eq!(ep.obs.len(), n + 1, "{}: obs count", ep.name);
+        assert_eq!(ep.rewards.len(), n, "{}", ep.name);
+        assert_eq!(ep.terminated.len(), n, "{}", ep.name);
+        assert_eq!(ep.truncated.len(), n, "{}", ep.name);
+
+        env.reset_to(&ep.state, &mut obs).unwrap();
+        check_obs(&mut dev, &format!("{env_id} {} reset", ep.name), &obs, &ep.obs[0]);
+        for t in 0..n {
+            let ctx = format!("{env_id} {} step {}", ep.name, t + 1);
+            // The fixture's actions are float32 values: they must round-trip exactly.
+            let action: Vec<f32> = ep.actions[t].iter().map(|&a| a as f32).collect();
+            for (&a, &a64) in action.iter().zip(&ep.actions[t]) {
+                assert_eq!(a as f64, a64, "{ctx}: action is not an f32 value");
+            }
+            let step = env.step(&action, &mut obs);
+            check_obs(&mut dev, &ctx, &obs, &ep.obs[t + 1]);
+            let want = ep.rewards[t];
+            let rel = (step.reward - want).abs() / want.abs().max(1.0);
+            assert!(
+                rel <= REWARD_REL_TOL,
+                "{ctx}: reward {} vs gymnasium {want} (rel {rel:e})",
+                step.reward
+            );
+            dev.reward_rel = dev.reward_rel.max(rel);
+            if step.reward != want {
+                dev.reward_inexact += 1;
+            }
+            assert_eq!(step.terminated, ep.terminated[t], "{ctx}: terminated");
+            assert_eq!(step.truncated, ep.truncated[t], "{ctx}: truncated");
+            dev.steps += 1;
+        }
+    }
+    println!(
+        "{env_id} vs gymnasium {} / numpy {}: {} episodes, {} steps, max |Δobs| = {:e}, \
+         max rel Δreward = {:e}, non-bit-exact obs values: {}, rewards: {}",
+        fixture.gymnasium_version,
+        fixture.numpy_version,
+        fixture.episodes.len(),
+        dev.steps,
+        dev.obs_abs,
+        dev.reward_rel,
+        dev.obs_inexact,
+        dev.reward_inexact,
+    );
+    dev
+}
+
+#[test]
+fn pendulum_matches_gymnasium() {
+    let dev = replay("Pendulum-v1");
+    assert!(dev.steps >= 2000);
+}
+
+#[test]
+fn mountain_car_matches_gymnasium() {
+    let dev = replay("MountainCarContinuous-v0");
+    assert!(dev.steps >= 5000);
+}
+
+#[test]
+fn fixtures_exercise_termination_truncation_and_clipping() {
+    let mc = load("MountainCarContinuous-v0");
+    let ends = |f: &Fixture, pick: fn(&Episode) -> bool| f.episodes.iter().filter(|e| pick(e)).count();
+    assert!(ends(&mc, |e| *e.terminated.last().unwrap()) >= 1, "no MountainCar episode reaches the goal");
+    assert!(ends(&mc, |e| *e.truncated.last().unwrap()) >= 1, "no MountainCar episode is truncated");
+    let hits_left_wall = mc
+        .episodes
+        .iter()
+        .any(|e| e.obs[1..].iter().any(|o| o[0] == -1.2f32 as f64 && o[1] == 0.0));
+    assert!(hits_left_wall, "no MountainCar episode hits the left wall");
+    let pend = load("Pendulum-v1");
+    assert!(ends(&pend, |e| *e.truncated.last().unwrap()) == pend.episodes.len());
+    for f in [&mc, &pend] {
+        let high = make(&f.env_id).unwrap().action_space().high[0] as f64;
+        let clipped = f.episodes.iter().flat_map(|e| &e.actions).any(|a| a[0].abs() > high);
+        assert!(clipped, "{}: no action outside the bounds", f.env_id);
+    }
+}
+
+/// Steps an environment with a zero action from `state` until its time limit.
+fn run_to_time_limit(env: &mut dyn Env, state: &[f64]) {
+    let mut obs = vec![0.0f32; env.obs_dim()];
+    let action = vec![0.0f32; env.act_dim()];
+    env.reset_to(state, &mut obs).unwrap();
+    let max = env.max_episode_steps();
+    for t in 1..=max {
+        let step = env.step(&action, &mut obs);
+        assert!(!step.terminated, "{} terminated at step {t}", env.id());
+        assert_eq!(step.truncated, t == max, "{} step {t}: truncated", env.id());
+    }
+}
+
+#[test]
+fn truncation_after_exactly_max_steps_is_not_termination() {
+    let mut pendulum = Pendulum::new();
+    assert_eq!(pendulum.max_episode_steps(), 200);
+    run_to_time_limit(&mut pendulum, &[1.0, 0.0]);
+    // The step count restarts with the episode.
+    run_to_time_limit(&mut pendulum, &[-2.0, 0.5]);
+
+    let mut car = MountainCarContinuous::new();
+    assert_eq!(car.max_episode_steps(), 999);
+    // With no force the car only rocks in the valley, so only the time limit ends the episode.
+    run_to_time_limit(&mut car, &[-0.5, 0.0]);
+    run_to_time_limit(&mut car, &[-0.45, 0.0]);
+}
+
+#[test]
+fn random_reset_restarts_the_step_count() {
+    let mut rng = stream(0, "test.envs", 0);
+    for id in ENV_IDS {
+        let mut env = make(id).unwrap();
+        let mut obs = vec![0.0f32; env.obs_dim()];
+        let action = vec![0.0f32; env.act_dim()];
+        env.reset(&mut rng, &mut obs);
+        for _ in 0..10 {
+            env.step(&action, &mut obs);
+        }
+        env.reset(&mut rng, &mut obs);
+        let max = env.max_episode_steps();
+        let truncated_at: Vec<usize> = (1..=max)
+            .filter(|_| env.step(&action, &mut obs).truncated)
+            .collect();
+        assert_eq!(truncated_at, vec![max], "{id}");
+    }
+}
+
+#[test]
+fn reset_to_rejects_a_wrong_state_length() {
+    for id in ENV_IDS {
+        let mut env = make(id).unwrap();
+        let mut obs = vec![0.0f32; env.obs_dim()];
+        for bad in [&[][..], &[0.1][..], &[0.1, 0.2, 0.3][..]] {
+            let err = env.reset_to(bad, &mut obs).unwrap_err();
+            assert_eq!(
+                err,
+                EnvError::StateDim {
+                    env: env.id(),
+                    expected: 2,
+                    found: bad.len(),
+                    layout: env.state_layout(),
+                }
+            );
+            assert_eq!(
+                err.to_string(),
+                format!(
+                    "{id}: state has {} values, expected 2 ({})",
+                    bad.len(),
+                    env.state_layout()
+                )
+            );
+        }
+        assert_eq!(env.state_dim(), 2);
+    }
+    let err = Pendulum::new().reset_to(&[1.0], &mut [0.0; 3]).unwrap_err();
+    assert_eq!(err.to_string(), "Pendulum-v1: state has 1 values, expected 2 (theta,thetadot)");
+}
+
+#[test]
+fn reset_to_sets_the_state_and_observation() {
+    let mut env = Pendulum::new();
+    let mut obs = [0.0f32; 3];
+    env.reset_to(&[10.5, -7.95], &mut obs).unwrap();
+    assert_eq!(env.state(), vec![10.5, -7.95]);
+    assert_eq!(obs, [10.5f64.cos() as f32, 10.5f64.sin() as f32, -7.95f32]);
+
+    let mut env = MountainCarContinuous::new();
+    let mut obs = [0.0f32; 2];
+    env.reset_to(&[-0.55, 0.01], &mut obs).unwrap();
+    assert_eq!(env.state(), vec![-0.55, 0.01]);
+    assert_eq!(obs, [-0.55f32, 0.01f32]);
+}
+
+/// Mean and bounds of `n` draws.
+fn summary(xs: &[f64]) -> (f64, f64, f64) {
+    let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+    let min = xs.iter().cloned().fold(f64::INFINITY, f64::min);
+    let max = xs.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    (mean, min, max)
+}
+
+#[test]
+fn reset_draws_from_gymnasiums_start_distribution() {
+    use std::f64::consts::PI;
+    let n = 20_000;
+    let mut rng = stream(1, "test.envs.reset", 0);
+
+    // Pendulum: theta ~ U(-pi, pi), thetadot ~ U(-1, 1).
+    let mut env = Pendulum::new();
+    let mut obs = [0.0f32; 3];
+    let (mut th, mut thd) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    for _ in 0..n {
+        env.reset(&mut rng, &mut obs);
+        let s = env.state();
+        assert_eq!(obs, [s[0].cos() as f32, s[0].sin() as f32, s[1] as f32]);
+        th.push(s[0]);
+        thd.push(s[1]);
+    }
+    let (mean, min, max) = summary(&th);
+    assert!((-PI..PI).contains(&min) && (-PI..PI).contains(&max), "theta in [-pi, pi)");
+    assert!(min < -PI + 0.01 && max > PI - 0.01, "theta covers [-pi, pi)");
+    // sd of U(-pi, pi) is pi/sqrt(3) ~ 1.81; the mean's sd over n draws is ~0.013.
+    assert!(mean.abs() < 0.06, "theta mean {mean}");
+    let var = th.iter().map(|x| x * x).sum::<f64>() / n as f64;
+    assert!((var - PI * PI / 3.0).abs() < 0.1, "theta variance {var}");
+    let (mean, min, max) = summary(&thd);
+    assert!(min >= -1.0 && max < 1.0 && min < -0.99 && max > 0.99, "thetadot in [-1, 1)");
+    assert!(mean.abs() < 0.02, "thetadot mean {mean}");
+
+    // MountainCar: position ~ U(-0.6, -0.4), velocity = 0.
+    let mut env = MountainCarContinuous::new();
+    let mut obs = [0.0f32; 2];
+    let mut pos = Vec::with_capacity(n);
+    for _ in 0..n {
+        env.reset(&mut rng, &mut obs);
+        let s = env.state();
+        assert_eq!(s[1], 0.0);
+        assert_eq!(obs, [s[0] as f32, 0.0]);
+        pos.push(s[0]);
+    }
+    let (mean, min, max) = summary(&pos);
+    assert!(min >= -0.6 && max < -0.4 && min < -0.599 && max > -0.401, "position in [-0.6, -0.4)");
+    assert!((mean + 0.5).abs() < 0.002, "position mean {mean}");
+}
+
+#[test]
+fn make_builds_every_known_id_and_rejects_others() {
+    for id in ENV_IDS {
+        let env = make(id).unwrap();
+        assert_eq!(env.id(), *id);
+    }
+    let spaces = |id| {
+        let env = make(id).unwrap();
+        (env.observation_space().clone(), env.action_space().clone())
+    };
+    let (obs, act) = spaces("Pendulum-v1");
+    assert_eq!((obs.low, obs.high), (vec![-1.0, -1.0, -8.0], vec![1.0, 1.0, 8.0]));
+    assert_eq!((act.low, act.high), (vec![-2.0], vec![2.0]));
+    let (obs, act) = spaces("MountainCarContinuous-v0");
+    assert_eq!((obs.low, obs.high), (vec![-1.2, -0.07], vec![0.6, 0.07]));
+    assert_eq!((act.low, act.high), (vec![-1.0], vec![1.0]));
+
+    for bad in ["CartPole-v1", "Pendulum-v0", "pendulum-v1", ""] {
+        match make(bad) {
+            Ok(_) => panic!("make({bad:?}) should fail"),
+            Err(err) => {
+                assert_eq!(err, EnvError::UnknownEnv(bad.to_string()));
+                assert_eq!(
+                    err.to_string(),
+                    format!("unknown environment '{bad}'; known: Pendulum-v1, MountainCarContinuous-v0")
+                );
+            }
+        }
+    }
+}

@@ -1,0 +1,311 @@
+//! Multi-layer perceptrons with a manual backward pass.
+//!
+//! Layer l computes `z_l = a_{l−1} W_l + b_l` and `a_l = f_l(z_l)` on a row-major batch, with
+//! `a_{−1} = x`, `W_l` of shape `in x out`, the hidden activation on every layer but the last and
+//! the output activation on the last. The backward pass takes `∂L/∂y` and produces, by the chain
+//! rule, `∂L/∂z_l = ∂L/∂a_l · f'(z_l)`, `∂L/∂W_l = a_{l−1}ᵀ ∂L/∂z_l`, `∂L/∂b_l = Σ_rows ∂L/∂z_l`
+//! and `∂L/∂a_{l−1} = ∂L/∂z_l W_lᵀ`, down to the input gradient `∂L/∂x` that SAC's actor update
+//! and gradient-based planning need.
+
+use crate::activation::Activation;
+use crate::gemm::{gemm, Op};
+use crate::init::Init;
+use crate::layout::ParamLayout;
+use mbpo_core::Rng;
+use std::ops::Range;
+
+/// Architecture of an MLP; owns no parameters (see the crate docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mlp {
+    dims: Vec<usize>,
+    hidden: Activation,
+    output: Activation,
+    layout: ParamLayout,
+    weights: Vec<Range<usize>>,
+    biases: Vec<Range<usize>>,
+}
+
+impl Mlp {
+    /// An MLP with layer widths `dims = [in, h_1, ..., out]`.
+    pub fn new(dims: &[usize], hidden: Activation, output: Activation) -> Self {
+        assert!(dims.len() >= 2, "an MLP needs at least an input and an output width");
+        assert!(dims.iter().all(|&d| d > 0), "layer widths must be positive");
+        let mut layout = ParamLayout::new();
+        let (mut weights, mut biases) = (Vec::new(), Vec::new());
+        for l in 0..dims.len() - 1 {
+            weights.push(layout.push(format!("l{l}.w"), &[dims[l], dims[l + 1]]));
+            biases.push(layout.push(format!("l{l}.b"), &[dims[l + 1]]));
+        }
+        Self {
+            dims: dims.to_vec(),
+            hidden,
+            output,
+            layout,
+            weights,
+            biases,
+        }
+    }
+
+    /// Layer widths `[in, h_1, ..., out]`.
+    pub fn dims(&self) -> &[usize] {
+        &self.dims
+    }
+    /// Input width.
+    pub fn in_dim(&self) -> usize {
+        self.dims[0]
+    }
+    /// Output width.
+    pub fn out_dim(&self) -> usize {
+        *self.dims.last().unwrap()
+    }
+    /// Number of dense layers.
+    pub fn num_layers(&self) -> usize {
+        self.dims.len() - 1
+    }
+    /// Total parameter count.
+    pub fn num_params(&self) -> usize {
+        self.layout.len()
+    }
+    /// Names and shapes of the parameters.
+    pub fn layout(&self) -> &ParamLayout {
+        &self.layout
+    }
+    /// Range of layer `l`'s weights in the flat vector.
+    pub fn weight_range(&self, l: usize) -> Range<usize> {
+        self.weights[l].clone()
+    }
+    /// Range of layer `l`'s biases in the flat vector.
+    pub fn bias_range(&self, l: usize) -> Range<usize> {
+        self.biases[l].clone()
+    }
+    /// Activation applied after layer `l`.
+    pub fn activation(&self, l: usize) -> Activation {
+        if l + 1 == self.num_layers() {
+            self.output
+        } else {
+            self.hidden
+        }
+    }
+
+    /// Draw initial parameters layer by layer from `rng`.
+    pub fn init(&self, params: &mut [f32], init: Init, rng: &mut Rng) {
+        assert_eq!(params.len(), self.num_params());
+        for l in 0..self.num_layers() {
+            let (w, b) = params.split_at_mut(self.biases[l].start);
+            init.fill(
+                &mut w[self.weights[l].clone()],
+                &mut b[..self.dims[l + 1]],
+                self.dims[l],
+                rng,
+            );
+        }
+    }
+
+    /// Forward pass on `batch` rows of `x` (row-major, `batch x in`); returns the output rows
+    /// (`batch x out`) held in `cache`, which also keeps what the backward pass needs.
+    pub fn forward<'c>(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        batch: usize,
+        cache: &'c mut MlpCache,
+    ) -> &'c [f32] {
+        debug_assert_eq!(params.len(), self.num_params());
+        assert!(x.len() >= batch * self.in_dim(), "input shorter than batch x in_dim");
+        cache.ensure(self, batch);
+        for l in 0..self.num_layers() {
+            let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
+            let (done, todo) = cache.layers.split_at_mut(l);
+            let input = if l == 0 {
+                &x[..batch * n_in]
+            } else {
+                done[l - 1].output(self.activation(l - 1), batch * n_in)
+            };
+            let layer = &mut todo[0];
+            let z = &mut layer.z[..batch * n_out];
+            let bias = &params[self.biases[l].clone()];
+            for row in z.chunks_exact_mut(n_out) {
+                row.copy_from_slice(bias);
+            }
+            let w = &params[self.weights[l].clone()];
+            gemm(z, input, Op::N, w, Op::N, batch, n_in, n_out, true);
+            let act = self.activation(l);
+            if act != Activation::Identity {
+                act.forward(&layer.z[..batch * n_out], &mut layer.a);
+            }
+        }
+        let last = self.num_layers() - 1;
+        cache.layers[last].output(self.output, batch * self.out_dim())
+    }
+
+    /// Backward pass for the batch of the last [`Mlp::forward`] on `x` with this `cache`.
+    ///
+    /// `d_out` is `∂L/∂y` (`batch x out`). Writes `∂L/∂θ` into `grads` (same layout as the
+    /// parameters, overwritten) when given, and `∂L/∂x` into `d_input` (`batch x in`) when given.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        cache: &mut MlpCache,
+        d_out: &[f32],
+        mut grads: Option<&mut [f32]>,
+        d_input: Option<&mut [f32]>,
+    ) {
+        let batch = cache.batch;
+        let n_layers = self.num_layers();
+        assert!(d_out.len() >= batch * self.out_dim());
+        if let Some(g) = grads.as_deref() {
+            assert_eq!(g.len(), self.num_params(), "grads must match the parameter layout");
+        }
+        let mut gbuf = [
+            std::mem::take(&mut cache.grad[0]),
+            std::mem::take(&mut cache.grad[1]),
+        ];
+        let mut dz_buf = std::mem::take(&mut cache.dz);
+        let mut d_input = d_input;
+        for l in (0..n_layers).rev() {
+            let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
+            let act = self.activation(l);
+            // Ping-pong: layer l writes ∂L/∂a_{l−1} into one buffer while reading ∂L/∂a_l
+            // from the other, which the layer above wrote.
+            let (b0, b1) = gbuf.split_at_mut(1);
+            let (read, write) = if (n_layers - 1 - l) % 2 == 0 {
+                (&b1[0], &mut b0[0])
+            } else {
+                (&b0[0], &mut b1[0])
+            };
+            // ∂L/∂a_l: the caller's d_out on the top layer.
+            let g: &[f32] = if l + 1 == n_layers {
+                &d_out[..batch * n_out]
+            } else {
+                &read[..batch * n_out]
+            };
+            // ∂L/∂z_l.
+            let dz: &[f32] = if act == Activation::Identity {
+                g
+            } else {
+                let layer = &cache.layers[l];
+                act.backward(&layer.z, &layer.a, g, &mut dz_buf[..batch * n_out]);
+                &dz_buf[..batch * n_out]
+            };
+            let input = if l == 0 {
+                &x[..batch * n_in]
+            } else {
+                cache.layers[l - 1].output(self.activation(l - 1), batch * n_in)
+            };
+            if let Some(grads) = grads.as_deref_mut() {
+                let (gw, gb) = grads.split_at_mut(self.biases[l].start);
+                gemm(
+                    &mut gw[self.weights[l].clone()],
+                    input,
+                    Op::T,
+                    dz,
+                    Op::N,
+                    n_in,
+                    batch,
+                    n_out,
+                    false,
+                );
+                let gb = &mut gb[..n_out];
+                gb.fill(0.0);
+                for row in dz.chunks_exact(n_out) {
+                    gb.iter_mut().zip(row).for_each(|(s, &v)| *s += v);
+                }
+            }
+            let w = &params[self.weights[l].clone()];
+            if l > 0 {
+                let out = &mut write[..batch * n_in];
+                gemm(out, dz, Op::N, w, Op::T, batch, n_out, n_in, false);
+            } else if let Some(dx) = d_input.as_deref_mut() {
+                gemm(
+                    &mut dx[..batch * n_in],
+                    dz,
+                    Op::N,
+                    w,
+                    Op::T,
+                    batch,
+                    n_out,
+                    n_in,
+                    false,
+                );
+            }
+        }
+        cache.grad = gbuf;
+        cache.dz = dz_buf;
+    }
+}
+
+/// One layer's forward values.
+#[derive(Debug, Clone, Default)]
+struct LayerCache {
+    z: Vec<f32>,
+    a: Vec<f32>,
+}
+
+impl LayerCache {
+    fn output(&self, act: Activation, len: usize) -> &[f32] {
+        if act == Activation::Identity {
+            &self.z[..len]
+        } else {
+            &self.a[..len]
+        }
+    }
+}
+
+/// Activations and scratch buffers for one MLP at up to `capacity` rows.
+///
+/// Buffers grow only when a larger batch arrives, so a steady-state loop allocates nothing.
+#[derive(Debug, Clone, Default)]
+pub struct MlpCache {
+    capacity: usize,
+    batch: usize,
+    layers: Vec<LayerCache>,
+    grad: [Vec<f32>; 2],
+    dz: Vec<f32>,
+}
+
+impl MlpCache {
+    /// A cache for `mlp` sized for `batch` rows.
+    pub fn new(mlp: &Mlp, batch: usize) -> Self {
+        let mut c = Self::default();
+        c.ensure(mlp, batch);
+        c
+    }
+
+    /// Rows of the last forward pass.
+    pub fn batch(&self) -> usize {
+        self.batch
+    }
+
+    /// Output rows of the last forward pass (`batch x out`).
+    pub fn output<'c>(&'c self, mlp: &Mlp) -> &'c [f32] {
+        let last = mlp.num_layers() - 1;
+        self.layers[last].output(mlp.activation(last), self.batch * mlp.out_dim())
+    }
+
+    fn ensure(&mut self, mlp: &Mlp, batch: usize) {
+        self.batch = batch;
+        if batch <= self.capacity && self.layers.len() == mlp.num_layers() {
+            return;
+        }
+        let cap = batch.max(self.capacity);
+        let widest = *mlp.dims().iter().max().unwrap();
+        self.layers = (0..mlp.num_layers())
+            .map(|l| {
+                let n = cap * mlp.dims()[l + 1];
+                let a = if mlp.activation(l) == Activation::Identity {
+                    0
+                } else {
+                    n
+                };
+                LayerCache {
+                    z: vec![0.0; n],
+                    a: vec![0.0; a],
+                }
+            })
+            .collect();
+        self.grad = [vec![0.0; cap * widest], vec![0.0; cap * widest]];
+        self.dz = vec![0.0; cap * widest];
+        self.capacity = cap;
+    }
+}
