@@ -165,6 +165,12 @@ def mountain_car_episodes() -> list[dict]:
     eps.append(run_episode(env_id, "right_wall_first_step", 11, [0.55, 0.07], constant(0.0)))
     # Goal reached with an exact-bound action.
     eps.append(run_episode(env_id, "goal_exact_bound_action", 12, [0.4, 0.04], constant(1.0)))
+    # Lands exactly on float32(0.45) = 0.44999998807907104 at step 2 (a float32 step): NumPy
+    # compares `position >= 0.45` in float32, so this terminates; a float64 comparison would not.
+    # The start velocity was found by bisection on the step-2 position.
+    ep = run_episode(env_id, "goal_edge_float32_comparison", 14, [0.35, 0.051695275236852474], constant(0.0))
+    assert ep["obs"][2][0] == float(np.float32(0.45)) and ep["terminated"] == [False, True], ep
+    eps.append(ep)
     return eps
 
 

@@ -119,7 +119,10 @@ mod tests {
     #[test]
     fn stream_key_is_pinned() {
         // Pinned so that a change of derivation (which would silently change every run) fails here.
-        assert_eq!(stream_key(0, "", 0), mix64(mix64(mix64(0) ^ 0xCBF2_9CE4_8422_2325)));
+        assert_eq!(
+            stream_key(0, "", 0),
+            mix64(mix64(mix64(0) ^ 0xCBF2_9CE4_8422_2325))
+        );
         let k = stream_key(42, "sac.learner", 7);
         assert_eq!(k, stream_key(42, "sac.learner", 7));
         assert_ne!(k, stream_key(42, "sac.learner", 8));

@@ -101,7 +101,11 @@ impl MountainCarContinuous {
         let max_speed = MAX_SPEED as f32;
         let v = (v + accel).clamp(-max_speed, max_speed);
         let p = (p + v).clamp(MIN_POSITION as f32, MAX_POSITION as f32);
-        let v = if p == MIN_POSITION as f32 && v < 0.0 { 0.0 } else { v };
+        let v = if p == MIN_POSITION as f32 && v < 0.0 {
+            0.0
+        } else {
+            v
+        };
         (p, v)
     }
 }

@@ -152,17 +152,12 @@ impl Env for Pendulum {
         debug_assert_eq!(action.len(), 1, "{ID}: action has 1 value");
         let (th, thdot) = (self.theta, self.thetadot);
         // np.clip on the float32 action array: stays float32 (NaN passes through, as in NumPy).
-        let u = if action[0] < -MAX_TORQUE {
-            -MAX_TORQUE
-        } else if action[0] > MAX_TORQUE {
-            MAX_TORQUE
-        } else {
-            action[0]
-        };
+        let u = action[0].clamp(-MAX_TORQUE, MAX_TORQUE);
         // `0.001 * (u**2)` is float32 (0.001 rounded to f32, powf, f32 product); it joins the
         // float64 sum only at the last addition.
         let control_cost = 0.001f32 * libm_square_f32(u);
-        let cost = libm_square(angle_normalize(th)) + 0.1 * libm_square(thdot) + control_cost as f64;
+        let cost =
+            libm_square(angle_normalize(th)) + 0.1 * libm_square(thdot) + control_cost as f64;
         // `3.0 / (m * l**2) * u` is float32 too (`3.0 * u`, rounded to f32); `3g/(2l)·sin θ` is f64.
         let torque_term = (3.0 / (M * L * L)) as f32 * u;
         let newthdot = thdot + (3.0 * G / (2.0 * L) * th.sin() + torque_term as f64) * DT;

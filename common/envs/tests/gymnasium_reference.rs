@@ -4,8 +4,8 @@
 //! written by `tools/gym_reference.py`; regenerate them with
 //! `bash tools/setup_venv.sh && .venv/bin/python tools/gym_reference.py`.
 //! Every episode is replayed with `reset_to` + `step` and compared step by step. The contract is
-//! 1e-6 on observations and (relative) on rewards; the implementation aims at, and currently
-//! reaches, bit-exactness, and the test prints the largest deviations it saw
+//! 1e-6 on observations and (relative) on rewards; on glibc the replay must also be bit-exact
+//! (see [`BIT_EXACT_PLATFORM`]). The test prints the largest deviations it saw
 //! (`cargo test -p mbpo-envs -- --nocapture`).
 
 use std::path::PathBuf;
@@ -66,7 +66,10 @@ fn check_obs(dev: &mut Deviation, ctx: &str, got: &[f32], want: &[f64]) {
     assert_eq!(got.len(), want.len(), "{ctx}: observation length");
     for (i, (&g, &w)) in got.iter().zip(want).enumerate() {
         let d = (g as f64 - w).abs();
-        assert!(d <= OBS_TOL, "{ctx}: obs[{i}] = {g:e}, gymnasium {w:e} (|Δ| = {d:e})");
+        assert!(
+            d <= OBS_TOL,
+            "{ctx}: obs[{i}] = {g:e}, gymnasium {w:e} (|Δ| = {d:e})"
+        );
         dev.obs_abs = dev.obs_abs.max(d);
         if g as f64 != w {
             dev.obs_inexact += 1;
@@ -89,7 +92,12 @@ fn replay(env_id: &str) -> Deviation {
         assert_eq!(ep.truncated.len(), n, "{}", ep.name);
 
         env.reset_to(&ep.state, &mut obs).unwrap();
-        check_obs(&mut dev, &format!("{env_id} {} reset", ep.name), &obs, &ep.obs[0]);
+        check_obs(
+            &mut dev,
+            &format!("{env_id} {} reset", ep.name),
+            &obs,
+            &ep.obs[0],
+        );
         for t in 0..n {
             let ctx = format!("{env_id} {} step {}", ep.name, t + 1);
             // The fixture's actions are float32 values: they must round-trip exactly.
@@ -127,8 +135,23 @@ fn replay(env_id: &str) -> Deviation {
         dev.obs_inexact,
         dev.reward_inexact,
     );
+    if BIT_EXACT_PLATFORM {
+        assert!(
+            dev.obs_inexact == 0 && dev.reward_inexact == 0,
+            "{env_id}: within tolerance but not bit-exact ({} observation values, {} rewards \
+             differ): a float32/float64 or libm-pow detail of Gymnasium is no longer copied",
+            dev.obs_inexact,
+            dev.reward_inexact
+        );
+    }
     dev
 }
+
+/// The fixtures were made with glibc's libm (which NumPy calls for `pow`, `powf`, `sin`, `cos`);
+/// with the same libm the replay is bit-exact, so any inexact value there is a regression (e.g.
+/// computing a float32 term in f64 stays far below 1e-6 but shows up here). Other libms may
+/// round `pow`/`sin`/`cos` differently, so elsewhere only the tolerances apply.
+const BIT_EXACT_PLATFORM: bool = cfg!(all(target_os = "linux", target_env = "gnu"));
 
 #[test]
 fn pendulum_matches_gymnasium() {
@@ -145,19 +168,31 @@ fn mountain_car_matches_gymnasium() {
 #[test]
 fn fixtures_exercise_termination_truncation_and_clipping() {
     let mc = load("MountainCarContinuous-v0");
-    let ends = |f: &Fixture, pick: fn(&Episode) -> bool| f.episodes.iter().filter(|e| pick(e)).count();
-    assert!(ends(&mc, |e| *e.terminated.last().unwrap()) >= 1, "no MountainCar episode reaches the goal");
-    assert!(ends(&mc, |e| *e.truncated.last().unwrap()) >= 1, "no MountainCar episode is truncated");
-    let hits_left_wall = mc
-        .episodes
-        .iter()
-        .any(|e| e.obs[1..].iter().any(|o| o[0] == -1.2f32 as f64 && o[1] == 0.0));
+    let ends =
+        |f: &Fixture, pick: fn(&Episode) -> bool| f.episodes.iter().filter(|e| pick(e)).count();
+    assert!(
+        ends(&mc, |e| *e.terminated.last().unwrap()) >= 1,
+        "no MountainCar episode reaches the goal"
+    );
+    assert!(
+        ends(&mc, |e| *e.truncated.last().unwrap()) >= 1,
+        "no MountainCar episode is truncated"
+    );
+    let hits_left_wall = mc.episodes.iter().any(|e| {
+        e.obs[1..]
+            .iter()
+            .any(|o| o[0] == -1.2f32 as f64 && o[1] == 0.0)
+    });
     assert!(hits_left_wall, "no MountainCar episode hits the left wall");
     let pend = load("Pendulum-v1");
     assert!(ends(&pend, |e| *e.truncated.last().unwrap()) == pend.episodes.len());
     for f in [&mc, &pend] {
         let high = make(&f.env_id).unwrap().action_space().high[0] as f64;
-        let clipped = f.episodes.iter().flat_map(|e| &e.actions).any(|a| a[0].abs() > high);
+        let clipped = f
+            .episodes
+            .iter()
+            .flat_map(|e| &e.actions)
+            .any(|a| a[0].abs() > high);
         assert!(clipped, "{}: no action outside the bounds", f.env_id);
     }
 }
@@ -238,7 +273,10 @@ fn reset_to_rejects_a_wrong_state_length() {
         assert_eq!(env.state_dim(), 2);
     }
     let err = Pendulum::new().reset_to(&[1.0], &mut [0.0; 3]).unwrap_err();
-    assert_eq!(err.to_string(), "Pendulum-v1: state has 1 values, expected 2 (theta,thetadot)");
+    assert_eq!(
+        err.to_string(),
+        "Pendulum-v1: state has 1 values, expected 2 (theta,thetadot)"
+    );
 }
 
 #[test]
@@ -282,14 +320,23 @@ fn reset_draws_from_gymnasiums_start_distribution() {
         thd.push(s[1]);
     }
     let (mean, min, max) = summary(&th);
-    assert!((-PI..PI).contains(&min) && (-PI..PI).contains(&max), "theta in [-pi, pi)");
-    assert!(min < -PI + 0.01 && max > PI - 0.01, "theta covers [-pi, pi)");
+    assert!(
+        (-PI..PI).contains(&min) && (-PI..PI).contains(&max),
+        "theta in [-pi, pi)"
+    );
+    assert!(
+        min < -PI + 0.01 && max > PI - 0.01,
+        "theta covers [-pi, pi)"
+    );
     // sd of U(-pi, pi) is pi/sqrt(3) ~ 1.81; the mean's sd over n draws is ~0.013.
     assert!(mean.abs() < 0.06, "theta mean {mean}");
     let var = th.iter().map(|x| x * x).sum::<f64>() / n as f64;
     assert!((var - PI * PI / 3.0).abs() < 0.1, "theta variance {var}");
     let (mean, min, max) = summary(&thd);
-    assert!(min >= -1.0 && max < 1.0 && min < -0.99 && max > 0.99, "thetadot in [-1, 1)");
+    assert!(
+        min >= -1.0 && max < 1.0 && min < -0.99 && max > 0.99,
+        "thetadot in [-1, 1)"
+    );
     assert!(mean.abs() < 0.02, "thetadot mean {mean}");
 
     // MountainCar: position ~ U(-0.6, -0.4), velocity = 0.
@@ -304,7 +351,10 @@ fn reset_draws_from_gymnasiums_start_distribution() {
         pos.push(s[0]);
     }
     let (mean, min, max) = summary(&pos);
-    assert!(min >= -0.6 && max < -0.4 && min < -0.599 && max > -0.401, "position in [-0.6, -0.4)");
+    assert!(
+        min >= -0.6 && max < -0.4 && min < -0.599 && max > -0.401,
+        "position in [-0.6, -0.4)"
+    );
     assert!((mean + 0.5).abs() < 0.002, "position mean {mean}");
 }
 
@@ -319,7 +369,10 @@ fn make_builds_every_known_id_and_rejects_others() {
         (env.observation_space().clone(), env.action_space().clone())
     };
     let (obs, act) = spaces("Pendulum-v1");
-    assert_eq!((obs.low, obs.high), (vec![-1.0, -1.0, -8.0], vec![1.0, 1.0, 8.0]));
+    assert_eq!(
+        (obs.low, obs.high),
+        (vec![-1.0, -1.0, -8.0], vec![1.0, 1.0, 8.0])
+    );
     assert_eq!((act.low, act.high), (vec![-2.0], vec![2.0]));
     let (obs, act) = spaces("MountainCarContinuous-v0");
     assert_eq!((obs.low, obs.high), (vec![-1.2, -0.07], vec![0.6, 0.07]));
@@ -332,7 +385,9 @@ fn make_builds_every_known_id_and_rejects_others() {
                 assert_eq!(err, EnvError::UnknownEnv(bad.to_string()));
                 assert_eq!(
                     err.to_string(),
-                    format!("unknown environment '{bad}'; known: Pendulum-v1, MountainCarContinuous-v0")
+                    format!(
+                        "unknown environment '{bad}'; known: Pendulum-v1, MountainCarContinuous-v0"
+                    )
                 );
             }
         }

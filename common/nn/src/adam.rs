@@ -97,7 +97,10 @@ impl Adam {
 
     /// Apply `decay` to the parameters in `range` (ranges must not overlap).
     pub fn set_decay(&mut self, range: Range<usize>, decay: WeightDecay) {
-        assert!(range.end <= self.state.m.len(), "decay range outside the parameters");
+        assert!(
+            range.end <= self.state.m.len(),
+            "decay range outside the parameters"
+        );
         assert!(
             self.decay
                 .iter()
@@ -115,8 +118,16 @@ impl Adam {
 
     /// Replace moments and step count (checkpoint restore).
     pub fn set_state(&mut self, state: AdamState) {
-        assert_eq!(state.m.len(), self.state.m.len(), "Adam state size mismatch");
-        assert_eq!(state.v.len(), self.state.v.len(), "Adam state size mismatch");
+        assert_eq!(
+            state.m.len(),
+            self.state.m.len(),
+            "Adam state size mismatch"
+        );
+        assert_eq!(
+            state.v.len(),
+            self.state.v.len(),
+            "Adam state size mismatch"
+        );
         self.state = state;
     }
 
@@ -136,7 +147,14 @@ impl Adam {
             params.len()..params.len(),
             WeightDecay::None,
         ))) {
-            self.update(params, grads, start..range.start, WeightDecay::None, step_size, bc2_sqrt);
+            self.update(
+                params,
+                grads,
+                start..range.start,
+                WeightDecay::None,
+                step_size,
+                bc2_sqrt,
+            );
             self.update(params, grads, range.clone(), wd, step_size, bc2_sqrt);
             start = range.end;
         }
@@ -231,7 +249,11 @@ mod tests {
         assert_eq!(p[0], 1.0);
         assert!((p[1] as f64 - l2).abs() < 1e-6, "{} vs {l2}", p[1]);
         assert!((p[2] as f64 - dec).abs() < 1e-6, "{} vs {dec}", p[2]);
-        assert!((p[1] - 0.97).abs() < 1e-4, "L2 under Adam moves ~lr per step: {}", p[1]);
+        assert!(
+            (p[1] - 0.97).abs() < 1e-4,
+            "L2 under Adam moves ~lr per step: {}",
+            p[1]
+        );
         assert!((p[2] - 0.995f32.powi(3)).abs() < 1e-6);
     }
 }

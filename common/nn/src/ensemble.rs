@@ -71,8 +71,12 @@ impl EnsembleMlp {
         cache.ensure(self, batch);
         for e in 0..self.members {
             let xe = &x[e * batch * n_in..(e + 1) * batch * n_in];
-            self.mlp
-                .forward(&params[self.member_range(e)], xe, batch, &mut cache.members[e]);
+            self.mlp.forward(
+                &params[self.member_range(e)],
+                xe,
+                batch,
+                &mut cache.members[e],
+            );
         }
     }
 

@@ -162,7 +162,11 @@ pub enum ParamLoadError {
 impl ParamFile {
     /// Package `params` written for `layout`.
     pub fn new(layout: &ParamLayout, params: &[f32]) -> Self {
-        assert_eq!(layout.len(), params.len(), "params do not match their layout");
+        assert_eq!(
+            layout.len(),
+            params.len(),
+            "params do not match their layout"
+        );
         Self {
             version: PARAM_FILE_VERSION,
             layout_hash: layout.hash(),
@@ -251,7 +255,10 @@ mod tests {
         let err = ParamFile::from_bytes(&bytes, &layout(5)).unwrap_err();
         let msg = err.to_string();
         assert!(matches!(err, ParamLoadError::LayoutMismatch { .. }));
-        assert!(msg.contains("l0.w [3, 5]") && msg.contains("l0.w [3, 4]"), "{msg}");
+        assert!(
+            msg.contains("l0.w [3, 5]") && msg.contains("l0.w [3, 4]"),
+            "{msg}"
+        );
     }
 
     #[test]

@@ -28,7 +28,10 @@ pub struct Mlp {
 impl Mlp {
     /// An MLP with layer widths `dims = [in, h_1, ..., out]`.
     pub fn new(dims: &[usize], hidden: Activation, output: Activation) -> Self {
-        assert!(dims.len() >= 2, "an MLP needs at least an input and an output width");
+        assert!(
+            dims.len() >= 2,
+            "an MLP needs at least an input and an output width"
+        );
         assert!(dims.iter().all(|&d| d > 0), "layer widths must be positive");
         let mut layout = ParamLayout::new();
         let (mut weights, mut biases) = (Vec::new(), Vec::new());
@@ -111,7 +114,10 @@ impl Mlp {
         cache: &'c mut MlpCache,
     ) -> &'c [f32] {
         debug_assert_eq!(params.len(), self.num_params());
-        assert!(x.len() >= batch * self.in_dim(), "input shorter than batch x in_dim");
+        assert!(
+            x.len() >= batch * self.in_dim(),
+            "input shorter than batch x in_dim"
+        );
         cache.ensure(self, batch);
         for l in 0..self.num_layers() {
             let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
@@ -155,7 +161,11 @@ impl Mlp {
         let n_layers = self.num_layers();
         assert!(d_out.len() >= batch * self.out_dim());
         if let Some(g) = grads.as_deref() {
-            assert_eq!(g.len(), self.num_params(), "grads must match the parameter layout");
+            assert_eq!(
+                g.len(),
+                self.num_params(),
+                "grads must match the parameter layout"
+            );
         }
         let mut gbuf = [
             std::mem::take(&mut cache.grad[0]),
@@ -169,7 +179,7 @@ impl Mlp {
             // Ping-pong: layer l writes ∂L/∂a_{l−1} into one buffer while reading ∂L/∂a_l
             // from the other, which the layer above wrote.
             let (b0, b1) = gbuf.split_at_mut(1);
-            let (read, write) = if (n_layers - 1 - l) % 2 == 0 {
+            let (read, write) = if (n_layers - 1 - l).is_multiple_of(2) {
                 (&b1[0], &mut b0[0])
             } else {
                 (&b0[0], &mut b1[0])

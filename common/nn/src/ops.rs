@@ -11,7 +11,10 @@ pub fn polyak(target: &mut [f32], source: &[f32], tau: f32) {
 
 /// Euclidean norm, accumulated in f64.
 pub fn l2_norm(x: &[f32]) -> f32 {
-    x.iter().map(|&v| (v as f64) * (v as f64)).sum::<f64>().sqrt() as f32
+    x.iter()
+        .map(|&v| (v as f64) * (v as f64))
+        .sum::<f64>()
+        .sqrt() as f32
 }
 
 /// Scale `grads` so that their norm is at most `max_norm`; returns the norm before clipping

@@ -21,14 +21,21 @@ fn randn(n: usize, seed: u64, scale: f32) -> Vec<f32> {
 
 /// Compare analytic and numeric derivatives; returns the worst relative error.
 fn compare(what: &str, analytic: &[f32], numeric: &[f64]) -> f64 {
-    let scale = numeric.iter().map(|v| v.abs()).fold(0.0, f64::max).max(1e-3);
+    let scale = numeric
+        .iter()
+        .map(|v| v.abs())
+        .fold(0.0, f64::max)
+        .max(1e-3);
     let mut worst = 0.0f64;
     for (i, (&a, &n)) in analytic.iter().zip(numeric).enumerate() {
         let err = (a as f64 - n).abs() / (scale * 0.1 + n.abs());
         if err > worst {
             worst = err;
         }
-        assert!(err < TOL, "{what}[{i}]: analytic {a} vs numeric {n} (rel err {err:.3e})");
+        assert!(
+            err < TOL,
+            "{what}[{i}]: analytic {a} vs numeric {n} (rel err {err:.3e})"
+        );
     }
     worst
 }
@@ -37,7 +44,11 @@ fn check_mlp(dims: &[usize], hidden: Activation, output: Activation, eps: f32, s
     let net = Mlp::new(dims, hidden, output);
     let batch = 3;
     let mut params = vec![0.0; net.num_params()];
-    net.init(&mut params, Init::TorchDefault, &mut stream(seed, "init", 0));
+    net.init(
+        &mut params,
+        Init::TorchDefault,
+        &mut stream(seed, "init", 0),
+    );
     let x = randn(batch * net.in_dim(), seed, 1.0);
     let c = randn(batch * net.out_dim(), seed + 1, 1.0);
     let mut cache = MlpCache::new(&net, batch);
@@ -73,12 +84,21 @@ fn check_mlp(dims: &[usize], hidden: Activation, output: Activation, eps: f32, s
     let name = format!("{dims:?} {hidden:?}/{output:?}");
     compare(&format!("{name} dθ"), &grads, &numeric_params);
     compare(&format!("{name} dx"), &dx, &numeric_x);
-    assert!(grads.iter().any(|&g| g != 0.0), "all-zero gradient is not a test");
+    assert!(
+        grads.iter().any(|&g| g != 0.0),
+        "all-zero gradient is not a test"
+    );
 }
 
 #[test]
 fn identity_mlp_gradients_match_finite_differences() {
-    check_mlp(&[4, 5, 3], Activation::Identity, Activation::Identity, 1e-2, 1);
+    check_mlp(
+        &[4, 5, 3],
+        Activation::Identity,
+        Activation::Identity,
+        1e-2,
+        1,
+    );
 }
 
 #[test]
@@ -100,7 +120,13 @@ fn tanh_mlp_gradients_match_finite_differences() {
 #[test]
 fn deep_mixed_mlp_gradients_match_finite_differences() {
     // Model-like: SiLU hidden layers, linear output.
-    check_mlp(&[5, 7, 7, 7, 7, 4], Activation::Silu, Activation::Identity, 3e-3, 5);
+    check_mlp(
+        &[5, 7, 7, 7, 7, 4],
+        Activation::Silu,
+        Activation::Identity,
+        3e-3,
+        5,
+    );
     // Policy-like: ReLU hidden layers, tanh output.
     check_mlp(&[3, 8, 8, 2], Activation::Relu, Activation::Tanh, 1e-3, 6);
 }
@@ -113,7 +139,11 @@ fn ensemble_gradients_match_finite_differences_and_members_are_independent() {
         Mlp::new(&[3, 5, 5, 2], Activation::Silu, Activation::Identity),
     );
     let mut params = vec![0.0; ens.num_params()];
-    ens.init(&mut params, Init::TruncatedNormal, &mut stream(9, "init", 0));
+    ens.init(
+        &mut params,
+        Init::TruncatedNormal,
+        &mut stream(9, "init", 0),
+    );
     // Non-zero biases so bias gradients are exercised away from the init.
     params.iter_mut().for_each(|p| *p += 0.05);
     let x = randn(members * batch * 3, 10, 1.0);
@@ -122,7 +152,12 @@ fn ensemble_gradients_match_finite_differences_and_members_are_independent() {
         let mut cache = EnsembleCache::new(&ens, batch);
         ens.forward(p, x, batch, &mut cache);
         (0..members)
-            .map(|e| loss(cache.output(&ens, e), &c[e * batch * 2..(e + 1) * batch * 2]))
+            .map(|e| {
+                loss(
+                    cache.output(&ens, e),
+                    &c[e * batch * 2..(e + 1) * batch * 2],
+                )
+            })
             .sum::<f64>()
     };
     let mut cache = EnsembleCache::new(&ens, batch);
@@ -143,7 +178,9 @@ fn ensemble_gradients_match_finite_differences_and_members_are_independent() {
     let np: Vec<f64> = (0..params.len())
         .map(|i| fd(&total, &params, &x, i, true))
         .collect();
-    let nx: Vec<f64> = (0..x.len()).map(|i| fd(&total, &params, &x, i, false)).collect();
+    let nx: Vec<f64> = (0..x.len())
+        .map(|i| fd(&total, &params, &x, i, false))
+        .collect();
     compare("ensemble dθ", &grads, &np);
     compare("ensemble dx", &dx, &nx);
 
@@ -172,7 +209,14 @@ fn backward_without_param_grads_gives_the_same_input_gradient() {
     net.forward(&params, &x, 2, &mut cache);
     let (mut dx1, mut dx2) = (vec![0.0; 8], vec![0.0; 8]);
     let mut grads = vec![0.0; net.num_params()];
-    net.backward(&params, &x, &mut cache, &[1.0, -1.0], Some(&mut grads), Some(&mut dx1));
+    net.backward(
+        &params,
+        &x,
+        &mut cache,
+        &[1.0, -1.0],
+        Some(&mut grads),
+        Some(&mut dx1),
+    );
     net.backward(&params, &x, &mut cache, &[1.0, -1.0], None, Some(&mut dx2));
     assert_eq!(dx1, dx2);
 }

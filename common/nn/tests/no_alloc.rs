@@ -29,7 +29,11 @@ fn forward_backward_and_adam_do_not_allocate_in_steady_state() {
     let net = Mlp::new(&[23, 256, 256, 1], Activation::Relu, Activation::Identity);
     let ens = EnsembleMlp::new(
         7,
-        Mlp::new(&[23, 200, 200, 200, 200, 36], Activation::Silu, Activation::Identity),
+        Mlp::new(
+            &[23, 200, 200, 200, 200, 36],
+            Activation::Silu,
+            Activation::Identity,
+        ),
     );
     let batch = 256;
     let mut rng = stream(0, "alloc", 0);
@@ -62,5 +66,8 @@ fn forward_backward_and_adam_do_not_allocate_in_steady_state() {
         run(&mut p);
     }
     let allocs = ALLOCS.load(Ordering::Relaxed) - before;
-    assert_eq!(allocs, 0, "{allocs} allocations in 3 steady-state iterations");
+    assert_eq!(
+        allocs, 0,
+        "{allocs} allocations in 3 steady-state iterations"
+    );
 }

@@ -1,1 +1,38 @@
-fn main() {}
+//! `mbpo`: the command-line entry point. It parses the command line, sets up logging and calls
+//! the command's `run`; everything testable lives in the `common/` crates.
+
+mod bench;
+mod cli;
+mod env_cmd;
+
+use clap::Parser;
+use std::process::ExitCode;
+
+fn main() -> ExitCode {
+    let cli = cli::Cli::parse();
+    init_logging();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: cli::Cli) -> anyhow::Result<()> {
+    match cli.command {
+        cli::Command::Env(cmd) => env_cmd::run(cmd),
+        cli::Command::Bench(cmd) => bench::run(cmd),
+    }
+}
+
+/// Logs go to stderr (stdout carries machine-readable output); `RUST_LOG` overrides the level.
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .init();
+}

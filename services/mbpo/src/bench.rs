@@ -1,0 +1,67 @@
+//! `mbpo bench ...`: micro-benchmarks printing one JSON object per line on stdout.
+
+use crate::cli::{BenchCommand, BenchTime};
+use mbpo_core::rng::uniform_range_f32;
+use mbpo_envs::{make, ENV_IDS};
+use serde_json::json;
+use std::time::{Duration, Instant};
+
+pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+    match cmd {
+        BenchCommand::Gemm(t) => gemm(&t),
+        BenchCommand::Env(t) => env(&t),
+    }
+}
+
+/// The GEMM shapes of the networks: (m, k, n) = (batch, fan-in, fan-out).
+pub const GEMM_SHAPES: &[(usize, usize, usize)] =
+    &[(256, 256, 256), (256, 23, 256), (256, 200, 200)];
+
+fn gemm(t: &BenchTime) -> anyhow::Result<()> {
+    for &(m, k, n) in GEMM_SHAPES {
+        let gflops = mbpo_nn::bench::gemm_gflops(m, k, n, Duration::from_secs_f64(t.seconds));
+        println!(
+            "{}",
+            json!({"bench": "gemm", "m": m, "k": k, "n": n, "threads": 1,
+                   "gflops": (gflops * 10.0).round() / 10.0})
+        );
+    }
+    Ok(())
+}
+
+fn env(t: &BenchTime) -> anyhow::Result<()> {
+    for id in ENV_IDS {
+        let mut env = make(id)?;
+        let mut rng = mbpo_core::stream(0, "bench.env", 0);
+        let mut obs = vec![0.0f32; env.obs_dim()];
+        let space = env.action_space().clone();
+        // Pre-drawn actions so the figure is the environment's cost, not the RNG's.
+        let actions: Vec<f32> = (0..4096 * space.dim())
+            .map(|i| {
+                let d = i % space.dim();
+                uniform_range_f32(&mut rng, space.low[d], space.high[d])
+            })
+            .collect();
+        env.reset(&mut rng, &mut obs);
+        let (mut steps, mut episodes) = (0u64, 0u64);
+        let start = Instant::now();
+        let budget = Duration::from_secs_f64(t.seconds);
+        while start.elapsed() < budget {
+            for a in actions.chunks_exact(space.dim()) {
+                let s = env.step(a, &mut obs);
+                if s.terminated || s.truncated {
+                    env.reset(&mut rng, &mut obs);
+                    episodes += 1;
+                }
+            }
+            steps += 4096;
+        }
+        let secs = start.elapsed().as_secs_f64();
+        println!(
+            "{}",
+            json!({"bench": "env", "env": id, "steps_per_sec": (steps as f64 / secs).round(),
+                   "episodes": episodes, "threads": 1})
+        );
+    }
+    Ok(())
+}

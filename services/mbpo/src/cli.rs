@@ -1,0 +1,57 @@
+//! Command-line definitions (clap derive).
+
+use clap::{Args, Parser, Subcommand};
+
+/// MBPO (model-based policy optimization) as a pipelined multi-process system.
+#[derive(Debug, Parser)]
+#[command(name = "mbpo", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Environment tools: list environments, replay an action sequence.
+    #[command(subcommand)]
+    Env(EnvCommand),
+    /// Micro-benchmarks that print one JSON object per line.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum EnvCommand {
+    /// List the environments with their observation and action dimensions.
+    List,
+    /// Step an environment from a given state through given actions; one JSON line per step.
+    Replay(ReplayArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ReplayArgs {
+    /// Environment id, e.g. Pendulum-v1 (see `mbpo env list`).
+    #[arg(long)]
+    pub env: String,
+    /// Start state, comma-separated (Pendulum: theta,thetadot; MountainCar: position,velocity).
+    #[arg(long, allow_hyphen_values = true)]
+    pub state: String,
+    /// Actions, comma-separated, act_dim values per step.
+    #[arg(long, allow_hyphen_values = true)]
+    pub actions: String,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Single-thread faer f32 GEMM GFLOP/s for the shapes the networks use (the roofline).
+    Gemm(BenchTime),
+    /// Environment steps per second, per environment, single thread.
+    Env(BenchTime),
+}
+
+#[derive(Debug, Args)]
+pub struct BenchTime {
+    /// Seconds of measurement per case.
+    #[arg(long, default_value_t = 2.0)]
+    pub seconds: f64,
+}
