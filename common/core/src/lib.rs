@@ -4,8 +4,14 @@
 //!   `(run seed, role, index)`, never from time or process ids. The sequential reference and the
 //!   multi-process pipeline derive the same streams, which is what makes lockstep runs equal bit
 //!   for bit.
+//! * [`replay`]: the FIFO transition buffer used for real data and for MBPO's model buffer.
+//! * [`policy`]: the batched-policy interface (SAC actor, planners, uniform warm-up).
 #![warn(missing_docs)]
 
+pub mod policy;
+pub mod replay;
 pub mod rng;
 
+pub use policy::{BatchPolicy, UniformPolicy};
+pub use replay::{sample_mixed, Batch, ReplayBuffer};
 pub use rng::{stream, Rng};

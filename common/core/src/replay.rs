@@ -1,0 +1,310 @@
+//! Fixed-capacity FIFO transition storage with uniform sampling.
+//!
+//! Used for the real data D_env and for MBPO's model buffer D_model. Storage is column-wise
+//! (`obs` rows contiguous, `act` rows contiguous, ...), so a sampled batch lands directly in the
+//! row-major matrices the networks consume. When full, the oldest transition is overwritten.
+//! Sampling is uniform with replacement and allocates nothing: it writes into a caller-owned
+//! [`Batch`].
+
+use crate::rng::{index, Rng};
+
+/// A batch of transitions, row-major per field (`obs` is `len x obs_dim`, ...).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Batch {
+    /// Observation width.
+    pub obs_dim: usize,
+    /// Action width.
+    pub act_dim: usize,
+    /// Number of rows.
+    pub len: usize,
+    /// Observations s.
+    pub obs: Vec<f32>,
+    /// Actions a.
+    pub act: Vec<f32>,
+    /// Rewards r.
+    pub reward: Vec<f32>,
+    /// Next observations s'.
+    pub next_obs: Vec<f32>,
+    /// 1.0 where s' is terminal (never for time-limit truncation), else 0.0.
+    pub terminated: Vec<f32>,
+}
+
+impl Batch {
+    /// A zeroed batch of `len` rows.
+    pub fn new(obs_dim: usize, act_dim: usize, len: usize) -> Self {
+        Self {
+            obs_dim,
+            act_dim,
+            len,
+            obs: vec![0.0; len * obs_dim],
+            act: vec![0.0; len * act_dim],
+            reward: vec![0.0; len],
+            next_obs: vec![0.0; len * obs_dim],
+            terminated: vec![0.0; len],
+        }
+    }
+
+    /// Copy row `src` of `from` into row `dst` of `self`.
+    #[inline]
+    fn copy_row(&mut self, dst: usize, from: &ReplayBuffer, src: usize) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        self.obs[dst * o..(dst + 1) * o].copy_from_slice(&from.obs[src * o..(src + 1) * o]);
+        self.act[dst * a..(dst + 1) * a].copy_from_slice(&from.act[src * a..(src + 1) * a]);
+        self.reward[dst] = from.reward[src];
+        self.next_obs[dst * o..(dst + 1) * o]
+            .copy_from_slice(&from.next_obs[src * o..(src + 1) * o]);
+        self.terminated[dst] = from.terminated[src];
+    }
+}
+
+/// A ring buffer of transitions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplayBuffer {
+    obs_dim: usize,
+    act_dim: usize,
+    capacity: usize,
+    len: usize,
+    /// Slot the next push writes.
+    head: usize,
+    /// Transitions ever pushed.
+    pushed: u64,
+    obs: Vec<f32>,
+    act: Vec<f32>,
+    reward: Vec<f32>,
+    next_obs: Vec<f32>,
+    terminated: Vec<f32>,
+}
+
+impl ReplayBuffer {
+    /// An empty buffer holding at most `capacity` transitions (memory is reserved up front).
+    pub fn new(obs_dim: usize, act_dim: usize, capacity: usize) -> Self {
+        assert!(capacity > 0, "replay capacity must be positive");
+        Self {
+            obs_dim,
+            act_dim,
+            capacity,
+            len: 0,
+            head: 0,
+            pushed: 0,
+            obs: vec![0.0; capacity * obs_dim],
+            act: vec![0.0; capacity * act_dim],
+            reward: vec![0.0; capacity],
+            next_obs: vec![0.0; capacity * obs_dim],
+            terminated: vec![0.0; capacity],
+        }
+    }
+
+    /// Observation width.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+    /// Action width.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+    /// Transitions currently held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+    /// True when nothing is held.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+    /// Maximum transitions held.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+    /// Transitions ever pushed (including overwritten ones).
+    pub fn pushed(&self) -> u64 {
+        self.pushed
+    }
+
+    /// Append one transition, overwriting the oldest when full.
+    pub fn push(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        reward: f32,
+        next_obs: &[f32],
+        terminated: bool,
+    ) {
+        let (o, a, i) = (self.obs_dim, self.act_dim, self.head);
+        self.obs[i * o..(i + 1) * o].copy_from_slice(&obs[..o]);
+        self.act[i * a..(i + 1) * a].copy_from_slice(&act[..a]);
+        self.reward[i] = reward;
+        self.next_obs[i * o..(i + 1) * o].copy_from_slice(&next_obs[..o]);
+        self.terminated[i] = if terminated { 1.0 } else { 0.0 };
+        self.head = (self.head + 1) % self.capacity;
+        self.len = (self.len + 1).min(self.capacity);
+        self.pushed += 1;
+    }
+
+    /// Append the first `batch.len` rows of `batch`, in order.
+    pub fn push_batch(&mut self, batch: &Batch) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        for r in 0..batch.len {
+            self.push(
+                &batch.obs[r * o..(r + 1) * o],
+                &batch.act[r * a..(r + 1) * a],
+                batch.reward[r],
+                &batch.next_obs[r * o..(r + 1) * o],
+                batch.terminated[r] != 0.0,
+            );
+        }
+    }
+
+    /// Slot of the `i`-th oldest transition held.
+    #[inline]
+    fn slot(&self, i: usize) -> usize {
+        (self.head + self.capacity - self.len + i) % self.capacity
+    }
+
+    /// Fill `out` with `out.len` transitions drawn uniformly with replacement.
+    pub fn sample_into(&self, rng: &mut Rng, out: &mut Batch) {
+        self.sample_rows(rng, out, 0, out.len);
+    }
+
+    /// Fill rows `start..start + n` of `out` with uniform draws.
+    pub fn sample_rows(&self, rng: &mut Rng, out: &mut Batch, start: usize, n: usize) {
+        assert!(
+            !self.is_empty(),
+            "cannot sample from an empty replay buffer"
+        );
+        assert_eq!((out.obs_dim, out.act_dim), (self.obs_dim, self.act_dim));
+        for r in start..start + n {
+            // Slots 0..len are exactly the held transitions whether or not the ring wrapped.
+            let src = index(rng, self.len);
+            out.copy_row(r, self, src);
+        }
+    }
+
+    /// All held transitions, oldest first, as one batch (allocates; for model training).
+    pub fn to_batch(&self) -> Batch {
+        let mut b = Batch::new(self.obs_dim, self.act_dim, self.len);
+        for i in 0..self.len {
+            b.copy_row(i, self, self.slot(i));
+        }
+        b
+    }
+
+    /// Change the capacity, keeping the newest `min(len, capacity)` transitions in order
+    /// (MBPO reallocates its model buffer when the rollout length changes).
+    pub fn set_capacity(&mut self, capacity: usize) {
+        if capacity == self.capacity {
+            return;
+        }
+        let kept = self.len.min(capacity);
+        let old = self.to_batch();
+        let pushed = self.pushed;
+        *self = Self::new(self.obs_dim, self.act_dim, capacity);
+        let (o, a) = (self.obs_dim, self.act_dim);
+        for r in old.len - kept..old.len {
+            self.push(
+                &old.obs[r * o..(r + 1) * o],
+                &old.act[r * a..(r + 1) * a],
+                old.reward[r],
+                &old.next_obs[r * o..(r + 1) * o],
+                old.terminated[r] != 0.0,
+            );
+        }
+        self.pushed = pushed;
+    }
+}
+
+/// Fill `out` with `n_real = floor(out.len · real_ratio)` rows from `real` followed by the rest
+/// from `model` (MBPO's `_training_batch`: 12 real + 244 model rows at 256 x 0.05). Falls back to
+/// all-real while the model buffer is empty.
+pub fn sample_mixed(
+    real: &ReplayBuffer,
+    model: &ReplayBuffer,
+    real_ratio: f64,
+    rng: &mut Rng,
+    out: &mut Batch,
+) {
+    let n = out.len;
+    let n_real = if model.is_empty() {
+        n
+    } else {
+        ((n as f64) * real_ratio) as usize
+    };
+    if n_real > 0 {
+        real.sample_rows(rng, out, 0, n_real);
+    }
+    if n_real < n {
+        model.sample_rows(rng, out, n_real, n - n_real);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stream;
+
+    fn push_n(buf: &mut ReplayBuffer, from: usize, n: usize) {
+        for i in from..from + n {
+            let v = i as f32;
+            buf.push(&[v, -v], &[v * 0.5], v, &[v + 1.0, 0.0], i % 2 == 0);
+        }
+    }
+
+    #[test]
+    fn ring_overwrites_oldest_and_keeps_order() {
+        let mut b = ReplayBuffer::new(2, 1, 4);
+        push_n(&mut b, 0, 6);
+        assert_eq!((b.len(), b.pushed()), (4, 6));
+        let all = b.to_batch();
+        assert_eq!(all.reward, vec![2.0, 3.0, 4.0, 5.0]);
+        assert_eq!(all.obs, vec![2.0, -2.0, 3.0, -3.0, 4.0, -4.0, 5.0, -5.0]);
+        assert_eq!(all.terminated, vec![1.0, 0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn samples_are_rows_that_exist_and_cover_the_buffer() {
+        let mut b = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut b, 0, 11);
+        let mut out = Batch::new(2, 1, 400);
+        b.sample_into(&mut stream(1, "t", 0), &mut out);
+        let mut seen = [false; 11];
+        for r in 0..out.len {
+            let v = out.reward[r];
+            assert!((3.0..=10.0).contains(&v), "sampled an overwritten row {v}");
+            // Fields of one row stay together.
+            assert_eq!(out.obs[2 * r], v);
+            assert_eq!(out.act[r], v * 0.5);
+            assert_eq!(out.next_obs[2 * r], v + 1.0);
+            seen[v as usize] = true;
+        }
+        assert!(seen[3..].iter().all(|&s| s));
+    }
+
+    #[test]
+    fn shrinking_capacity_keeps_the_newest() {
+        let mut b = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut b, 0, 10);
+        b.set_capacity(3);
+        assert_eq!(b.to_batch().reward, vec![7.0, 8.0, 9.0]);
+        b.set_capacity(5);
+        push_n(&mut b, 10, 1);
+        assert_eq!(b.to_batch().reward, vec![7.0, 8.0, 9.0, 10.0]);
+        assert_eq!(b.pushed(), 11);
+    }
+
+    #[test]
+    fn mixed_sampling_takes_the_ratio_from_real_data() {
+        let mut real = ReplayBuffer::new(2, 1, 10);
+        let mut model = ReplayBuffer::new(2, 1, 10);
+        let mut out = Batch::new(2, 1, 256);
+        let mut rng = stream(2, "t", 0);
+        push_n(&mut real, 0, 5); // rewards 0..5
+        sample_mixed(&real, &model, 0.05, &mut rng, &mut out);
+        assert!(
+            out.reward.iter().all(|&r| r < 5.0),
+            "empty model buffer: all real"
+        );
+        push_n(&mut model, 100, 5); // rewards 100..105
+        sample_mixed(&real, &model, 0.05, &mut rng, &mut out);
+        let n_real = out.reward.iter().filter(|&&r| r < 5.0).count();
+        assert_eq!(n_real, 12);
+        assert!(out.reward[..12].iter().all(|&r| r < 5.0));
+    }
+}
