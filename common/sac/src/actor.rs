@@ -1,0 +1,328 @@
+//! The tanh-squashed Gaussian actor.
+//!
+//! The MLP maps s to `[μ, log σ_raw]` (2A outputs). With log σ = clamp(log σ_raw, min, max),
+//! σ = e^{log σ}, ε ~ N(0, I) and the reparameterised sample u = μ + σ ε, the action is a = tanh u
+//! and its log-density is
+//!
+//! ```text
+//! log π(a|s) = Σ_j [ −ε_j²/2 − log σ_j − ½ log 2π − log(1 − tanh² u_j) ]
+//! log(1 − tanh² u) = 2 (log 2 − u − softplus(−2u))        (stable form)
+//! ```
+//!
+//! For a loss L(a, log π) the backward pass uses ∂u/∂μ = 1, ∂u/∂log σ = σ ε,
+//! ∂(−log(1 − tanh² u))/∂u = 2 tanh u = 2a and ∂ log π/∂ log σ (explicit) = −1; the clamp passes
+//! no gradient outside [min, max].
+
+use mbpo_core::rng::normal_f32;
+use mbpo_core::{BatchPolicy, Rng};
+use mbpo_nn::{Activation, Init, Mlp, MlpCache, ParamLayout};
+
+const HALF_LOG_2PI: f32 = 0.918_938_5;
+const LN_2: f32 = std::f32::consts::LN_2;
+
+/// Architecture of the actor (owns no parameters).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TanhGaussianActor {
+    mlp: Mlp,
+    act_dim: usize,
+    log_std_min: f32,
+    log_std_max: f32,
+}
+
+/// Per-batch values of one actor pass, kept for the backward pass.
+#[derive(Debug, Clone, Default)]
+pub struct ActorCache {
+    mlp: MlpCache,
+    batch: usize,
+    /// Noise ε (`batch x A`).
+    pub eps: Vec<f32>,
+    /// σ (`batch x A`).
+    pub std: Vec<f32>,
+    /// Actions a = tanh u (`batch x A`).
+    pub action: Vec<f32>,
+    /// log π(a|s) per row.
+    pub log_prob: Vec<f32>,
+    /// 1 where log σ_raw was inside the clamp, else 0 (`batch x A`).
+    clamp_pass: Vec<f32>,
+    /// ∂L/∂[μ, log σ_raw] (`batch x 2A`).
+    d_out: Vec<f32>,
+}
+
+impl TanhGaussianActor {
+    /// An actor for `obs_dim` observations and `act_dim` actions with ReLU hidden layers.
+    pub fn new(
+        obs_dim: usize,
+        act_dim: usize,
+        hidden: &[usize],
+        log_std_min: f32,
+        log_std_max: f32,
+    ) -> Self {
+        let mut dims = vec![obs_dim];
+        dims.extend_from_slice(hidden);
+        dims.push(2 * act_dim);
+        Self {
+            mlp: Mlp::new(&dims, Activation::Relu, Activation::Identity),
+            act_dim,
+            log_std_min,
+            log_std_max,
+        }
+    }
+
+    /// The underlying MLP.
+    pub fn mlp(&self) -> &Mlp {
+        &self.mlp
+    }
+    /// Observation width.
+    pub fn obs_dim(&self) -> usize {
+        self.mlp.in_dim()
+    }
+    /// Action width A.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+    /// Parameter count.
+    pub fn num_params(&self) -> usize {
+        self.mlp.num_params()
+    }
+    /// Parameter names and shapes.
+    pub fn layout(&self) -> &ParamLayout {
+        self.mlp.layout()
+    }
+    /// PyTorch-default initial parameters.
+    pub fn init(&self, params: &mut [f32], rng: &mut Rng) {
+        self.mlp.init(params, Init::TorchDefault, rng);
+    }
+
+    /// A cache sized for `batch` rows.
+    pub fn cache(&self, batch: usize) -> ActorCache {
+        let a = batch * self.act_dim;
+        ActorCache {
+            mlp: MlpCache::new(&self.mlp, batch),
+            batch,
+            eps: vec![0.0; a],
+            std: vec![0.0; a],
+            action: vec![0.0; a],
+            log_prob: vec![0.0; batch],
+            clamp_pass: vec![0.0; a],
+            d_out: vec![0.0; 2 * a],
+        }
+    }
+
+    /// Sample a ~ π(·|s) for `batch` rows (reparameterised, noise from `rng`), or the
+    /// deterministic a = tanh μ when `rng` is `None`. Results are in `cache.action` and
+    /// `cache.log_prob`.
+    pub fn sample(
+        &self,
+        params: &[f32],
+        obs: &[f32],
+        batch: usize,
+        cache: &mut ActorCache,
+        mut rng: Option<&mut Rng>,
+    ) {
+        if cache.eps.len() < batch * self.act_dim {
+            *cache = self.cache(batch);
+        }
+        cache.batch = batch;
+        let a_dim = self.act_dim;
+        let out = self.mlp.forward(params, obs, batch, &mut cache.mlp);
+        for r in 0..batch {
+            let row = &out[r * 2 * a_dim..(r + 1) * 2 * a_dim];
+            let mut log_prob = 0.0f32;
+            for j in 0..a_dim {
+                let i = r * a_dim + j;
+                let raw = row[a_dim + j];
+                let log_std = raw.clamp(self.log_std_min, self.log_std_max);
+                let std = log_std.exp();
+                let eps = match rng.as_deref_mut() {
+                    Some(g) => normal_f32(g),
+                    None => 0.0,
+                };
+                let u = row[j] + std * eps;
+                let a = u.tanh();
+                log_prob += -0.5 * eps * eps
+                    - log_std
+                    - HALF_LOG_2PI
+                    - 2.0 * (LN_2 - u - softplus(-2.0 * u));
+                cache.eps[i] = eps;
+                cache.std[i] = std;
+                cache.action[i] = a;
+                cache.clamp_pass[i] = if raw >= self.log_std_min && raw <= self.log_std_max {
+                    1.0
+                } else {
+                    0.0
+                };
+            }
+            cache.log_prob[r] = log_prob;
+        }
+    }
+
+    /// Backward pass of the last [`TanhGaussianActor::sample`] for a loss L with
+    /// `d_action` = ∂L/∂a (`batch x A`) and `d_log_prob` = ∂L/∂log π per row; writes ∂L/∂θ.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        obs: &[f32],
+        cache: &mut ActorCache,
+        d_action: &[f32],
+        d_log_prob: &[f32],
+        grads: &mut [f32],
+    ) {
+        let a_dim = self.act_dim;
+        for r in 0..cache.batch {
+            let dlp = d_log_prob[r];
+            for j in 0..a_dim {
+                let i = r * a_dim + j;
+                let a = cache.action[i];
+                // ∂L/∂u through tanh and through the squashing correction of log π.
+                let du = d_action[i] * (1.0 - a * a) + dlp * 2.0 * a;
+                cache.d_out[r * 2 * a_dim + j] = du;
+                cache.d_out[r * 2 * a_dim + a_dim + j] =
+                    (du * cache.std[i] * cache.eps[i] - dlp) * cache.clamp_pass[i];
+            }
+        }
+        self.mlp
+            .backward(params, obs, &mut cache.mlp, &cache.d_out, Some(grads), None);
+    }
+}
+
+/// softplus(x) = log(1 + eˣ), stable for large |x|.
+#[inline]
+fn softplus(x: f32) -> f32 {
+    x.max(0.0) + (-x.abs()).exp().ln_1p()
+}
+
+/// An actor with its own parameters, usable wherever a [`BatchPolicy`] is needed (actors,
+/// model rollouts, evaluation).
+#[derive(Debug, Clone)]
+pub struct ActorPolicy {
+    /// Architecture.
+    pub actor: TanhGaussianActor,
+    /// Flat parameters.
+    pub params: Vec<f32>,
+    /// Act with tanh μ instead of sampling (evaluation).
+    pub deterministic: bool,
+    cache: ActorCache,
+}
+
+impl ActorPolicy {
+    /// A policy from an actor and its parameters.
+    pub fn new(actor: TanhGaussianActor, params: Vec<f32>, deterministic: bool) -> Self {
+        assert_eq!(params.len(), actor.num_params());
+        let cache = actor.cache(1);
+        Self {
+            actor,
+            params,
+            deterministic,
+            cache,
+        }
+    }
+}
+
+impl BatchPolicy for ActorPolicy {
+    fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        let rng = if self.deterministic { None } else { Some(rng) };
+        self.actor
+            .sample(&self.params, obs, batch, &mut self.cache, rng);
+        let n = batch * self.actor.act_dim();
+        actions[..n].copy_from_slice(&self.cache.action[..n]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_core::stream;
+
+    /// log π(a|s) by the change-of-variables formula in f64: log N(u; μ, σ) − log(1 − tanh² u).
+    fn reference_log_prob(mu: &[f64], log_std: &[f64], u: &[f64]) -> f64 {
+        let mut lp = 0.0;
+        for j in 0..mu.len() {
+            let std = log_std[j].exp();
+            let z = (u[j] - mu[j]) / std;
+            lp += -0.5 * z * z - log_std[j] - 0.5 * (2.0 * std::f64::consts::PI).ln();
+            lp -= (1.0 - u[j].tanh().powi(2)).ln();
+        }
+        lp
+    }
+
+    #[test]
+    fn log_prob_matches_the_change_of_variables_formula() {
+        let actor = TanhGaussianActor::new(3, 2, &[16], -20.0, 2.0);
+        let mut params = vec![0.0; actor.num_params()];
+        actor.init(&mut params, &mut stream(1, "a", 0));
+        let obs: Vec<f32> = (0..3 * 50)
+            .map(|i| ((i * 7 % 11) as f32 - 5.0) * 0.3)
+            .collect();
+        let mut cache = actor.cache(50);
+        actor.sample(&params, &obs, 50, &mut cache, Some(&mut stream(1, "e", 0)));
+        let mut mlp_cache = MlpCache::new(actor.mlp(), 50);
+        let out = actor
+            .mlp()
+            .forward(&params, &obs, 50, &mut mlp_cache)
+            .to_vec();
+        for r in 0..50 {
+            let mu: Vec<f64> = out[r * 4..r * 4 + 2].iter().map(|&v| v as f64).collect();
+            let ls: Vec<f64> = out[r * 4 + 2..r * 4 + 4]
+                .iter()
+                .map(|&v| v as f64)
+                .collect();
+            let u: Vec<f64> = (0..2)
+                .map(|j| mu[j] + ls[j].exp() * cache.eps[r * 2 + j] as f64)
+                .collect();
+            let want = reference_log_prob(&mu, &ls, &u);
+            let got = cache.log_prob[r] as f64;
+            assert!(
+                (got - want).abs() < 1e-4 * (1.0 + want.abs()),
+                "row {r}: {got} vs {want}"
+            );
+            for j in 0..2 {
+                assert!((cache.action[r * 2 + j] as f64 - u[j].tanh()).abs() < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn squashed_density_integrates_to_one() {
+        // ∫ π(a) da over (−1, 1) for a 1-D tanh-Gaussian, via the stable formula in f32.
+        let (mu, log_std) = (0.7f32, -0.3f32);
+        let n = 200_000;
+        let mut total = 0.0f64;
+        for i in 0..n {
+            let a = -1.0 + (i as f64 + 0.5) * 2.0 / n as f64;
+            let u = a.atanh() as f32;
+            let eps = (u - mu) / log_std.exp();
+            let lp =
+                -0.5 * eps * eps - log_std - HALF_LOG_2PI - 2.0 * (LN_2 - u - softplus(-2.0 * u));
+            total += (lp as f64).exp() * 2.0 / n as f64;
+        }
+        assert!((total - 1.0).abs() < 1e-3, "integral {total}");
+    }
+
+    #[test]
+    fn deterministic_action_is_tanh_mu_and_clamp_blocks_gradient() {
+        let actor = TanhGaussianActor::new(2, 1, &[4], -1.0, 0.5);
+        let mut params = vec![0.0; actor.num_params()];
+        // Output bias: μ = 0.3, log σ_raw = 5 (above the clamp).
+        let b = actor.mlp().bias_range(1);
+        params[b.start] = 0.3;
+        params[b.start + 1] = 5.0;
+        let mut cache = actor.cache(1);
+        actor.sample(&params, &[0.0, 0.0], 1, &mut cache, None);
+        assert!((cache.action[0] - 0.3f32.tanh()).abs() < 1e-7);
+        actor.sample(
+            &params,
+            &[0.0, 0.0],
+            1,
+            &mut cache,
+            Some(&mut stream(0, "c", 0)),
+        );
+        assert!(
+            (cache.std[0] - 0.5f32.exp()).abs() < 1e-6,
+            "log σ is clamped to 0.5"
+        );
+        let mut grads = vec![0.0; actor.num_params()];
+        actor.backward(&params, &[0.0, 0.0], &mut cache, &[1.0], &[1.0], &mut grads);
+        assert_eq!(grads[b.start + 1], 0.0, "no gradient into a clamped log σ");
+        assert_ne!(grads[b.start], 0.0);
+    }
+}

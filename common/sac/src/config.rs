@@ -1,0 +1,53 @@
+//! SAC hyper-parameters. Defaults are softlearning's SAC v2 as used by MBPO
+//! (../shared/notes/mbpo-reference.md section 3).
+
+use serde::{Deserialize, Serialize};
+
+/// Hyper-parameters of the SAC update.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SacConfig {
+    /// Discount γ.
+    pub gamma: f32,
+    /// Polyak rate τ of the target critics (updated every step).
+    pub tau: f32,
+    /// Actor learning rate.
+    pub actor_lr: f32,
+    /// Critic learning rate.
+    pub critic_lr: f32,
+    /// Temperature learning rate.
+    pub alpha_lr: f32,
+    /// Minibatch size.
+    pub batch_size: usize,
+    /// Hidden widths of actor and critics (ReLU).
+    pub hidden: Vec<usize>,
+    /// Initial temperature α (softlearning: 1.0).
+    pub init_alpha: f32,
+    /// Learn α to hold the entropy at `target_entropy` (else α stays fixed).
+    pub autotune_alpha: bool,
+    /// Target entropy H̄; `None` means −dim(A).
+    pub target_entropy: Option<f32>,
+    /// Lower clamp of the actor's log σ.
+    pub log_std_min: f32,
+    /// Upper clamp of the actor's log σ.
+    pub log_std_max: f32,
+}
+
+impl Default for SacConfig {
+    fn default() -> Self {
+        Self {
+            gamma: 0.99,
+            tau: 5e-3,
+            actor_lr: 3e-4,
+            critic_lr: 3e-4,
+            alpha_lr: 3e-4,
+            batch_size: 256,
+            hidden: vec![256, 256],
+            init_alpha: 1.0,
+            autotune_alpha: true,
+            target_entropy: None,
+            log_std_min: -20.0,
+            log_std_max: 2.0,
+        }
+    }
+}
