@@ -178,13 +178,37 @@ impl Adam {
             WeightDecay::L2(l) => (l, 1.0),
             WeightDecay::Decoupled(l) => (0.0, 1.0 - c.lr * l),
         };
-        for i in 0..p.len() {
-            let gi = g[i] + l2 * p[i];
-            m[i] = c.beta1 * m[i] + (1.0 - c.beta1) * gi;
-            v[i] = c.beta2 * v[i] + (1.0 - c.beta2) * gi * gi;
-            let denom = v[i].sqrt() / bc2_sqrt + c.eps;
-            p[i] = p[i] * decoupled - step_size * m[i] / denom;
-        }
+        let k = AdamKernel {
+            c,
+            l2,
+            decoupled,
+            step_size,
+            bc2_sqrt,
+        };
+        crate::simd::dispatch!(adam_kernel(&k, p, g, m, v));
+    }
+}
+
+/// The per-element constants of one Adam step.
+struct AdamKernel {
+    c: AdamConfig,
+    l2: f32,
+    decoupled: f32,
+    step_size: f32,
+    bc2_sqrt: f32,
+}
+
+#[inline(always)]
+fn adam_kernel(k: &AdamKernel, p: &mut [f32], g: &[f32], m: &mut [f32], v: &mut [f32]) {
+    let c = k.c;
+    let n = p.len();
+    let (g, m, v) = (&g[..n], &mut m[..n], &mut v[..n]);
+    for i in 0..n {
+        let gi = g[i] + k.l2 * p[i];
+        m[i] = c.beta1 * m[i] + (1.0 - c.beta1) * gi;
+        v[i] = c.beta2 * v[i] + (1.0 - c.beta2) * gi * gi;
+        let denom = v[i].sqrt() / k.bc2_sqrt + c.eps;
+        p[i] = p[i] * k.decoupled - k.step_size * m[i] / denom;
     }
 }
 

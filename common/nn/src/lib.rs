@@ -26,6 +26,7 @@ pub mod init;
 pub mod layout;
 pub mod mlp;
 pub mod ops;
+mod simd;
 
 pub use activation::Activation;
 pub use adam::{Adam, AdamConfig, AdamState, WeightDecay};

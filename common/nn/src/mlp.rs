@@ -90,6 +90,32 @@ impl Mlp {
         }
     }
 
+    /// Multiply-add flops (2 per MAC) of the GEMMs of one forward pass on `batch` rows.
+    pub fn forward_flops(&self, batch: usize) -> u64 {
+        self.dims
+            .windows(2)
+            .map(|w| 2 * (batch * w[0] * w[1]) as u64)
+            .sum()
+    }
+
+    /// GEMM flops of one [`Mlp::backward`] on `batch` rows: `∂W` for every layer when
+    /// `param_grads`, `∂a` for every layer above the input, and `∂x` when `input_grad`.
+    pub fn backward_flops(&self, batch: usize, param_grads: bool, input_grad: bool) -> u64 {
+        let per_layer: Vec<u64> = self
+            .dims
+            .windows(2)
+            .map(|w| 2 * (batch * w[0] * w[1]) as u64)
+            .collect();
+        let dw: u64 = if param_grads {
+            per_layer.iter().sum()
+        } else {
+            0
+        };
+        let dx: u64 =
+            per_layer[1..].iter().sum::<u64>() + if input_grad { per_layer[0] } else { 0 };
+        dw + dx
+    }
+
     /// Draw initial parameters layer by layer from `rng`.
     pub fn init(&self, params: &mut [f32], init: Init, rng: &mut Rng) {
         assert_eq!(params.len(), self.num_params());
@@ -129,16 +155,10 @@ impl Mlp {
             };
             let layer = &mut todo[0];
             let z = &mut layer.z[..batch * n_out];
-            let bias = &params[self.biases[l].clone()];
-            for row in z.chunks_exact_mut(n_out) {
-                row.copy_from_slice(bias);
-            }
             let w = &params[self.weights[l].clone()];
-            gemm(z, input, Op::N, w, Op::N, batch, n_in, n_out, true);
-            let act = self.activation(l);
-            if act != Activation::Identity {
-                act.forward(&layer.z[..batch * n_out], &mut layer.a);
-            }
+            gemm(z, input, Op::N, w, Op::N, batch, n_in, n_out, false);
+            let bias = &params[self.biases[l].clone()];
+            self.activation(l).bias_forward(z, bias, &mut layer.a);
         }
         let last = self.num_layers() - 1;
         cache.layers[last].output(self.output, batch * self.out_dim())

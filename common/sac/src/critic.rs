@@ -44,6 +44,10 @@ impl TwinCritic {
         }
     }
 
+    /// One critic's architecture.
+    pub fn mlp(&self) -> &Mlp {
+        &self.mlp
+    }
     /// Parameter count of both critics.
     pub fn num_params(&self) -> usize {
         self.layout.len()

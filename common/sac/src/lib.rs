@@ -11,6 +11,7 @@
 
 pub mod actor;
 pub mod agent;
+pub mod bench;
 pub mod config;
 pub mod critic;
 

@@ -10,6 +10,17 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(t) => env(&t),
+        BenchCommand::SacUpdate(t) => {
+            let r = mbpo_sac::bench::sac_update(
+                17,
+                6,
+                &[256, 256],
+                256,
+                Duration::from_secs_f64(t.seconds),
+            );
+            println!("{}", serde_json::to_string(&r)?);
+            Ok(())
+        }
     }
 }
 

@@ -47,6 +47,8 @@ pub enum BenchCommand {
     Gemm(BenchTime),
     /// Environment steps per second, per environment, single thread.
     Env(BenchTime),
+    /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims), single thread.
+    SacUpdate(BenchTime),
 }
 
 #[derive(Debug, Args)]
