@@ -8,6 +8,8 @@
 //! Actions live in the normalised box [−1, 1]^A everywhere inside the agent (replay data, model
 //! inputs, critics); [`ActionScale`] maps them to an environment's bounds at the very edge.
 #![warn(missing_docs)]
+// Numeric kernels index several parallel arrays by row; iterator chains would hide the math.
+#![allow(clippy::needless_range_loop)]
 
 pub mod actor;
 pub mod agent;
