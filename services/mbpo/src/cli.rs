@@ -12,6 +12,8 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Train in a single process (SAC baseline; MBPO sequential reference).
+    Train(TrainArgs),
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),
@@ -56,4 +58,33 @@ pub struct BenchTime {
     /// Seconds of measurement per case.
     #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
+}
+
+/// The flags every training command shares.
+#[derive(Debug, Args, Clone)]
+pub struct CommonTrainArgs {
+    /// Experiment config (TOML); defaults are used for keys it does not set.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Run seed (overrides the config's `seed`).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Total real env steps (overrides the config's `steps`).
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Run directory (default: runs/<algo>-<env>-s<seed>).
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Algorithm (overrides the config's `algo`).
+    #[arg(long, value_parser = ["sac", "mbpo"])]
+    pub algo: Option<String>,
+    /// Environment id (overrides the config's `env`).
+    #[arg(long)]
+    pub env: Option<String>,
+    #[command(flatten)]
+    pub common: CommonTrainArgs,
 }

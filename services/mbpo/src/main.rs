@@ -4,6 +4,7 @@
 mod bench;
 mod cli;
 mod env_cmd;
+mod train_cmd;
 
 use clap::Parser;
 use std::process::ExitCode;
@@ -22,6 +23,7 @@ fn main() -> ExitCode {
 
 fn run(cli: cli::Cli) -> anyhow::Result<()> {
     match cli.command {
+        cli::Command::Train(args) => train_cmd::run(&args),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
         cli::Command::Bench(cmd) => bench::run(cmd),
     }
@@ -34,5 +36,6 @@ fn init_logging() {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
 }

@@ -1,0 +1,265 @@
+//! The experiment file: one TOML document holding every hyper-parameter of a run.
+//!
+//! Unknown keys, wrong types and out-of-range values are rejected before anything runs, with
+//! the file, the key, what was expected and what was found.
+
+use mbpo_sac::SacConfig;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Which training algorithm a config runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Algo {
+    /// Model-free SAC on real data only.
+    Sac,
+    /// Model-based policy optimization.
+    Mbpo,
+}
+
+/// Evaluation schedule.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvalConfig {
+    /// Evaluate every this many real env steps.
+    pub every: u64,
+    /// Deterministic episodes per evaluation.
+    pub episodes: usize,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self {
+            every: 1000,
+            episodes: 1,
+        }
+    }
+}
+
+/// Settings of the model-free SAC loop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SacLoopConfig {
+    /// Uniform-random env steps before the policy acts and updates start.
+    pub random_steps: u64,
+    /// SAC updates per env step.
+    pub updates_per_step: usize,
+    /// Replay capacity (transitions).
+    pub replay_capacity: usize,
+}
+
+impl Default for SacLoopConfig {
+    fn default() -> Self {
+        Self {
+            random_steps: 5000,
+            updates_per_step: 1,
+            replay_capacity: 1_000_000,
+        }
+    }
+}
+
+/// One experiment.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExperimentConfig {
+    /// Training algorithm.
+    pub algo: Algo,
+    /// Environment id (see `mbpo env list`).
+    pub env: String,
+    /// Run seed: every random stream derives from it.
+    pub seed: u64,
+    /// Total real environment steps.
+    pub steps: u64,
+    /// Evaluation schedule.
+    pub eval: EvalConfig,
+    /// SAC hyper-parameters.
+    pub sac: SacConfig,
+    /// Model-free SAC loop settings (algo = "sac").
+    pub sac_loop: SacLoopConfig,
+}
+
+impl Default for ExperimentConfig {
+    fn default() -> Self {
+        Self {
+            algo: Algo::Sac,
+            env: "Pendulum-v1".into(),
+            seed: 0,
+            steps: 20_000,
+            eval: EvalConfig::default(),
+            sac: SacConfig::default(),
+            sac_loop: SacLoopConfig::default(),
+        }
+    }
+}
+
+/// Why a config was rejected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// Not valid TOML, an unknown key or a wrong type (the message shows the line and key).
+    #[error("config file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// toml's message: line, column, key, expected and found.
+        message: String,
+    },
+    /// A value outside its allowed range.
+    #[error("config {source_name}: key `{key}` must be {expected}, found {found}")]
+    Invalid {
+        /// File (or "defaults"/"command line") the value came from.
+        source_name: String,
+        /// Dotted key, e.g. `sac.gamma`.
+        key: String,
+        /// The allowed range, in words.
+        expected: String,
+        /// The value found.
+        found: String,
+    },
+}
+
+impl ExperimentConfig {
+    /// Parse and validate a TOML config file.
+    pub fn load(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let cfg: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        cfg.validate(&path.display().to_string())?;
+        Ok(cfg)
+    }
+
+    /// The config as TOML (the run directory keeps this resolved copy).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a config always serializes")
+    }
+
+    /// Check every value's range; `source_name` names where the config came from.
+    pub fn validate(&self, source_name: &str) -> Result<(), ConfigError> {
+        let bad = |key: &str, expected: &str, found: String| ConfigError::Invalid {
+            source_name: source_name.to_string(),
+            key: key.to_string(),
+            expected: expected.to_string(),
+            found,
+        };
+        if !mbpo_envs::ENV_IDS.contains(&self.env.as_str()) {
+            return Err(bad(
+                "env",
+                &format!("one of {}", mbpo_envs::ENV_IDS.join(", ")),
+                format!("{:?}", self.env),
+            ));
+        }
+        let positive = [
+            ("steps", self.steps as f64),
+            ("eval.every", self.eval.every as f64),
+            ("sac.batch_size", self.sac.batch_size as f64),
+            ("sac.actor_lr", self.sac.actor_lr as f64),
+            ("sac.critic_lr", self.sac.critic_lr as f64),
+            ("sac.alpha_lr", self.sac.alpha_lr as f64),
+            ("sac.init_alpha", self.sac.init_alpha as f64),
+            (
+                "sac_loop.replay_capacity",
+                self.sac_loop.replay_capacity as f64,
+            ),
+        ];
+        for (key, v) in positive {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(bad(key, "a positive number", v.to_string()));
+            }
+        }
+        for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
+            if !(v > 0.0 && v <= 1.0) {
+                return Err(bad(key, "in (0, 1]", v.to_string()));
+            }
+        }
+        if self.sac.hidden.is_empty() || self.sac.hidden.contains(&0) {
+            return Err(bad(
+                "sac.hidden",
+                "a non-empty list of positive widths",
+                format!("{:?}", self.sac.hidden),
+            ));
+        }
+        if self.sac.log_std_min >= self.sac.log_std_max {
+            return Err(bad(
+                "sac.log_std_min",
+                &format!("below sac.log_std_max = {}", self.sac.log_std_max),
+                self.sac.log_std_min.to_string(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(text: &str) -> Result<ExperimentConfig, ConfigError> {
+        let dir = std::env::temp_dir().join(format!("mbpo-cfg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join(format!("{:x}.toml", mbpo_core::rng::fnv1a(text.as_bytes())));
+        std::fs::write(&path, text).unwrap();
+        ExperimentConfig::load(&path)
+    }
+
+    #[test]
+    fn shipped_configs_parse_and_validate() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/configs");
+        let mut n = 0;
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                ExperimentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                n += 1;
+            }
+        }
+        assert!(n > 0);
+    }
+
+    #[test]
+    fn unknown_key_is_rejected_with_its_name() {
+        let err = parse("[sac]\ngama = 0.9\n").unwrap_err().to_string();
+        assert!(err.contains("gama") && err.contains(".toml"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_expected_and_found() {
+        let err = parse("[sac]\ngamma = \"high\"\n").unwrap_err().to_string();
+        assert!(
+            err.contains("gamma") && err.contains("string") && err.contains("f32"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn out_of_range_value_names_key_range_and_value() {
+        let err = parse("[sac]\ngamma = 1.5\n").unwrap_err().to_string();
+        assert!(
+            err.contains("sac.gamma") && err.contains("(0, 1]") && err.contains("1.5"),
+            "{err}"
+        );
+        let err = parse("env = \"CartPole-v1\"\n").unwrap_err().to_string();
+        assert!(
+            err.contains("Pendulum-v1") && err.contains("CartPole-v1"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn resolved_config_round_trips() {
+        let cfg = ExperimentConfig::default();
+        let back: ExperimentConfig = toml::from_str(&cfg.to_toml()).unwrap();
+        assert_eq!(back, cfg);
+    }
+}

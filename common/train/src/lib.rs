@@ -1,0 +1,17 @@
+//! Experiments: validated configs, run directories, and the single-process trainers.
+//!
+//! * [`config`]: the TOML experiment file, checked key by key before anything runs.
+//! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
+//! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
+//! * [`eval`]: deterministic evaluation episodes.
+#![warn(missing_docs)]
+#![allow(clippy::needless_range_loop)]
+
+pub mod config;
+pub mod eval;
+pub mod run_dir;
+pub mod sac_trainer;
+
+pub use config::{Algo, ConfigError, ExperimentConfig};
+pub use run_dir::{policy_sha256, RunDir, Summary};
+pub use sac_trainer::{train_sac, TrainError};
