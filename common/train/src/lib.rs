@@ -9,6 +9,7 @@
 
 pub mod config;
 pub mod eval;
+pub mod learning_bench;
 pub mod run_dir;
 pub mod sac_trainer;
 

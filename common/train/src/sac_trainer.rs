@@ -24,6 +24,9 @@ pub enum TrainError {
     /// The run directory could not be written.
     #[error("run directory: {0}")]
     Io(#[from] std::io::Error),
+    /// A results file could not be encoded.
+    #[error("results file: {0}")]
+    Json(#[from] serde_json::Error),
 }
 
 /// Run SAC per `cfg`, writing the run directory `out`; returns the summary.

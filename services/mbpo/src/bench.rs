@@ -10,6 +10,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(t) => env(&t),
+        BenchCommand::Learning(args) => learning(&args),
         BenchCommand::SacUpdate(t) => {
             let r = mbpo_sac::bench::sac_update(
                 17,
@@ -74,5 +75,36 @@ fn env(t: &BenchTime) -> anyhow::Result<()> {
                    "episodes": episodes, "threads": 1})
         );
     }
+    Ok(())
+}
+
+fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
+    let mut cfg = mbpo_train::ExperimentConfig::load(&args.config)?;
+    if let Some(s) = args.steps {
+        cfg.steps = s;
+    }
+    let train = match cfg.algo {
+        mbpo_train::Algo::Sac => mbpo_train::train_sac,
+        mbpo_train::Algo::Mbpo => anyhow::bail!("the MBPO trainer is not built yet"),
+    };
+    let seeds: Vec<u64> = (0..args.seeds).collect();
+    let name = args.config.display().to_string();
+    let r = mbpo_train::learning_bench::learning_benchmark(
+        &cfg,
+        &name,
+        &seeds,
+        args.threads,
+        &args.out,
+        train,
+    )?;
+    println!(
+        "{}",
+        json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
+               "median_final_return": r.median_final_return,
+               "median_env_steps_to_minus_200": r.median_env_steps_to_minus_200,
+               "final_returns": r.seeds.iter().map(|s| s.final_return).collect::<Vec<_>>(),
+               "env_steps_to_minus_200": r.seeds.iter().map(|s| s.env_steps_to_minus_200).collect::<Vec<_>>(),
+               "results": args.out.join(format!("learning-{}.json", cfg.env))})
+    );
     Ok(())
 }

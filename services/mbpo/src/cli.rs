@@ -51,6 +51,8 @@ pub enum BenchCommand {
     Env(BenchTime),
     /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims), single thread.
     SacUpdate(BenchTime),
+    /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
+    Learning(LearningArgs),
 }
 
 #[derive(Debug, Args)]
@@ -87,4 +89,23 @@ pub struct TrainArgs {
     pub env: Option<String>,
     #[command(flatten)]
     pub common: CommonTrainArgs,
+}
+
+#[derive(Debug, Args)]
+pub struct LearningArgs {
+    /// Experiment config (TOML).
+    #[arg(long)]
+    pub config: std::path::PathBuf,
+    /// Number of seeds (0..N).
+    #[arg(long, default_value_t = 5)]
+    pub seeds: u64,
+    /// Total real env steps per run (overrides the config).
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Seeds run in parallel (each run is single-threaded).
+    #[arg(long, default_value_t = 2)]
+    pub threads: usize,
+    /// Results directory.
+    #[arg(long, default_value = "results")]
+    pub out: std::path::PathBuf,
 }
