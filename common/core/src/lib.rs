@@ -6,9 +6,11 @@
 //!   for bit.
 //! * [`replay`]: the FIFO transition buffer used for real data and for MBPO's model buffer.
 //! * [`policy`]: the batched-policy interface (SAC actor, planners, uniform warm-up).
+//! * [`rate_limit`]: Reverb-style limiters that hold the algorithm's ratios in a pipeline.
 #![warn(missing_docs)]
 
 pub mod policy;
+pub mod rate_limit;
 pub mod replay;
 pub mod rng;
 
