@@ -1,8 +1,13 @@
 //! Deterministic evaluation episodes.
 
+use crate::actor::EnvActor;
+use crate::config::ExperimentConfig;
+use crate::run_dir::{policy_sha256, MetricsRow, Summary};
+use mbpo_core::rng::stream;
 use mbpo_core::Rng;
-use mbpo_envs::Env;
-use mbpo_sac::{ActionScale, Sac};
+use mbpo_envs::{make, Env, EnvError};
+use mbpo_sac::{ActionScale, Sac, SacStats};
+use std::time::Instant;
 
 /// Mean undiscounted return of `episodes` episodes with the deterministic policy tanh μ(s);
 /// start states come from `rng` (the evaluation stream, separate from training's).
@@ -25,4 +30,107 @@ pub fn evaluate(sac: &mut Sac, env: &mut dyn Env, episodes: usize, rng: &mut Rng
         }
     }
     total / episodes as f64
+}
+
+/// Periodic evaluation and the bookkeeping around it (best return, first time ≥ −200, rates).
+pub struct Evaluator {
+    env: Box<dyn Env>,
+    rng: Rng,
+    episodes: usize,
+    env_id: String,
+    seed: u64,
+    start: Instant,
+    last_time: f64,
+    last_steps: u64,
+    env_steps: u64,
+    final_return: f64,
+    best_return: f64,
+    to_minus_200: Option<u64>,
+}
+
+impl Evaluator {
+    /// An evaluator with its own environment and stream (`eval.env`).
+    pub fn new(cfg: &ExperimentConfig) -> Result<Self, EnvError> {
+        Ok(Self {
+            env: make(&cfg.env)?,
+            rng: stream(cfg.seed, "eval.env", 0),
+            episodes: cfg.eval.episodes,
+            env_id: cfg.env.clone(),
+            seed: cfg.seed,
+            start: Instant::now(),
+            last_time: 0.0,
+            last_steps: 0,
+            env_steps: 0,
+            final_return: f64::NAN,
+            best_return: f64::NEG_INFINITY,
+            to_minus_200: None,
+        })
+    }
+
+    /// Evaluate at `env_steps` and build the metrics row (SAC columns filled).
+    pub fn evaluate(
+        &mut self,
+        env_steps: u64,
+        sac: &mut Sac,
+        stats: &SacStats,
+        actor: &EnvActor,
+    ) -> MetricsRow {
+        let ret = evaluate(sac, self.env.as_mut(), self.episodes, &mut self.rng);
+        self.final_return = ret;
+        self.best_return = self.best_return.max(ret);
+        if ret >= -200.0 && self.to_minus_200.is_none() {
+            self.to_minus_200 = Some(env_steps);
+        }
+        let now = self.start.elapsed().as_secs_f64();
+        let sps = (env_steps - self.last_steps) as f64 / (now - self.last_time).max(1e-9);
+        (self.last_time, self.last_steps, self.env_steps) = (now, env_steps, env_steps);
+        let updated = sac.updates() > 0;
+        let some = |v: f32| updated.then_some(v as f64);
+        MetricsRow {
+            env_steps,
+            episodes: actor.episodes,
+            eval_return: ret,
+            train_return: actor.last_return,
+            sac_updates: sac.updates(),
+            critic_loss: some(stats.critic_loss),
+            actor_loss: some(stats.actor_loss),
+            alpha: Some(sac.alpha() as f64),
+            entropy: some(stats.entropy),
+            q_mean: some(stats.q_mean),
+            wall_seconds: now,
+            env_steps_per_sec: sps,
+            ..Default::default()
+        }
+    }
+
+    /// One progress line for a metrics row.
+    pub fn log(&self, algo: &str, row: &MetricsRow) {
+        tracing::info!(
+            "{algo} {} seed {}: step {} eval {:.1} best {:.1} alpha {:.3} ({:.1} steps/s)",
+            self.env_id,
+            self.seed,
+            row.env_steps,
+            row.eval_return,
+            self.best_return,
+            row.alpha.unwrap_or(f64::NAN),
+            row.env_steps_per_sec
+        );
+    }
+
+    /// The run summary after the last evaluation.
+    pub fn summary(&self, algo: &str, sac: &Sac, seconds_per_env_step: Option<f64>) -> Summary {
+        Summary {
+            algo: algo.into(),
+            env: self.env_id.clone(),
+            seed: self.seed,
+            env_steps: self.env_steps,
+            sac_updates: sac.updates(),
+            final_eval_return: self.final_return,
+            best_eval_return: self.best_return,
+            env_steps_to_minus_200: self.to_minus_200,
+            policy_sha256: policy_sha256(&sac.actor_params),
+            wall_seconds: self.start.elapsed().as_secs_f64(),
+            median_seconds_per_env_step: seconds_per_env_step,
+        }
+    }
 }

@@ -7,6 +7,7 @@
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
+pub mod actor;
 pub mod config;
 pub mod eval;
 pub mod learning_bench;

@@ -110,6 +110,9 @@ pub struct Summary {
     pub policy_sha256: String,
     /// Wall-clock seconds.
     pub wall_seconds: f64,
+    /// Median wall-clock seconds per env step after the warm-up (MBPO), if measured.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub median_seconds_per_env_step: Option<f64>,
 }
 
 /// SHA-256 of parameters as little-endian f32 bytes, hex.
