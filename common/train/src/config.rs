@@ -58,6 +58,47 @@ impl Default for SacLoopConfig {
     }
 }
 
+/// MBPO's loop settings (Janner et al. 2019, Alg. 2; names as in the paper and the MBPO code).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MbpoConfig {
+    /// Uniform-random real env steps before the model-based loop starts ("n_initial_exploration_steps").
+    pub init_random_steps: u64,
+    /// Env steps per epoch; the rollout length k follows the epoch ("epoch_length").
+    pub epoch_length: u64,
+    /// Train the model and branch new rollouts every this many env steps ("model_train_freq").
+    pub model_train_freq: u64,
+    /// M: model rollouts per env step; each model training branches M · model_train_freq
+    /// rollouts ("rollout_batch_size" = M · model_train_freq).
+    pub rollouts_per_step: usize,
+    /// [e_min, e_max, k_min, k_max]: k grows linearly from k_min at epoch e_min to k_max at e_max.
+    pub rollout_schedule: [usize; 4],
+    /// Epochs of rollouts the model buffer keeps ("model_retain_epochs").
+    pub retain_epochs: usize,
+    /// Fraction of each SAC batch drawn from real data.
+    pub real_ratio: f64,
+    /// G: SAC updates per env step ("n_train_repeat").
+    pub updates_per_step: usize,
+    /// Capacity of the real-data buffer D_env.
+    pub replay_capacity: usize,
+}
+
+impl Default for MbpoConfig {
+    fn default() -> Self {
+        Self {
+            init_random_steps: 5000,
+            epoch_length: 1000,
+            model_train_freq: 250,
+            rollouts_per_step: 400,
+            rollout_schedule: [20, 150, 1, 1],
+            retain_epochs: 1,
+            real_ratio: 0.05,
+            updates_per_step: 20,
+            replay_capacity: 1_000_000,
+        }
+    }
+}
+
 /// One experiment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -76,6 +117,10 @@ pub struct ExperimentConfig {
     pub sac: SacConfig,
     /// Model-free SAC loop settings (algo = "sac").
     pub sac_loop: SacLoopConfig,
+    /// MBPO loop settings (algo = "mbpo").
+    pub mbpo: MbpoConfig,
+    /// Dynamics-model settings (algo = "mbpo").
+    pub model: mbpo_model::ModelConfig,
 }
 
 impl Default for ExperimentConfig {
@@ -88,6 +133,8 @@ impl Default for ExperimentConfig {
             eval: EvalConfig::default(),
             sac: SacConfig::default(),
             sac_loop: SacLoopConfig::default(),
+            mbpo: MbpoConfig::default(),
+            model: mbpo_model::ModelConfig::default(),
         }
     }
 }
@@ -177,6 +224,42 @@ impl ExperimentConfig {
             if !(v > 0.0 && v.is_finite()) {
                 return Err(bad(key, "a positive number", v.to_string()));
             }
+        }
+        let m = &self.mbpo;
+        let positive_mbpo = [
+            ("mbpo.epoch_length", m.epoch_length as f64),
+            ("mbpo.model_train_freq", m.model_train_freq as f64),
+            ("mbpo.rollouts_per_step", m.rollouts_per_step as f64),
+            ("mbpo.retain_epochs", m.retain_epochs as f64),
+            ("mbpo.updates_per_step", m.updates_per_step as f64),
+            ("mbpo.replay_capacity", m.replay_capacity as f64),
+        ];
+        for (key, v) in positive_mbpo {
+            if !(v > 0.0) {
+                return Err(bad(key, "a positive number", v.to_string()));
+            }
+        }
+        if !(0.0..=1.0).contains(&m.real_ratio) {
+            return Err(bad(
+                "mbpo.real_ratio",
+                "in [0, 1]",
+                m.real_ratio.to_string(),
+            ));
+        }
+        let [e_min, e_max, k_min, k_max] = m.rollout_schedule;
+        if e_max < e_min || k_min == 0 || k_max < k_min {
+            return Err(bad(
+                "mbpo.rollout_schedule",
+                "[e_min, e_max, k_min, k_max] with e_min <= e_max and 1 <= k_min <= k_max",
+                format!("{:?}", m.rollout_schedule),
+            ));
+        }
+        if self.algo == Algo::Mbpo {
+            // The model crate checks its own ranges (dims, elites <= members, decay lengths).
+            let env = mbpo_envs::make(&self.env).expect("env id checked above");
+            self.model
+                .validate(env.obs_dim(), env.act_dim())
+                .map_err(|e| bad("model", "a valid model config", e.to_string()))?;
         }
         for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
             if !(v > 0.0 && v <= 1.0) {

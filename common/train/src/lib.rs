@@ -11,9 +11,11 @@ pub mod actor;
 pub mod config;
 pub mod eval;
 pub mod learning_bench;
+pub mod mbpo_trainer;
 pub mod run_dir;
 pub mod sac_trainer;
 
 pub use config::{Algo, ConfigError, ExperimentConfig};
+pub use mbpo_trainer::{train_mbpo, Mbpo};
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, TrainError};

@@ -23,6 +23,9 @@ pub enum TrainError {
     /// The run directory could not be written.
     #[error("run directory: {0}")]
     Io(#[from] std::io::Error),
+    /// A component rejected its configuration or input.
+    #[error("{0}")]
+    Config(String),
     /// A results file could not be encoded.
     #[error("results file: {0}")]
     Json(#[from] serde_json::Error),

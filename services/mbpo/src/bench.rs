@@ -85,7 +85,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
     }
     let train = match cfg.algo {
         mbpo_train::Algo::Sac => mbpo_train::train_sac,
-        mbpo_train::Algo::Mbpo => anyhow::bail!("the MBPO trainer is not built yet"),
+        mbpo_train::Algo::Mbpo => mbpo_train::train_mbpo,
     };
     let seeds: Vec<u64> = (0..args.seeds).collect();
     let name = args.config.display().to_string();

@@ -87,6 +87,10 @@ pub struct TrainArgs {
     /// Environment id (overrides the config's `env`).
     #[arg(long)]
     pub env: Option<String>,
+    /// Execution mode: `sequential` runs every role in this one process (the reference the
+    /// multi-process pipeline, `mbpo run`, is tested against).
+    #[arg(long, value_parser = ["sequential"], default_value = "sequential")]
+    pub mode: String,
     #[command(flatten)]
     pub common: CommonTrainArgs,
 }

@@ -1,8 +1,8 @@
 //! `mbpo train`: single-process training.
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
-use anyhow::{bail, Context};
-use mbpo_train::{train_sac, Algo, ExperimentConfig};
+use anyhow::Context;
+use mbpo_train::{train_mbpo, train_sac, Algo, ExperimentConfig};
 use std::path::PathBuf;
 
 /// Resolve the config from the file and the command-line overrides, validated.
@@ -44,7 +44,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let out = run_dir(&args.common, &cfg);
     let summary = match cfg.algo {
         Algo::Sac => train_sac(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
-        Algo::Mbpo => bail!("--algo mbpo: the MBPO trainer is not built yet"),
+        Algo::Mbpo => train_mbpo(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
     };
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
