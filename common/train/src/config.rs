@@ -235,7 +235,7 @@ impl ExperimentConfig {
             ("mbpo.replay_capacity", m.replay_capacity as f64),
         ];
         for (key, v) in positive_mbpo {
-            if !(v > 0.0) {
+            if v <= 0.0 {
                 return Err(bad(key, "a positive number", v.to_string()));
             }
         }

@@ -187,7 +187,7 @@ pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainEr
             mbpo.warm_up_step();
         } else {
             let since = t - m.init_random_steps - 1;
-            if since % m.model_train_freq == 0 {
+            if since.is_multiple_of(m.model_train_freq) {
                 let report = mbpo.train_model()?;
                 tracing::debug!(
                     "model trained: {} epochs, elites {:?}, holdout mse {:?}",
@@ -201,7 +201,7 @@ pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainEr
             mbpo.policy_updates();
             step_seconds.push(started.elapsed().as_secs_f64());
         }
-        if t % cfg.eval.every == 0 || t == cfg.steps {
+        if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
             let mut row = evaluator.evaluate(t, &mut mbpo.sac, &mbpo.last_sac_stats, &mbpo.actor);
             if let Some(r) = &mbpo.last_model_report {
                 let elites = &r.elites;
