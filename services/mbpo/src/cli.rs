@@ -17,6 +17,8 @@ pub enum Command {
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),
+    /// Plot learning curves (mean and min..max over seeds, one colour per group) to a PNG.
+    Plot(PlotArgs),
     /// Micro-benchmarks that print one JSON object per line.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -112,4 +114,20 @@ pub struct LearningArgs {
     /// Results directory.
     #[arg(long, default_value = "results")]
     pub out: std::path::PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// Run directories (each with a metrics.csv); runs named <group>-s<seed> are grouped.
+    #[arg(required = true)]
+    pub runs: Vec<std::path::PathBuf>,
+    /// metrics.csv column to plot against env_steps.
+    #[arg(long, default_value = "eval_return")]
+    pub column: String,
+    /// Output PNG.
+    #[arg(long, default_value = "curves.png")]
+    pub out: std::path::PathBuf,
+    /// Plot title.
+    #[arg(long, default_value = "learning curves")]
+    pub title: String,
 }

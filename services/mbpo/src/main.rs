@@ -25,6 +25,14 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
     match cli.command {
         cli::Command::Train(args) => train_cmd::run(&args),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
+        cli::Command::Plot(args) => {
+            mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;
+            println!(
+                "{}",
+                serde_json::json!({"plot": args.out, "runs": args.runs.len()})
+            );
+            Ok(())
+        }
         cli::Command::Bench(cmd) => bench::run(cmd),
     }
 }
