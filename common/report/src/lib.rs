@@ -87,8 +87,11 @@ pub fn group_name(run: &Path) -> String {
     }
 }
 
+/// (env steps, mean, min, max) at one evaluation point.
+pub type BandPoint = (f64, f64, f64, f64);
+
 /// Mean, min and max over the curves at each env-step value present in all of them.
-pub fn aggregate(curves: &[Curve]) -> Vec<(f64, f64, f64, f64)> {
+pub fn aggregate(curves: &[Curve]) -> Vec<BandPoint> {
     let mut at: BTreeMap<u64, Vec<f64>> = BTreeMap::new();
     for c in curves {
         for &(x, y) in &c.points {
@@ -127,7 +130,7 @@ pub fn plot_runs(runs: &[PathBuf], column: &str, title: &str, out: &Path) -> Res
             .or_default()
             .push(read_curve(run, column)?);
     }
-    let series: Vec<(String, usize, Vec<(f64, f64, f64, f64)>)> = groups
+    let series: Vec<(String, usize, Vec<BandPoint>)> = groups
         .into_iter()
         .map(|(g, curves)| (g, curves.len(), aggregate(&curves)))
         .filter(|(_, _, pts)| !pts.is_empty())
