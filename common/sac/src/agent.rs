@@ -50,6 +50,25 @@ pub struct Sac {
     buf: Scratch,
 }
 
+/// The agent's stochastic policy a ~ π(·|s), computed exactly as [`crate::ActorPolicy`] computes
+/// it from the same parameters (the pipeline's actors rely on that equality).
+pub struct SacPolicy<'a>(&'a mut Sac);
+
+impl mbpo_core::BatchPolicy for SacPolicy<'_> {
+    fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        let sac = &mut *self.0;
+        if batch == 1 {
+            sac.act(obs, false, rng, actions);
+        } else {
+            let mut cache = sac.actor.cache(batch);
+            sac.actor
+                .sample(&sac.actor_params, obs, batch, &mut cache, Some(rng));
+            let n = batch * sac.actor.act_dim();
+            actions[..n].copy_from_slice(&cache.action[..n]);
+        }
+    }
+}
+
 /// Buffers reused by every update so the update allocates nothing.
 #[derive(Debug, Clone)]
 struct Scratch {
@@ -128,6 +147,11 @@ impl Sac {
         self.actor
             .sample(&self.actor_params, obs, 1, &mut self.buf.act_cache, rng);
         action.copy_from_slice(&self.buf.act_cache.action[..self.actor.act_dim()]);
+    }
+
+    /// The current stochastic policy as a [`BatchPolicy`] (borrowing the agent's parameters).
+    pub fn policy(&mut self) -> SacPolicy<'_> {
+        SacPolicy(self)
     }
 
     /// One SAC update on `batch` (any source: real, model, or mixed).
@@ -393,6 +417,22 @@ mod tests {
         // mean log π = −5 → entropy 5 > H̄: α must shrink.
         sac.update_temperature(-5.0);
         assert!(sac.log_alpha < mid);
+    }
+
+    #[test]
+    fn actor_policy_with_copied_params_acts_bit_identically() {
+        // The pipeline's actors hold a copy of the learner's parameters; their actions must be
+        // the very bits the single-process agent would produce.
+        use mbpo_core::BatchPolicy;
+        let mut sac = small_sac(11);
+        let mut copy = crate::ActorPolicy::new(sac.actor.clone(), sac.actor_params.clone(), false);
+        let obs = [0.3f32, -1.2, 0.7];
+        let (mut a, mut b) = ([0.0f32; 2], [0.0f32; 2]);
+        for i in 0..10 {
+            sac.policy().act_batch(&obs, 1, &mut a, &mut stream(i, "p", 0));
+            copy.act_batch(&obs, 1, &mut b, &mut stream(i, "p", 0));
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
+        }
     }
 
     #[test]

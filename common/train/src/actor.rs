@@ -2,9 +2,9 @@
 //! process) that turns a policy into stored transitions.
 
 use mbpo_core::rng::{stream, uniform_range_f32};
-use mbpo_core::{ReplayBuffer, Rng};
+use mbpo_core::{BatchPolicy, ReplayBuffer, Rng};
 use mbpo_envs::{make, Env, EnvError};
-use mbpo_sac::{ActionScale, Sac};
+use mbpo_sac::ActionScale;
 
 /// How the next real action is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -69,15 +69,22 @@ impl EnvActor {
         self.env.act_dim()
     }
 
-    /// One env step: choose the action, step, store (s, a, r, s', terminated) with the
-    /// normalised action, reset at episode end.
-    pub fn step(&mut self, behaviour: Behaviour, sac: &mut Sac, replay: &mut ReplayBuffer) {
+    /// One env step: choose the action (uniformly, or from `policy` on this one observation),
+    /// step, store (s, a, r, s', terminated) with the normalised action, reset at episode end.
+    pub fn step(
+        &mut self,
+        behaviour: Behaviour,
+        policy: &mut dyn BatchPolicy,
+        replay: &mut ReplayBuffer,
+    ) {
         match behaviour {
             Behaviour::Uniform => self
                 .action
                 .iter_mut()
                 .for_each(|a| *a = uniform_range_f32(&mut self.policy_rng, -1.0, 1.0)),
-            Behaviour::Policy => sac.act(&self.obs, false, &mut self.policy_rng, &mut self.action),
+            Behaviour::Policy => {
+                policy.act_batch(&self.obs, 1, &mut self.action, &mut self.policy_rng)
+            }
         }
         self.scale.to_env(&self.action, &mut self.env_action);
         let step = self.env.step(&self.env_action, &mut self.next_obs);

@@ -115,7 +115,7 @@ impl Mbpo {
     /// One uniform-random env step into D_env (the warm-up before the loop).
     pub fn warm_up_step(&mut self) {
         self.actor
-            .step(Behaviour::Uniform, &mut self.sac, &mut self.d_env);
+            .step(Behaviour::Uniform, &mut self.sac.policy(), &mut self.d_env);
     }
 
     /// Train p_θ on all of D_env (holdout early stopping; elites).
@@ -156,7 +156,7 @@ impl Mbpo {
     /// One real env step with a ~ π(·|s) into D_env.
     pub fn env_step(&mut self) {
         self.actor
-            .step(Behaviour::Policy, &mut self.sac, &mut self.d_env);
+            .step(Behaviour::Policy, &mut self.sac.policy(), &mut self.d_env);
     }
 
     /// G SAC updates on batches of `real_ratio` D_env and the rest D_model.

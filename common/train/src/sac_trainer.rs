@@ -57,7 +57,7 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
         } else {
             Behaviour::Policy
         };
-        actor.step(behaviour, &mut sac, &mut replay);
+        actor.step(behaviour, &mut sac.policy(), &mut replay);
 
         // Learn.
         if t >= cfg.sac_loop.random_steps && replay.len() >= cfg.sac.batch_size {

@@ -44,7 +44,11 @@ fn mbpo_run_writes_model_columns_and_reproduces_bit_for_bit() {
     let sb = train_mbpo(&cfg, &b).unwrap();
     assert_eq!(sa.policy_sha256, sb.policy_sha256);
     assert_eq!(sa.env_steps, 500);
-    assert_eq!(sa.sac_updates, 300 * 8, "G updates per env step after the warm-up");
+    assert_eq!(
+        sa.sac_updates,
+        300 * 8,
+        "G updates per env step after the warm-up"
+    );
     let metrics = std::fs::read_to_string(a.join("metrics.csv")).unwrap();
     let last: Vec<&str> = metrics.lines().last().unwrap().split(',').collect();
     // model_holdout_mse, rollout_length, model_buffer are filled once the model was trained.
@@ -75,10 +79,18 @@ fn model_buffer_keeps_retain_epochs_of_rollouts_across_retrains() {
     assert_eq!(after_one, 5000);
     mbpo.train_model().unwrap();
     mbpo.branch_rollouts(0).unwrap();
-    assert_eq!(mbpo.model_buffer_len(), 10_000, "second training must not wipe the first's rollouts");
+    assert_eq!(
+        mbpo.model_buffer_len(),
+        10_000,
+        "second training must not wipe the first's rollouts"
+    );
     mbpo.train_model().unwrap();
     mbpo.branch_rollouts(0).unwrap();
-    assert_eq!(mbpo.model_buffer_len(), 10_000, "FIFO: the oldest rollouts make room");
+    assert_eq!(
+        mbpo.model_buffer_len(),
+        10_000,
+        "FIFO: the oldest rollouts make room"
+    );
 }
 
 #[test]
@@ -88,7 +100,13 @@ fn mbpo_learns_pendulum_faster_than_the_warmup_policy() {
     let dir = temp_dir("mbpo-learns");
     let summary = train_mbpo(&small_config(2000), &dir).unwrap();
     let curve = read_eval_curve(&dir.join("metrics.csv")).unwrap();
-    assert!(curve[0].1 < -900.0, "first evaluation should be untrained: {curve:?}");
-    assert!(summary.best_eval_return > -500.0, "MBPO did not learn: {curve:?}");
+    assert!(
+        curve[0].1 < -900.0,
+        "first evaluation should be untrained: {curve:?}"
+    );
+    assert!(
+        summary.best_eval_return > -500.0,
+        "MBPO did not learn: {curve:?}"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
