@@ -4,14 +4,19 @@ use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use mbpo_core::rng::stream;
-use mbpo_core::Rng;
+use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
-use mbpo_sac::{ActionScale, Sac, SacStats};
+use mbpo_sac::{ActionScale, ActorPolicy, Sac, SacStats};
 use std::time::Instant;
 
-/// Mean undiscounted return of `episodes` episodes with the deterministic policy tanh μ(s);
+/// Mean undiscounted return of `episodes` episodes with `policy` (deterministic: tanh μ(s));
 /// start states come from `rng` (the evaluation stream, separate from training's).
-pub fn evaluate(sac: &mut Sac, env: &mut dyn Env, episodes: usize, rng: &mut Rng) -> f64 {
+pub fn evaluate(
+    policy: &mut dyn BatchPolicy,
+    env: &mut dyn Env,
+    episodes: usize,
+    rng: &mut Rng,
+) -> f64 {
     let scale = ActionScale::new(&env.action_space().low, &env.action_space().high);
     let mut obs = vec![0.0f32; env.obs_dim()];
     let mut action = vec![0.0f32; env.act_dim()];
@@ -20,7 +25,7 @@ pub fn evaluate(sac: &mut Sac, env: &mut dyn Env, episodes: usize, rng: &mut Rng
     for _ in 0..episodes {
         env.reset(rng, &mut obs);
         loop {
-            sac.act(&obs, true, rng, &mut action);
+            policy.act_batch(&obs, 1, &mut action, rng);
             scale.to_env(&action, &mut env_action);
             let step = env.step(&env_action, &mut obs);
             total += step.reward;
@@ -71,11 +76,13 @@ impl Evaluator {
     pub fn evaluate(
         &mut self,
         env_steps: u64,
-        sac: &mut Sac,
+        sac: &Sac,
         stats: &SacStats,
         actor: &EnvActor,
     ) -> MetricsRow {
-        let ret = evaluate(sac, self.env.as_mut(), self.episodes, &mut self.rng);
+        // Evaluation acts with a copy of the parameters, as the pipeline's evaluation actor does.
+        let mut policy = ActorPolicy::new(sac.actor.clone(), sac.actor_params.clone(), true);
+        let ret = evaluate(&mut policy, self.env.as_mut(), self.episodes, &mut self.rng);
         self.final_return = ret;
         self.best_return = self.best_return.max(ret);
         if ret >= -200.0 && self.to_minus_200.is_none() {

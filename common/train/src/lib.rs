@@ -12,6 +12,7 @@ pub mod config;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
+pub mod roles;
 pub mod run_dir;
 pub mod sac_trainer;
 

@@ -69,7 +69,7 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
 
         // Evaluate and record.
         if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
-            let row = evaluator.evaluate(t, &mut sac, &stats, &actor);
+            let row = evaluator.evaluate(t, &sac, &stats, &actor);
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);
         }

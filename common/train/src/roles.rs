@@ -1,0 +1,385 @@
+//! MBPO split into the roles of the multi-process pipeline.
+//!
+//! Each role owns exactly the state its process will own (its own copy of the real data, its
+//! own random streams) and talks to the others only through the messages below. The sequential
+//! reference ([`crate::mbpo_trainer`]) calls the roles in Algorithm 2's order in one process;
+//! the pipeline runs each role in its own process and passes the same messages over shared
+//! memory. Both therefore execute the same code on the same inputs, which is what makes a
+//! lockstep pipeline equal the sequential run bit for bit.
+//!
+//! | role | consumes | produces | streams |
+//! |---|---|---|---|
+//! | [`ActorRole`] | [`PolicySnapshot`] | real transitions | `actor.env`, `actor.policy` |
+//! | [`ModelTrainerRole`] | real transitions | [`ModelSnapshot`] | `model.init`, `model.train` |
+//! | [`RolloutRole`] | real transitions, [`ModelSnapshot`], [`PolicySnapshot`] | [`ImaginedBatch`] | `rollout` |
+//! | [`LearnerRole`] | real transitions, [`ImaginedBatch`] | [`PolicySnapshot`] | `sac.init`, `learner.sample`, `learner.update` |
+
+use crate::actor::{Behaviour, EnvActor};
+use crate::config::ExperimentConfig;
+use crate::sac_trainer::TrainError;
+use mbpo_core::rng::stream;
+use mbpo_core::{sample_mixed, Batch, ReplayBuffer, Rng};
+use mbpo_envs::{termination_fn, EnvError, TerminationFn};
+use mbpo_model::{
+    rollout_length, ModelPoolSizing, ModelWeights, ProbabilisticEnsemble, TrainReport,
+};
+use mbpo_sac::{ActorPolicy, Sac, SacStats, TanhGaussianActor};
+
+/// When the model-based steps happen, as a pure function of the env step `t` (1-based).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Schedule {
+    /// Uniform-random warm-up steps.
+    pub init_random_steps: u64,
+    /// Env steps per epoch.
+    pub epoch_length: u64,
+    /// Model retrain period in env steps.
+    pub model_train_freq: u64,
+}
+
+impl Schedule {
+    /// The schedule of a config.
+    pub fn of(cfg: &ExperimentConfig) -> Self {
+        Self {
+            init_random_steps: cfg.mbpo.init_random_steps,
+            epoch_length: cfg.mbpo.epoch_length,
+            model_train_freq: cfg.mbpo.model_train_freq,
+        }
+    }
+    /// Is step `t` a warm-up step?
+    pub fn is_warm_up(&self, t: u64) -> bool {
+        t <= self.init_random_steps
+    }
+    /// `Some(epoch)` when the model is trained and rollouts are branched before step `t`.
+    pub fn train_point(&self, t: u64) -> Option<usize> {
+        if self.is_warm_up(t) {
+            return None;
+        }
+        let since = t - self.init_random_steps - 1;
+        since
+            .is_multiple_of(self.model_train_freq)
+            .then_some((since / self.epoch_length) as usize)
+    }
+}
+
+/// The policy after `version` learner steps (version 0: the initial parameters; version t: after
+/// the G updates of env step t).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PolicySnapshot {
+    /// Learner steps completed.
+    pub version: u64,
+    /// Actor parameters.
+    pub params: Vec<f32>,
+}
+
+/// The model after its `version`-th training.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelSnapshot {
+    /// Trainings completed.
+    pub version: u64,
+    /// Parameters, normaliser and elites.
+    pub weights: ModelWeights,
+}
+
+/// Rollouts branched for one model training.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImaginedBatch {
+    /// Model version that produced them.
+    pub model_version: u64,
+    /// Policy version that acted in them.
+    pub policy_version: u64,
+    /// Rollout length k in force (sizes the model buffer).
+    pub rollout_length: usize,
+    /// The transitions, in rollout order.
+    pub rows: Batch,
+}
+
+/// Acting in the real environment.
+pub struct ActorRole {
+    actor: EnvActor,
+    policy: ActorPolicy,
+    policy_version: u64,
+    staged: ReplayBuffer,
+}
+
+impl ActorRole {
+    /// Actor `index` of the run.
+    pub fn new(cfg: &ExperimentConfig, index: u64) -> Result<Self, EnvError> {
+        let actor = EnvActor::new(&cfg.env, cfg.seed, index)?;
+        let (o, a) = (actor.obs_dim(), actor.act_dim());
+        let net = TanhGaussianActor::new(
+            o,
+            a,
+            &cfg.sac.hidden,
+            cfg.sac.log_std_min,
+            cfg.sac.log_std_max,
+        );
+        let params = vec![0.0; net.num_params()];
+        Ok(Self {
+            actor,
+            policy: ActorPolicy::new(net, params, false),
+            policy_version: 0,
+            staged: ReplayBuffer::new(o, a, 1),
+        })
+    }
+    /// Take a newer policy.
+    pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
+        self.policy.params.copy_from_slice(&snapshot.params);
+        self.policy_version = snapshot.version;
+    }
+    /// Version of the policy acting.
+    pub fn policy_version(&self) -> u64 {
+        self.policy_version
+    }
+    /// The env actor (episode counters).
+    pub fn env_actor(&self) -> &EnvActor {
+        &self.actor
+    }
+    /// One real env step; returns the transition as a one-row batch.
+    pub fn act(&mut self, behaviour: Behaviour) -> Batch {
+        self.actor
+            .step(behaviour, &mut self.policy, &mut self.staged);
+        self.staged.to_batch()
+    }
+}
+
+/// Training the dynamics model on its copy of the real data.
+pub struct ModelTrainerRole {
+    d_env: ReplayBuffer,
+    model: ProbabilisticEnsemble,
+    rng: Rng,
+    version: u64,
+}
+
+impl ModelTrainerRole {
+    /// The model trainer of the run.
+    pub fn new(cfg: &ExperimentConfig, obs_dim: usize, act_dim: usize) -> Result<Self, TrainError> {
+        let model = ProbabilisticEnsemble::new(
+            obs_dim,
+            act_dim,
+            cfg.model.clone(),
+            &mut stream(cfg.seed, "model.init", 0),
+        )
+        .map_err(|e| TrainError::Config(e.to_string()))?;
+        Ok(Self {
+            d_env: ReplayBuffer::new(obs_dim, act_dim, cfg.mbpo.replay_capacity),
+            model,
+            rng: stream(cfg.seed, "model.train", 0),
+            version: 0,
+        })
+    }
+    /// Store real transitions.
+    pub fn add_real(&mut self, rows: &Batch) {
+        self.d_env.push_batch(rows);
+    }
+    /// Real transitions received.
+    pub fn real_received(&self) -> u64 {
+        self.d_env.pushed()
+    }
+    /// Train p_θ on all real data by maximum likelihood; returns the new snapshot.
+    pub fn train(&mut self) -> Result<(ModelSnapshot, TrainReport), TrainError> {
+        let data = self.d_env.to_batch();
+        let report = self
+            .model
+            .train(&data, &mut self.rng)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.version += 1;
+        let snapshot = ModelSnapshot {
+            version: self.version,
+            weights: self.model.weights(),
+        };
+        Ok((snapshot, report))
+    }
+}
+
+/// Branching model rollouts from real start states with the current policy.
+pub struct RolloutRole {
+    d_env: ReplayBuffer,
+    model: ProbabilisticEnsemble,
+    model_version: u64,
+    policy: ActorPolicy,
+    policy_version: u64,
+    termination: TerminationFn,
+    schedule: [usize; 4],
+    starts: Batch,
+    staged: ReplayBuffer,
+    rng: Rng,
+}
+
+impl RolloutRole {
+    /// The rollout generator of the run.
+    pub fn new(cfg: &ExperimentConfig, obs_dim: usize, act_dim: usize) -> Result<Self, TrainError> {
+        let termination = termination_fn(&cfg.env).ok_or_else(|| {
+            TrainError::Config(format!("no termination function for {}", cfg.env))
+        })?;
+        // Architecture only: the weights arrive as snapshots.
+        let model = ProbabilisticEnsemble::new(
+            obs_dim,
+            act_dim,
+            cfg.model.clone(),
+            &mut stream(cfg.seed, "rollout.model-shape", 0),
+        )
+        .map_err(|e| TrainError::Config(e.to_string()))?;
+        let net = TanhGaussianActor::new(
+            obs_dim,
+            act_dim,
+            &cfg.sac.hidden,
+            cfg.sac.log_std_min,
+            cfg.sac.log_std_max,
+        );
+        let params = vec![0.0; net.num_params()];
+        let n = cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize;
+        Ok(Self {
+            d_env: ReplayBuffer::new(obs_dim, act_dim, cfg.mbpo.replay_capacity),
+            model,
+            model_version: 0,
+            policy: ActorPolicy::new(net, params, false),
+            policy_version: 0,
+            termination,
+            schedule: cfg.mbpo.rollout_schedule,
+            starts: Batch::new(obs_dim, act_dim, n),
+            staged: ReplayBuffer::new(obs_dim, act_dim, 1),
+            rng: stream(cfg.seed, "rollout", 0),
+        })
+    }
+    /// Store real transitions (the start-state pool).
+    pub fn add_real(&mut self, rows: &Batch) {
+        self.d_env.push_batch(rows);
+    }
+    /// Take a newer model.
+    pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
+        self.model
+            .load_weights(&snapshot.weights)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.model_version = snapshot.version;
+        Ok(())
+    }
+    /// Take a newer policy.
+    pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
+        self.policy.params.copy_from_slice(&snapshot.params);
+        self.policy_version = snapshot.version;
+    }
+    /// k = rollout_length(epoch); M · model_train_freq k-step rollouts of π in p_θ from start
+    /// states drawn uniformly from the real data.
+    pub fn branch(&mut self, epoch: usize) -> Result<ImaginedBatch, TrainError> {
+        let k = rollout_length(epoch, self.schedule);
+        let n = self.starts.len;
+        if self.staged.capacity() != n * k {
+            self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
+        }
+        self.d_env.sample_into(&mut self.rng, &mut self.starts);
+        let termination = self.termination;
+        self.model
+            .rollout(
+                &self.starts.obs,
+                n,
+                &mut self.policy,
+                k,
+                &termination,
+                &mut self.rng,
+                &mut self.staged,
+            )
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        let rows = self.staged.to_batch();
+        self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
+        Ok(ImaginedBatch {
+            model_version: self.model_version,
+            policy_version: self.policy_version,
+            rollout_length: k,
+            rows,
+        })
+    }
+}
+
+/// SAC updates on mixed real and imagined data.
+pub struct LearnerRole {
+    sac: Sac,
+    d_env: ReplayBuffer,
+    d_model: ReplayBuffer,
+    pool: ModelPoolSizing,
+    real_ratio: f64,
+    batch: Batch,
+    sample_rng: Rng,
+    update_rng: Rng,
+    steps: u64,
+    /// Statistics of the last update.
+    pub last_stats: SacStats,
+    /// Rollout length of the last imagined batch.
+    pub rollout_length: usize,
+}
+
+impl LearnerRole {
+    /// The SAC learner of the run.
+    pub fn new(cfg: &ExperimentConfig, obs_dim: usize, act_dim: usize) -> Self {
+        let m = &cfg.mbpo;
+        let pool = ModelPoolSizing {
+            rollout_batch_size: m.rollouts_per_step * m.model_train_freq as usize,
+            epoch_length: m.epoch_length as usize,
+            model_train_freq: m.model_train_freq as usize,
+            retain_epochs: m.retain_epochs,
+        };
+        let k0 = rollout_length(0, m.rollout_schedule);
+        Self {
+            sac: Sac::new(
+                obs_dim,
+                act_dim,
+                cfg.sac.clone(),
+                &mut stream(cfg.seed, "sac.init", 0),
+            ),
+            d_env: ReplayBuffer::new(obs_dim, act_dim, m.replay_capacity),
+            d_model: ReplayBuffer::new(obs_dim, act_dim, pool.capacity(k0).max(1)),
+            pool,
+            real_ratio: m.real_ratio,
+            batch: Batch::new(obs_dim, act_dim, cfg.sac.batch_size),
+            sample_rng: stream(cfg.seed, "learner.sample", 0),
+            update_rng: stream(cfg.seed, "learner.update", 0),
+            steps: 0,
+            last_stats: SacStats::default(),
+            rollout_length: k0,
+        }
+    }
+    /// Store real transitions.
+    pub fn add_real(&mut self, rows: &Batch) {
+        self.d_env.push_batch(rows);
+    }
+    /// Real transitions received.
+    pub fn real_received(&self) -> u64 {
+        self.d_env.pushed()
+    }
+    /// Resize D_model for the batch's k (keeping the newest rows) and append the batch.
+    pub fn add_imagined(&mut self, batch: &ImaginedBatch) {
+        self.rollout_length = batch.rollout_length;
+        self.d_model
+            .set_capacity(self.pool.capacity(batch.rollout_length).max(1));
+        self.d_model.push_batch(&batch.rows);
+    }
+    /// Transitions in D_model.
+    pub fn model_buffer_len(&self) -> usize {
+        self.d_model.len()
+    }
+    /// One SAC update on a batch of `real_ratio` D_env and the rest D_model.
+    pub fn update(&mut self) {
+        sample_mixed(
+            &self.d_env,
+            &self.d_model,
+            self.real_ratio,
+            &mut self.sample_rng,
+            &mut self.batch,
+        );
+        self.last_stats = self.sac.update(&self.batch, &mut self.update_rng);
+    }
+    /// Mark one learner step (the G updates of one env step) complete.
+    pub fn finish_step(&mut self) {
+        self.steps += 1;
+    }
+    /// The current policy, versioned by completed learner steps.
+    pub fn policy(&self) -> PolicySnapshot {
+        PolicySnapshot {
+            version: self.steps,
+            params: self.sac.actor_params.clone(),
+        }
+    }
+    /// The SAC agent.
+    pub fn sac(&self) -> &Sac {
+        &self.sac
+    }
+}

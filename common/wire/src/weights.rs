@@ -1,0 +1,396 @@
+//! Weight snapshots (`Policy` and `Model` channels) with "latest value" semantics.
+//!
+//! The service keeps a history of 1 and each subscriber a buffer of 1 with safe overflow, so a
+//! publisher never blocks and a subscriber only ever sees the newest snapshot. A subscriber that
+//! starts late gets the current snapshot as soon as the publisher updates its connections:
+//! on its next publish, on [`WeightsPublisher::update_connections`], or at once when the
+//! publisher sleeps in a [`crate::Waiter`] (the new subscriber's attach confirmation wakes it).
+
+use std::time::Instant;
+
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::AllocationStrategy;
+use iceoryx2::sample::Sample;
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use iceoryx2::service::port_factory::PortFactory as _;
+use iceoryx2::service::Service;
+
+use crate::error::{HeaderMismatch, PortCreateError, PublishError, WeightsReceiveError};
+use crate::names::{ProducerId, SCHEMA_VERSION};
+use crate::reliable::{
+    open_channel_events, pubsub_builder, PublisherSide, PublisherStats, SubscriberSide,
+};
+use crate::run::WireNode;
+use crate::schema::{now_ns, WeightsCounters, WeightsHeader, WeightsKind};
+
+type Factory<S> = PortFactory<S, [f32], WeightsHeader>;
+
+fn open_service<S: Service>(
+    node: &WireNode<S>,
+    kind: WeightsKind,
+) -> Result<(String, Factory<S>), PortCreateError> {
+    let channel = kind.channel();
+    let name = channel.service_name(&node.run.run_id);
+    let mut qos = node.run.qos(channel);
+    qos.buffer_size = qos.buffer_size.max(1);
+    let svc = pubsub_builder!(node, &name, [f32], WeightsHeader, qos, 1, true);
+    Ok((name, svc))
+}
+
+/// Publishes weight snapshots of one network.
+#[derive(Debug)]
+pub struct WeightsPublisher<S: Service = iceoryx2::service::ipc::Service> {
+    side: PublisherSide<S>,
+    publisher: Publisher<S, [f32], WeightsHeader>,
+    svc: Factory<S>,
+    kind: WeightsKind,
+    layout_hash: u64,
+    n_values: usize,
+    version: std::cell::Cell<u64>,
+}
+
+impl<S: Service> WeightsPublisher<S> {
+    /// A publisher of `kind` snapshots of `n_values` floats with parameter layout hash
+    /// `layout_hash` (`mbpo_nn::ParamLayout::hash`).
+    pub fn create(
+        node: &WireNode<S>,
+        kind: WeightsKind,
+        layout_hash: u64,
+        n_values: usize,
+    ) -> Result<Self, PortCreateError> {
+        if n_values == 0 {
+            return Err(PortCreateError::InvalidArgument {
+                what: "n_values",
+                value: 0,
+                hint: "a weight snapshot needs at least one value",
+            });
+        }
+        let (name, svc) = open_service(node, kind)?;
+        let qos = node.run.qos(kind.channel());
+        let events = open_channel_events(node, &name, qos)?;
+        let publisher = svc
+            .publisher_builder()
+            .initial_max_slice_len(n_values)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .max_loaned_samples(qos.max_loaned)
+            .create()
+            .map_err(|e| PortCreateError::iceoryx(&name, "creating the publisher", e))?;
+        let side = PublisherSide::create(
+            node,
+            &name,
+            &events,
+            publisher.id().value(),
+            qos,
+            Default::default(),
+        )?;
+        Ok(Self {
+            side,
+            publisher,
+            svc,
+            kind,
+            layout_hash,
+            n_values,
+            version: std::cell::Cell::new(0),
+        })
+    }
+
+    /// Publish `params` as `version` (must be greater than the previous one).
+    pub fn publish(
+        &self,
+        params: &[f32],
+        version: u64,
+        counters: WeightsCounters,
+    ) -> Result<(), PublishError> {
+        if params.len() != self.n_values {
+            return Err(PublishError::Invalid(format!(
+                "{:?} snapshot has {} values, this publisher was created for {}",
+                self.kind,
+                params.len(),
+                self.n_values
+            )));
+        }
+        if version <= self.version.get() {
+            return Err(PublishError::Invalid(format!(
+                "{:?} version {version} is not greater than the last published version {}",
+                self.kind,
+                self.version.get()
+            )));
+        }
+        let sample = self
+            .publisher
+            .loan_slice_uninit(params.len())
+            .map_err(|e| PublishError::Loan {
+                service: self.side.service.clone(),
+                bytes: params.len() * 4,
+                cause: format!("{e:?}"),
+                hint: crate::error::hint_for(&format!("{e:?}")),
+            })?;
+        let mut sample = sample.write_from_slice(params);
+        *sample.user_header_mut() = WeightsHeader {
+            run_hash: self.side.run_hash,
+            version,
+            layout_hash: self.layout_hash,
+            n_values: params.len() as u64,
+            env_steps: counters.env_steps,
+            sac_updates: counters.sac_updates,
+            model_trainings: counters.model_trainings,
+            send_time_ns: now_ns(),
+            schema_version: SCHEMA_VERSION,
+            kind: self.kind as u32,
+            producer_id: self.side.producer.0,
+            reserved: 0,
+        };
+        let subscribers = self.svc.dynamic_config().number_of_subscribers();
+        let started = Instant::now();
+        let delivered = sample
+            .send()
+            .map_err(|e| self.side.send_failed(version, e, started))?;
+        self.version.set(version);
+        self.side.record(version, delivered, subscribers);
+        self.side.notify()
+    }
+
+    /// Deliver the current snapshot to subscribers that connected since the last publish.
+    /// Call it from an idle loop if the publisher does not sleep in a [`crate::Waiter`].
+    pub fn update_connections(&self) -> Result<(), PublishError> {
+        self.side.poll_acks();
+        self.publisher
+            .update_connections()
+            .map_err(|e| PublishError::Send {
+                service: self.side.service.clone(),
+                seq: self.version.get(),
+                cause: format!("{e:?}"),
+            })?;
+        if self.version.get() > 0 {
+            self.side.notify()?;
+        }
+        Ok(())
+    }
+
+    /// The last published version (0 before the first).
+    pub fn version(&self) -> u64 {
+        self.version.get()
+    }
+    /// Subscribers currently registered.
+    pub fn subscribers(&self) -> usize {
+        self.svc.dynamic_config().number_of_subscribers()
+    }
+    /// Block until `n` subscribers confirmed their connection.
+    pub fn wait_for_subscribers(
+        &self,
+        n: usize,
+        timeout: std::time::Duration,
+    ) -> Result<usize, crate::WaitForSubscribersError> {
+        self.side.wait_for_acks(n, timeout, || {
+            self.svc.dynamic_config().number_of_subscribers()
+        })
+    }
+    /// Counters.
+    pub fn stats(&self) -> PublisherStats {
+        self.side.stats()
+    }
+    pub(crate) fn side(&self) -> &PublisherSide<S> {
+        &self.side
+    }
+    pub(crate) fn on_wake(&self) {
+        if self.side.poll_acks() > 0 {
+            if let Err(e) = self.update_connections() {
+                tracing::warn!("{e}");
+            }
+        }
+    }
+}
+
+/// A received snapshot: a zero-copy view of the parameters in shared memory.
+#[derive(Debug)]
+pub struct WeightsSnapshot<S: Service = iceoryx2::service::ipc::Service> {
+    sample: Sample<S, [f32], WeightsHeader>,
+}
+
+impl<S: Service> WeightsSnapshot<S> {
+    /// The validated header.
+    pub fn header(&self) -> &WeightsHeader {
+        self.sample.user_header()
+    }
+    /// The parameters.
+    pub fn params(&self) -> &[f32] {
+        self.sample.payload()
+    }
+    /// The version.
+    pub fn version(&self) -> u64 {
+        self.header().version
+    }
+}
+
+/// Receives the newest weight snapshot of one network, validating kind, layout hash and length.
+#[derive(Debug)]
+pub struct WeightsSubscriber<S: Service = iceoryx2::service::ipc::Service> {
+    side: SubscriberSide<S>,
+    subscriber: Subscriber<S, [f32], WeightsHeader>,
+    svc: Factory<S>,
+    kind: WeightsKind,
+    layout_hash: u64,
+    n_values: usize,
+    run_hash: u64,
+    /// (publisher port, version) of the last snapshot returned.
+    last: std::cell::Cell<Option<(u128, u64)>>,
+}
+
+impl<S: Service> WeightsSubscriber<S> {
+    /// A subscriber of `kind` snapshots that must have `layout_hash` and `n_values` floats.
+    pub fn create(
+        node: &WireNode<S>,
+        kind: WeightsKind,
+        layout_hash: u64,
+        n_values: usize,
+    ) -> Result<Self, PortCreateError> {
+        let (name, svc) = open_service(node, kind)?;
+        let events = open_channel_events(node, &name, node.run.qos(kind.channel()))?;
+        let subscriber = svc
+            .subscriber_builder()
+            .buffer_size(1)
+            .history_request(1)
+            .create()
+            .map_err(|e| PortCreateError::iceoryx(&name, "creating the subscriber", e))?;
+        let side = SubscriberSide::create(node, &name, &events)?;
+        let me = Self {
+            side,
+            subscriber,
+            svc,
+            kind,
+            layout_hash,
+            n_values,
+            run_hash: node.run.run_hash,
+            last: std::cell::Cell::new(None),
+        };
+        me.refresh(true);
+        Ok(me)
+    }
+
+    /// Connect to publishers that appeared since the last call and confirm to them (see
+    /// [`crate::reliable`]). `receive` does this by itself (re-listing at most every 50 ms
+    /// unless the number of publishers changed), and so does a [`crate::Waiter`] on wake-up;
+    /// call it when the subscriber was created before a publisher that now waits for it in the
+    /// same thread.
+    pub fn update_connections(&self) {
+        self.refresh(true)
+    }
+
+    pub(crate) fn refresh(&self, force: bool) {
+        let dc = self.svc.dynamic_config();
+        self.side.refresh(
+            dc.number_of_publishers(),
+            force,
+            |ids| {
+                dc.list_publishers(|p| {
+                    ids.push(p.publisher_id.value());
+                    iceoryx2::prelude::CallbackProgression::Continue
+                })
+            },
+            || self.subscriber.update_connections(),
+        );
+    }
+
+    fn validate(&self, h: &WeightsHeader, payload: usize) -> Result<(), HeaderMismatch> {
+        if h.schema_version != SCHEMA_VERSION {
+            return Err(HeaderMismatch::Schema {
+                expected: SCHEMA_VERSION,
+                found: h.schema_version,
+            });
+        }
+        if h.run_hash != self.run_hash {
+            return Err(HeaderMismatch::Run {
+                expected: self.run_hash,
+                found: h.run_hash,
+            });
+        }
+        if h.kind != self.kind as u32 {
+            return Err(HeaderMismatch::Kind {
+                expected: self.kind as u32,
+                found: h.kind,
+            });
+        }
+        if h.layout_hash != self.layout_hash {
+            return Err(HeaderMismatch::Layout {
+                expected: self.layout_hash,
+                found: h.layout_hash,
+            });
+        }
+        if h.n_values != self.n_values as u64 || payload != self.n_values {
+            return Err(HeaderMismatch::Length {
+                announced: h.n_values,
+                payload: payload as u64,
+            });
+        }
+        Ok(())
+    }
+
+    /// The newest snapshot if it is newer than the last one returned, else `None`. A
+    /// restarted publisher (new port) may start again from any version.
+    pub fn receive_latest(&self) -> Result<Option<WeightsSnapshot<S>>, WeightsReceiveError> {
+        self.refresh(false);
+        let mut newest = None;
+        loop {
+            let sample = self
+                .subscriber
+                .receive()
+                .map_err(|e| WeightsReceiveError::Iceoryx {
+                    service: self.side.service.clone(),
+                    cause: format!("{e:?}"),
+                })?;
+            let Some(sample) = sample else { break };
+            let h = *sample.user_header();
+            if let Err(reason) = self.validate(&h, sample.payload().len()) {
+                let err = WeightsReceiveError::Rejected {
+                    kind: self.kind,
+                    version: h.version,
+                    reason,
+                };
+                tracing::warn!(producer = %ProducerId(h.producer_id), "{err}");
+                return Err(err);
+            }
+            let origin = sample.origin().value();
+            let newer = match self.last.get() {
+                Some((o, v)) if o == origin => h.version > v,
+                _ => true,
+            };
+            if newer {
+                newest = Some(sample);
+            }
+        }
+        Ok(newest.map(|sample| {
+            self.last.set(Some((
+                sample.origin().value(),
+                sample.user_header().version,
+            )));
+            WeightsSnapshot { sample }
+        }))
+    }
+
+    /// Like [`WeightsSubscriber::receive_latest`], copying the parameters into `dst`.
+    pub fn receive_latest_into(
+        &self,
+        dst: &mut [f32],
+    ) -> Result<Option<WeightsHeader>, WeightsReceiveError> {
+        if dst.len() != self.n_values {
+            return Err(WeightsReceiveError::Destination {
+                dst: dst.len(),
+                len: self.n_values,
+            });
+        }
+        Ok(self.receive_latest()?.map(|s| {
+            dst.copy_from_slice(s.params());
+            *s.header()
+        }))
+    }
+
+    /// Version of the last snapshot returned (0 before the first).
+    pub fn last_version(&self) -> u64 {
+        self.last.get().map_or(0, |(_, v)| v)
+    }
+    pub(crate) fn side(&self) -> &SubscriberSide<S> {
+        &self.side
+    }
+}

@@ -1,0 +1,96 @@
+//! The receive path (receive a batch, push it into a replay buffer or copy it into a `Batch`;
+//! read the newest weights) allocates nothing once the ports exist, and the send path allocates
+//! nothing beyond the one small block iceoryx2 0.10 itself allocates per `send()` (measured on
+//! a bare iceoryx2 publisher; a WaitSet wake-up also allocates inside iceoryx2).
+//!
+//! A counting global allocator wraps the system one; this file holds one test so no other test
+//! allocates concurrently.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_wire::*;
+
+struct Counting;
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocs() -> usize {
+    ALLOCS.load(Ordering::Relaxed)
+}
+
+#[test]
+fn steady_state_receive_path_does_not_allocate() {
+    let run = RunIpc::new(
+        &format!("noalloc-{}", std::process::id()),
+        "/tmp/mbpo-wire-test",
+    )
+    .unwrap();
+    {
+        let actor = run.node::<ipc::Service>(Role::Actor, 0).unwrap();
+        let learner = run.node::<ipc::Service>(Role::Learner, 0).unwrap();
+        let layout = RowLayout::new(17, 6);
+        let tx = TransitionPublisher::create(&actor, Channel::Real, layout, 1000).unwrap();
+        let rx = TransitionSubscriber::create(&learner, Channel::Real, layout).unwrap();
+        let wp = WeightsPublisher::create(&learner, WeightsKind::Policy, 1, 1000).unwrap();
+        let ws = WeightsSubscriber::create(&actor, WeightsKind::Policy, 1, 1000).unwrap();
+        tx.wait_for_subscribers(1, Duration::from_secs(5)).unwrap();
+        let batch = Batch::new(17, 6, 1000);
+        let mut buf = ReplayBuffer::new(17, 6, 10_000);
+        let mut out = Batch::new(17, 6, 1000);
+        let params = vec![0.25f32; 1000];
+        let mut dst = vec![0.0f32; 1000];
+        // (send-side, receive-side) allocations of one step.
+        let mut step = |v: u64| {
+            let a0 = allocs();
+            let meta = TransitionMeta {
+                policy_version: v,
+                model_version: 0,
+                env_steps: v,
+            };
+            tx.send_batch(&batch, meta).unwrap();
+            wp.publish(&params, v, WeightsCounters::default()).unwrap();
+            let a1 = allocs();
+            let b = rx.receive().unwrap().unwrap();
+            b.push_into(&mut buf);
+            b.to_batch(&mut out);
+            drop(b);
+            ws.receive_latest_into(&mut dst).unwrap().unwrap();
+            let a2 = allocs();
+            (a1 - a0, a2 - a1)
+        };
+        for v in 1..=20 {
+            step(v);
+        }
+        let (mut send, mut recv) = (0, 0);
+        for v in 21..=220 {
+            let (s, r) = step(v);
+            send += s;
+            recv += r;
+        }
+        assert_eq!(
+            recv, 0,
+            "{recv} allocations on the receive path in 200 steps"
+        );
+        // Two iceoryx2 sends per step, one block each.
+        assert!(
+            send <= 2 * 200,
+            "{send} allocations on the send path in 200 steps"
+        );
+    }
+    run.remove_all::<ipc::Service>().unwrap();
+}
