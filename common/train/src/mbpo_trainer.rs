@@ -88,6 +88,7 @@ impl Mbpo {
     pub fn warm_up_step(&mut self) {
         let rows = self.actor.act(Behaviour::Uniform);
         self.distribute_real(&rows);
+        self.learner.finish_step();
     }
 
     /// Train p_θ on all of D_env (holdout early stopping; elites) and hand it to the rollouts.

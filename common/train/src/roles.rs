@@ -61,8 +61,9 @@ impl Schedule {
     }
 }
 
-/// The policy after `version` learner steps (version 0: the initial parameters; version t: after
-/// the G updates of env step t).
+/// The policy after `version` learner steps: version 0 is the initial parameters, version t the
+/// parameters after env step t was consumed (and, after the warm-up, its G updates done). The
+/// actor of env step t acts with version t − 1.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PolicySnapshot {
     /// Learner steps completed.
@@ -367,7 +368,7 @@ impl LearnerRole {
         );
         self.last_stats = self.sac.update(&self.batch, &mut self.update_rng);
     }
-    /// Mark one learner step (the G updates of one env step) complete.
+    /// Mark one learner step complete: env step t consumed (with its G updates after warm-up).
     pub fn finish_step(&mut self) {
         self.steps += 1;
     }
