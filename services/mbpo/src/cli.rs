@@ -14,6 +14,9 @@ pub struct Cli {
 pub enum Command {
     /// Train in a single process (SAC baseline; MBPO sequential reference).
     Train(TrainArgs),
+    /// Run MBPO as a multi-process pipeline (actors, model trainer, rollout generator, SAC
+    /// learner over iceoryx2 shared memory), supervised by this process.
+    Run(RunArgs),
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),
@@ -130,4 +133,43 @@ pub struct PlotArgs {
     /// Plot title.
     #[arg(long, default_value = "learning curves")]
     pub title: String,
+}
+
+/// How a crashed service process is handled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RestartPolicy {
+    /// A crash fails the run.
+    Never,
+    /// Restart the crashed process (fresh state) up to `--max-restarts` times, then fail.
+    OnFailure,
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub common: CommonTrainArgs,
+    /// Hand-off mode: `lockstep` equals `mbpo train --mode sequential` bit for bit (one actor);
+    /// `pipelined` overlaps the processes within bounded slack.
+    #[arg(long, value_enum, default_value = "pipelined")]
+    pub mode: mbpo_service_kit::Mode,
+    /// Number of environment actors (lockstep needs exactly 1).
+    #[arg(long, default_value_t = 1)]
+    pub actors: u16,
+    #[command(flatten)]
+    pub slack: mbpo_service_kit::Slack,
+    /// Base directory of the run's iceoryx2 files (kept short: unix socket paths live under it).
+    #[arg(long, default_value = "/tmp/mbpo-ipc")]
+    pub ipc_root: std::path::PathBuf,
+    /// What to do when a service process crashes.
+    #[arg(long, value_enum, default_value = "never")]
+    pub restart: RestartPolicy,
+    /// Restarts allowed per process with `--restart on-failure`.
+    #[arg(long, default_value_t = 3)]
+    pub max_restarts: u32,
+    /// Pin process i to CPU i mod ncpu (sched_setaffinity).
+    #[arg(long)]
+    pub pin_cpus: bool,
+    /// Do not draw the live progress line.
+    #[arg(long)]
+    pub quiet: bool,
 }

@@ -4,6 +4,7 @@
 mod bench;
 mod cli;
 mod env_cmd;
+mod supervisor;
 mod train_cmd;
 
 use clap::Parser;
@@ -24,6 +25,7 @@ fn main() -> ExitCode {
 fn run(cli: cli::Cli) -> anyhow::Result<()> {
     match cli.command {
         cli::Command::Train(args) => train_cmd::run(&args),
+        cli::Command::Run(args) => supervisor::run(&args),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
         cli::Command::Plot(args) => {
             mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;

@@ -1,0 +1,368 @@
+//! Turning the services' stats records into `metrics.csv` rows, the progress line and the
+//! summary.
+//!
+//! The row of eval point t is written once the evaluator's `Eval` record and the learner's
+//! `Learner` record for t are in. Everything else the row needs was sent *before* the learner's
+//! record could be (episode records precede their transition, model records precede their
+//! weights), and the collector drains every queue before writing, so in lockstep the row
+//! equals the sequential one.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::time::Instant;
+
+use mbpo_service_kit::stats::{Done, LearnerRow};
+use mbpo_train::run_dir::MetricsRow;
+use mbpo_train::{ExperimentConfig, RunDir, Summary};
+use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
+use serde::Serialize;
+
+use crate::cli::RunArgs;
+
+/// Real transitions: produced, received by each consumer, lost.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct RealCounts {
+    /// Produced by all actors.
+    pub produced: u64,
+    /// Received, per consumer.
+    pub received: BTreeMap<String, u64>,
+    /// Lost (sequence gaps), summed over consumers.
+    pub lost: u64,
+}
+
+/// A slack value's range over the run.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Range {
+    /// Smallest.
+    pub min: f32,
+    /// Largest.
+    pub max: f32,
+    /// Mean.
+    pub mean: f32,
+    /// Allowed buffer (0 in lockstep).
+    pub buffer: u64,
+}
+
+/// The ratios the rate limiters hold.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Ratios {
+    /// SAC updates per env step after the warm-up (target: G).
+    pub updates_per_env_step: f64,
+    /// G.
+    pub target_updates_per_env_step: usize,
+    /// Updates owed when the learner consumed a step, `(r − warm-up)·G − u`, in [−buffer, buffer].
+    pub learner_updates_owed: Range,
+    /// Policy lag of the actors, `t − 1 − version`, in [0, policy_lag].
+    pub actor_policy_lag: Range,
+    /// Policy staleness of the rollouts, `t − 1 − version` at a train point.
+    pub rollout_policy_lag: Range,
+    /// Imagined batches (one per model training: M · model_train_freq rollouts each).
+    pub rollout_batches: u64,
+    /// Model trainings.
+    pub model_trainings: u64,
+}
+
+/// `summary.json` of `mbpo run`: the fields of `mbpo train`'s summary plus the pipeline's.
+#[derive(Debug, Clone, Serialize)]
+pub struct PipelineSummary {
+    /// The same fields as the sequential mode.
+    #[serde(flatten)]
+    pub summary: Summary,
+    /// `completed`, `failed` or `interrupted`.
+    pub status: String,
+    /// `lockstep` or `pipelined`.
+    pub mode: String,
+    /// Actors.
+    pub actors: u16,
+    /// Run id (iceoryx2 services `mbpo/<run id>/...`).
+    pub run_id: String,
+    /// Real transitions.
+    pub real_transitions: RealCounts,
+    /// Ratios.
+    pub ratios: Ratios,
+    /// Process restarts.
+    pub restarts: u32,
+    /// iceoryx2 files removed at the end.
+    pub ipc_files_removed: usize,
+    /// iceoryx2 files left behind (should be empty).
+    pub ipc_leftovers: Vec<String>,
+}
+
+/// What the supervisor knows about the run.
+pub struct Collector {
+    cfg: ExperimentConfig,
+    mode: String,
+    actors: u16,
+    run_id: String,
+    slack: mbpo_service_kit::Slack,
+    eval_points: Vec<u64>,
+    next_row: usize,
+    evals: BTreeMap<u64, f64>,
+    learner: BTreeMap<u64, LearnerRow>,
+    episodes: Vec<(u64, f64)>,
+    models: BTreeMap<u64, f64>,
+    done: BTreeMap<ProducerId, Done>,
+    progress: (u64, u64, u64),
+    rate: (Instant, u64, u64, f64, f64),
+    last_row: (f64, u64),
+    final_return: f64,
+    best_return: f64,
+    to_minus_200: Option<u64>,
+    last_eval: Option<f64>,
+    /// Process restarts.
+    pub restarts: u32,
+}
+
+impl Collector {
+    /// For the run `cfg` started with `args`.
+    pub fn new(cfg: &ExperimentConfig, args: &RunArgs, run_id: &str) -> Self {
+        Self {
+            cfg: cfg.clone(),
+            mode: args.mode.name().into(),
+            actors: args.actors,
+            run_id: run_id.into(),
+            slack: args.slack.effective(args.mode),
+            eval_points: (1..=cfg.steps)
+                .filter(|&t| mbpo_service_kit::is_eval_point(cfg, t))
+                .collect(),
+            next_row: 0,
+            evals: BTreeMap::new(),
+            learner: BTreeMap::new(),
+            episodes: Vec::new(),
+            models: BTreeMap::new(),
+            done: BTreeMap::new(),
+            progress: (0, 0, 0),
+            rate: (Instant::now(), 0, 0, 0.0, 0.0),
+            last_row: (0.0, 0),
+            final_return: f64::NAN,
+            best_return: f64::NEG_INFINITY,
+            to_minus_200: None,
+            last_eval: None,
+            restarts: 0,
+        }
+    }
+
+    /// Take one record.
+    pub fn on_record(&mut self, from: ProducerId, r: &StatsRecord) {
+        match r.stats_kind() {
+            Some(StatsKind::Episode) => self.episodes.push((r.env_steps, r.value)),
+            Some(StatsKind::Eval) => {
+                self.evals.insert(r.env_steps, r.value);
+            }
+            Some(StatsKind::Learner) => {
+                let row = LearnerRow::from_record(r);
+                self.progress = (r.env_steps, r.sac_updates, r.model_version);
+                self.learner.insert(r.env_steps, row);
+            }
+            Some(StatsKind::Model) => {
+                self.models.insert(r.model_version, r.value);
+            }
+            Some(StatsKind::Rollout) => {}
+            Some(StatsKind::Heartbeat) => match Done::from_record(r) {
+                Some(d) => {
+                    tracing::info!("{from} finished: {d:?}");
+                    self.done.insert(from, d);
+                }
+                None if from.role() == Some(Role::Learner) => {
+                    self.progress = (r.env_steps, r.sac_updates, r.model_version)
+                }
+                None => {}
+            },
+            None => tracing::warn!("stats record of unknown kind {} from {from}", r.kind),
+        }
+    }
+
+    /// Env steps consumed by the learner (last report).
+    pub fn env_steps(&self) -> u64 {
+        self.progress.0
+    }
+
+    /// True when every process reported done.
+    pub fn all_done(&self, actors: u16) -> bool {
+        self.done.len() == actors as usize + 4
+    }
+
+    /// Write the rows whose records are all in.
+    pub fn write_rows(&mut self, run: &mut RunDir, started: Instant) -> std::io::Result<()> {
+        while let Some(&t) = self.eval_points.get(self.next_row) {
+            let (Some(&ret), Some(lr)) = (self.evals.get(&t), self.learner.get(&t).copied()) else {
+                break;
+            };
+            let done: Vec<&(u64, f64)> = self.episodes.iter().filter(|e| e.0 <= t).collect();
+            let train_return = done.iter().max_by_key(|e| e.0).map(|e| e.1);
+            let updated = lr.sac_updates > 0;
+            let some = |v: f32| updated.then_some(v as f64);
+            let model = (lr.model_version > 0)
+                .then(|| self.models.get(&lr.model_version).copied())
+                .flatten();
+            let now = started.elapsed().as_secs_f64();
+            let sps = (t - self.last_row.1) as f64 / (now - self.last_row.0).max(1e-9);
+            self.last_row = (now, t);
+            let row = MetricsRow {
+                env_steps: t,
+                episodes: done.len() as u64,
+                eval_return: ret,
+                train_return,
+                sac_updates: lr.sac_updates,
+                critic_loss: some(lr.stats.critic_loss),
+                actor_loss: some(lr.stats.actor_loss),
+                alpha: Some(lr.alpha as f64),
+                entropy: some(lr.stats.entropy),
+                q_mean: some(lr.stats.q_mean),
+                model_holdout_mse: model,
+                rollout_length: model.map(|_| lr.rollout_length as f64),
+                model_buffer: model.map(|_| lr.model_buffer as f64),
+                wall_seconds: now,
+                env_steps_per_sec: sps,
+            };
+            run.write_metrics(&row)?;
+            tracing::info!(
+                "step {t}: eval {ret:.1}, {} updates, alpha {:.3}, {sps:.1} steps/s",
+                lr.sac_updates,
+                lr.alpha
+            );
+            self.final_return = ret;
+            self.best_return = self.best_return.max(ret);
+            if ret >= -200.0 && self.to_minus_200.is_none() {
+                self.to_minus_200 = Some(t);
+            }
+            self.last_eval = Some(ret);
+            self.next_row += 1;
+        }
+        Ok(())
+    }
+
+    /// The live progress line (on a terminal: redrawn in place; otherwise logged every 10 s).
+    pub fn progress_line(&mut self, started: Instant, tty: bool) {
+        let (steps, updates, model) = self.progress;
+        let (t0, s0, u0, sps, ups) = self.rate;
+        let dt = t0.elapsed().as_secs_f64();
+        let (mut sps, mut ups) = (sps, ups);
+        if dt >= 1.0 {
+            sps = (steps - s0) as f64 / dt;
+            ups = (updates - u0) as f64 / dt;
+            self.rate = (Instant::now(), steps, updates, sps, ups);
+        }
+        let left = self.cfg.steps.saturating_sub(steps);
+        let eta = if sps > 0.0 {
+            format!("{:.0} s", left as f64 / sps)
+        } else {
+            "?".into()
+        };
+        let eval = self.last_eval.map_or("-".into(), |r| format!("{r:.1}"));
+        let line = format!(
+            "[{:>6.1} s] step {steps}/{} | {sps:.1} env steps/s | {ups:.0} updates/s | model v{model} | eval {eval} | ETA {eta}",
+            started.elapsed().as_secs_f64(),
+            self.cfg.steps
+        );
+        if tty {
+            let mut e = std::io::stderr();
+            let _ = write!(e, "\r\x1b[2K{line}");
+            let _ = e.flush();
+        } else if dt >= 10.0 || (steps > 0 && steps == self.cfg.steps) {
+            tracing::info!("{line}");
+        }
+    }
+
+    /// The summary.
+    pub fn summary(
+        &self,
+        status: &str,
+        policy_sha256: String,
+        started: Instant,
+    ) -> PipelineSummary {
+        let mut real = RealCounts::default();
+        let mut ratios = Ratios {
+            target_updates_per_env_step: self.cfg.mbpo.updates_per_step,
+            ..Default::default()
+        };
+        let mut sac_updates = 0;
+        let mut median = None;
+        let mut lag = Range {
+            min: f32::INFINITY,
+            max: f32::NEG_INFINITY,
+            ..Default::default()
+        };
+        for (who, d) in &self.done {
+            match who.role() {
+                Some(Role::Actor) => {
+                    real.produced += d.real;
+                    lag.min = lag.min.min(d.slack_min);
+                    lag.max = lag.max.max(d.slack_max);
+                    lag.mean += d.slack_mean / self.actors as f32;
+                }
+                Some(r @ (Role::ModelTrainer | Role::RolloutGenerator | Role::Learner)) => {
+                    real.received.insert(r.name().to_string(), d.real);
+                    real.lost += d.lost;
+                    let range = Range {
+                        min: d.slack_min,
+                        max: d.slack_max,
+                        mean: d.slack_mean,
+                        buffer: 0,
+                    };
+                    match r {
+                        Role::Learner => {
+                            sac_updates = d.work;
+                            median = (d.median_step_seconds > 0.0)
+                                .then_some(d.median_step_seconds as f64);
+                            ratios.learner_updates_owed = Range {
+                                buffer: self.slack.update_buffer,
+                                ..range
+                            };
+                        }
+                        Role::RolloutGenerator => {
+                            ratios.rollout_policy_lag = Range {
+                                buffer: self.slack.policy_lag,
+                                ..range
+                            };
+                            ratios.rollout_batches = d.work;
+                        }
+                        _ => ratios.model_trainings = d.work,
+                    }
+                }
+                _ => {}
+            }
+        }
+        if lag.min.is_finite() {
+            ratios.actor_policy_lag = Range {
+                buffer: self.slack.policy_lag,
+                ..lag
+            };
+        }
+        let after_warmup = self
+            .cfg
+            .steps
+            .saturating_sub(self.cfg.mbpo.init_random_steps);
+        ratios.updates_per_env_step = if after_warmup > 0 {
+            sac_updates as f64 / after_warmup as f64
+        } else {
+            0.0
+        };
+        let mut received: Vec<u64> = real.received.values().copied().collect();
+        received.dedup();
+        PipelineSummary {
+            summary: Summary {
+                algo: "mbpo".into(),
+                env: self.cfg.env.clone(),
+                seed: self.cfg.seed,
+                env_steps: self.last_row.1,
+                sac_updates,
+                final_eval_return: self.final_return,
+                best_eval_return: self.best_return,
+                env_steps_to_minus_200: self.to_minus_200,
+                policy_sha256,
+                wall_seconds: started.elapsed().as_secs_f64(),
+                median_seconds_per_env_step: median,
+            },
+            status: status.into(),
+            mode: self.mode.clone(),
+            actors: self.actors,
+            run_id: self.run_id.clone(),
+            real_transitions: real,
+            ratios,
+            restarts: self.restarts,
+            ipc_files_removed: 0,
+            ipc_leftovers: Vec::new(),
+        }
+    }
+}

@@ -1,0 +1,445 @@
+//! `mbpo run`: the pipeline supervisor.
+//!
+//! Writes the resolved config into the run directory, gives the run its own iceoryx2
+//! environment (unique run id -> own prefix and root path; stale resources cleaned at start,
+//! everything removed and checked at the end), spawns the service binaries found next to this
+//! executable (stderr -> `<run-dir>/logs/<process>.log`), reaps them, restarts or fails on a
+//! crash, forwards SIGINT/SIGTERM as a Stop, and turns the services' [`StatsRecord`]s into
+//! `metrics.csv` rows (same columns as `mbpo train`) and `summary.json`.
+//!
+//! Child processes, signals and timers are handled with plain `std::process` + `libc`: the
+//! supervisor sleeps in the same [`Waiter`] as the services (stats and policy channels, 250 ms
+//! timeout for reaping and the progress line), so it needs no async runtime.
+
+mod collect;
+
+use std::fs::File;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use mbpo_service_kit::{configure_run, policy_wire_version, Mode};
+use mbpo_train::{policy_sha256, Algo, RunDir};
+use mbpo_wire::{
+    ipc, ControlCommand, ControlMsg, ControlPublisher, Role, RunIpc, StatsSubscriber, WaitOutcome,
+    Waiter, WeightsKind, WeightsSubscriber, CONTROL_TARGET_ALL,
+};
+
+use crate::cli::{RestartPolicy, RunArgs};
+use crate::train_cmd::{resolve_config, run_dir};
+use collect::Collector;
+
+/// One supervised process.
+struct Proc {
+    name: String,
+    bin: PathBuf,
+    args: Vec<String>,
+    log: PathBuf,
+    child: Option<Child>,
+    restarts: u32,
+    exit: Option<ExitStatus>,
+    cpu: Option<usize>,
+}
+
+impl Proc {
+    fn spawn(&mut self) -> anyhow::Result<()> {
+        let log = File::options()
+            .create(true)
+            .append(true)
+            .open(&self.log)
+            .with_context(|| format!("opening {}", self.log.display()))?;
+        let child = Command::new(&self.bin)
+            .args(&self.args)
+            .stdin(Stdio::null())
+            .stdout(log.try_clone()?)
+            .stderr(log)
+            .spawn()
+            .with_context(|| {
+                format!(
+                    "starting {} ({}): build the service binaries next to mbpo (cargo build -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator -p mbpo-sac-learner)",
+                    self.name,
+                    self.bin.display()
+                )
+            })?;
+        if let Some(cpu) = self.cpu {
+            pin(child.id() as i32, cpu);
+        }
+        tracing::debug!("started {} (pid {})", self.name, child.id());
+        self.child = Some(child);
+        self.exit = None;
+        Ok(())
+    }
+
+    fn pid(&self) -> Option<i32> {
+        self.child.as_ref().map(|c| c.id() as i32)
+    }
+
+    /// Reap if exited.
+    fn poll(&mut self) -> anyhow::Result<Option<ExitStatus>> {
+        let Some(c) = self.child.as_mut() else {
+            return Ok(None);
+        };
+        if let Some(s) = c.try_wait()? {
+            self.child = None;
+            self.exit = Some(s);
+            return Ok(Some(s));
+        }
+        Ok(None)
+    }
+
+    fn signal(&self, sig: i32) {
+        if let Some(pid) = self.pid() {
+            // SAFETY: plain kill(2) on our own child's pid (not yet reaped, so not reused).
+            unsafe { libc::kill(pid, sig) };
+        }
+    }
+
+    fn log_tail(&self, lines: usize) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        let all: Vec<&str> = text.lines().collect();
+        all[all.len().saturating_sub(lines)..].join("\n")
+    }
+}
+
+fn pin(pid: i32, cpu: usize) {
+    // SAFETY: cpu_set_t is plain data; sched_setaffinity on our own child.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        if libc::sched_setaffinity(pid, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+            tracing::warn!("could not pin pid {pid} to cpu {cpu}");
+        }
+    }
+}
+
+fn ncpu() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+/// A run id that is unique on this host and usable in iceoryx2 names.
+fn make_run_id(env: &str, seed: u64) -> String {
+    let env: String = env
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_lowercase()
+            } else {
+                '-'
+            }
+        })
+        .collect();
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    format!(
+        "{env}-s{seed}-{}-{:x}",
+        std::process::id(),
+        nanos & 0xff_ffff
+    )
+}
+
+/// Run the pipeline per `args`.
+pub fn run(args: &RunArgs) -> anyhow::Result<()> {
+    let cfg = resolve_config(&args.common, None, None)?;
+    if cfg.algo != Algo::Mbpo {
+        bail!("mbpo run runs MBPO; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
+    }
+    if args.mode == Mode::Lockstep && args.actors != 1 {
+        bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
+    }
+    if args.actors == 0 {
+        bail!("--actors must be at least 1");
+    }
+    let out = run_dir(&args.common, &cfg);
+    let mut run_dir =
+        RunDir::create(&out, &cfg).with_context(|| format!("creating {}", out.display()))?;
+    let out = out.canonicalize()?;
+    let logs = out.join("logs");
+    std::fs::create_dir_all(&logs)?;
+    let bin_dir = std::env::current_exe()?
+        .parent()
+        .map(Path::to_path_buf)
+        .context("locating the service binaries")?;
+
+    let run_id = make_run_id(&cfg.env, cfg.seed);
+    let mut ipc = RunIpc::new(&run_id, &args.ipc_root)?;
+    configure_run(&mut ipc);
+    let stale = ipc.remove_stale_nodes::<ipc::Service>()?;
+    if stale.removed > 0 {
+        tracing::warn!("removed the resources of {} dead node(s)", stale.removed);
+    }
+    tracing::info!(
+        "run {run_id}: {} seed {} {} steps, mode {}, {} actor(s), run dir {}, iceoryx2 root {}",
+        cfg.env,
+        cfg.seed,
+        cfg.steps,
+        args.mode.name(),
+        args.actors,
+        out.display(),
+        ipc.root_path().display()
+    );
+
+    let started = Instant::now();
+    let outcome = supervise(
+        args,
+        &cfg,
+        &ipc,
+        &run_id,
+        &out,
+        &logs,
+        &bin_dir,
+        &mut run_dir,
+        started,
+    );
+
+    // Every node of the run is gone now (children reaped, ours dropped): remove everything.
+    let removed = ipc.remove_all::<ipc::Service>();
+    let leftovers = ipc.leftovers();
+    let (outcome, mut report) = match outcome {
+        Ok((report, None)) => (Ok(()), Some(report)),
+        Ok((report, Some(err))) => (Err(err), Some(report)),
+        Err(e) => (Err(e), None),
+    };
+    match &removed {
+        Ok(n) => tracing::info!("removed {n} iceoryx2 file(s) of the run"),
+        Err(e) => tracing::error!("cleaning up the run's shared memory failed: {e}"),
+    }
+    if !leftovers.is_empty() {
+        tracing::error!("shared-memory leftovers: {leftovers:?}");
+    }
+    if let Some(r) = report.as_mut() {
+        r.ipc_files_removed = removed.as_ref().map_or(0, |n| *n);
+        r.ipc_leftovers = leftovers.iter().map(|p| p.display().to_string()).collect();
+        r.summary.wall_seconds = started.elapsed().as_secs_f64();
+        let tmp = out.join("summary.json.tmp");
+        std::fs::write(&tmp, serde_json::to_string_pretty(r)? + "\n")?;
+        std::fs::rename(tmp, out.join("summary.json"))?;
+        if outcome.is_ok() {
+            println!("{}", serde_json::to_string(r)?);
+        }
+    }
+    outcome
+}
+
+#[allow(clippy::too_many_arguments)]
+fn supervise(
+    args: &RunArgs,
+    cfg: &mbpo_train::ExperimentConfig,
+    ipc: &RunIpc,
+    run_id: &str,
+    out: &Path,
+    logs: &Path,
+    bin_dir: &Path,
+    run_dir: &mut RunDir,
+    started: Instant,
+) -> anyhow::Result<(collect::PipelineSummary, Option<anyhow::Error>)> {
+    let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
+    let stats = StatsSubscriber::create(&node)?;
+    let dims = mbpo_service_kit::Dims::of(cfg)?;
+    let policy = WeightsSubscriber::create(
+        &node,
+        WeightsKind::Policy,
+        dims.policy_hash,
+        dims.policy_len,
+    )?;
+    let control = ControlPublisher::create(&node)?;
+
+    let common: Vec<String> = vec![
+        "--run-dir".into(),
+        out.display().to_string(),
+        "--run-id".into(),
+        run_id.into(),
+        "--ipc-root".into(),
+        args.ipc_root.display().to_string(),
+        "--mode".into(),
+        args.mode.name().into(),
+        "--actors".into(),
+        args.actors.to_string(),
+        "--policy-lag".into(),
+        args.slack.policy_lag.to_string(),
+        "--update-buffer".into(),
+        args.slack.update_buffer.to_string(),
+        "--model-lag".into(),
+        args.slack.model_lag.to_string(),
+    ];
+    let mut procs = Vec::new();
+    let mut add = |name: String, bin: &str, extra: Vec<String>| {
+        let mut a = common.clone();
+        a.extend(extra);
+        let cpu = args.pin_cpus.then(|| procs.len() % ncpu());
+        procs.push(Proc {
+            log: logs.join(format!("{name}.log")),
+            name,
+            bin: bin_dir.join(bin),
+            args: a,
+            child: None,
+            restarts: 0,
+            exit: None,
+            cpu,
+        });
+    };
+    add("learner".into(), "mbpo-sac-learner", vec![]);
+    add("model-trainer".into(), "mbpo-model-trainer", vec![]);
+    add("rollout-generator".into(), "mbpo-rollout-generator", vec![]);
+    add("evaluator".into(), "mbpo-actor", vec!["--eval".into()]);
+    for i in 0..args.actors {
+        add(
+            format!("actor-{i}"),
+            "mbpo-actor",
+            vec!["--index".into(), i.to_string()],
+        );
+    }
+    for p in &mut procs {
+        p.spawn()?;
+    }
+
+    let mut col = Collector::new(cfg, args, run_id);
+    let final_wire = policy_wire_version(cfg.steps);
+    let mut final_params: Option<Vec<f32>> = None;
+    let mut waiter = Waiter::new()?;
+    waiter.attach(&stats).attach(&policy);
+    let tty = std::io::stderr().is_terminal() && !args.quiet;
+    let mut last_line = Instant::now();
+    let mut failure: Option<anyhow::Error> = None;
+    let mut interrupted = false;
+    loop {
+        if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
+            interrupted = true;
+            break;
+        }
+        loop {
+            match stats.receive() {
+                Ok(Some(r)) => col.on_record(r.producer(), &r.msg),
+                Ok(None) => break,
+                Err(e) => tracing::warn!("stats: {e}"),
+            }
+        }
+        match policy.receive_latest() {
+            Ok(Some(w)) if w.version() == final_wire => final_params = Some(w.params().to_vec()),
+            Ok(_) => {}
+            Err(e) => tracing::warn!("policy: {e}"),
+        }
+        col.write_rows(run_dir, started)?;
+        if last_line.elapsed() >= Duration::from_millis(500) {
+            last_line = Instant::now();
+            col.progress_line(started, tty);
+        }
+        for p in procs.iter_mut() {
+            let Some(status) = p.poll()? else { continue };
+            let tail = p.log_tail(8);
+            let why = format!(
+                "{} exited with {status} before the run finished; last lines of {}:\n{tail}",
+                p.name,
+                p.log.display()
+            );
+            if args.restart == RestartPolicy::OnFailure && p.restarts < args.max_restarts {
+                p.restarts += 1;
+                tracing::warn!(
+                    "{why}\nrestarting it ({}/{}; it starts from fresh state)",
+                    p.restarts,
+                    args.max_restarts
+                );
+                col.restarts += 1;
+                p.spawn()?;
+            } else {
+                let more = if args.restart == RestartPolicy::OnFailure {
+                    format!(" after {} restart(s)", p.restarts)
+                } else {
+                    String::new()
+                };
+                failure = Some(anyhow::anyhow!("{why}\nthe run failed{more}"));
+                break;
+            }
+        }
+        if failure.is_some() {
+            break;
+        }
+        if col.all_done(args.actors) && final_params.is_some() {
+            break;
+        }
+    }
+    if tty {
+        eprintln!();
+    }
+    // Stop everyone: a Stop message (services wait for it after their work), SIGTERM after 3 s,
+    // SIGKILL after 10 s.
+    let _ = control.wait_for_subscribers(
+        procs.iter().filter(|p| p.child.is_some()).count(),
+        Duration::from_secs(2),
+    );
+    if let Err(e) = control.send(&ControlMsg::request(
+        ControlCommand::Stop,
+        1,
+        CONTROL_TARGET_ALL,
+        cfg.steps,
+    )) {
+        tracing::warn!("sending stop: {e}");
+    }
+    if interrupted {
+        for p in &procs {
+            p.signal(libc::SIGTERM);
+        }
+    }
+    let stop_started = Instant::now();
+    let mut termed = interrupted;
+    loop {
+        let mut alive = 0;
+        for p in procs.iter_mut() {
+            if p.poll()?.is_none() && p.child.is_some() {
+                alive += 1;
+            }
+        }
+        if alive == 0 {
+            break;
+        }
+        if !termed && stop_started.elapsed() > Duration::from_secs(3) {
+            tracing::warn!("{alive} process(es) ignored the stop; sending SIGTERM");
+            procs.iter().for_each(|p| p.signal(libc::SIGTERM));
+            termed = true;
+        }
+        if stop_started.elapsed() > Duration::from_secs(10) {
+            tracing::error!("{alive} process(es) ignored SIGTERM; killing");
+            procs.iter().for_each(|p| p.signal(libc::SIGKILL));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    tracing::info!(
+        "all processes exited {:.2} s after the stop",
+        stop_started.elapsed().as_secs_f64()
+    );
+    for p in &procs {
+        if let Some(s) = p.exit {
+            if !s.success() && failure.is_none() && !interrupted {
+                failure = Some(anyhow::anyhow!(
+                    "{} exited with {s}; see {}",
+                    p.name,
+                    p.log.display()
+                ));
+            }
+        }
+    }
+    drop(waiter);
+    if interrupted && failure.is_none() {
+        failure = Some(anyhow::anyhow!(
+            "interrupted (SIGINT/SIGTERM) after {} env steps; all processes stopped",
+            col.env_steps()
+        ));
+    }
+    let status = if failure.is_some() {
+        if interrupted {
+            "interrupted"
+        } else {
+            "failed"
+        }
+    } else {
+        "completed"
+    };
+    let sha = final_params
+        .as_deref()
+        .map(policy_sha256)
+        .unwrap_or_default();
+    let report = col.summary(status, sha, started);
+    Ok((report, failure))
+}

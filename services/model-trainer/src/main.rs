@@ -1,0 +1,135 @@
+//! `mbpo-model-trainer`: keeps its own copy of the real data and, at every train point t,
+//! trains the ensemble and publishes model version v (latest value, one flat `[f32]`, see
+//! `ModelWireLayout`).
+//!
+//! Lockstep: trains on exactly the first t − 1 real transitions (transition t may already have
+//! arrived; it is held back). Pipelined: trains on every transition received by then (≥ t − 1).
+
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use mbpo_core::Batch;
+use mbpo_service_kit::{stats, *};
+use mbpo_train::roles::{ModelTrainerRole, Schedule};
+use mbpo_wire::*;
+
+#[derive(Debug, Parser)]
+#[command(name = "mbpo-model-trainer", about = "MBPO pipeline model trainer")]
+struct Args {
+    #[command(flatten)]
+    svc: ServiceArgs,
+}
+
+fn main() -> ExitCode {
+    match run(&Args::parse().svc) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &ServiceArgs) -> anyhow::Result<()> {
+    let s = Process::start(args, Role::ModelTrainer)?;
+    let (cfg, d) = (&s.cfg, s.dims);
+    let control = ControlInbox::create(&s.node)?;
+    let stats_pub = StatsPublisher::create(&s.node)?;
+    let real = TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?;
+    let model_pub = WeightsPublisher::create(
+        &s.node,
+        WeightsKind::Model,
+        d.model.layout_hash,
+        d.model.len(),
+    )?;
+    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
+    let mut waiter = Waiter::new()?;
+    waiter.attach(&control.sub).attach(&real).attach(&model_pub);
+
+    let mut role = ModelTrainerRole::new(cfg, d.obs, d.act)?;
+    let schedule = Schedule::of(cfg);
+    let mut inbox = RealInbox::new(d.rows());
+    let mut rows = Batch::default();
+    let mut flat = Vec::with_capacity(d.model.len());
+    let mut version = 0;
+    for t in (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some()) {
+        let ok = wait_for(
+            &waiter,
+            &control,
+            &|| format!("{} real transitions", t - 1),
+            || {
+                inbox.pull(&real)?;
+                Ok(inbox.received() >= t - 1)
+            },
+        )?;
+        if !ok {
+            return Ok(());
+        }
+        let n = match s.mode {
+            Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
+            Mode::Pipelined => inbox.pending(),
+        };
+        inbox.take(n, &mut rows);
+        role.add_real(&rows);
+        let started = Instant::now();
+        let (snapshot, report) = role.train()?;
+        let seconds = started.elapsed().as_secs_f64();
+        version = snapshot.version;
+        // The same number the sequential metrics row shows: mean elite holdout MSE.
+        let mse = report
+            .elites
+            .iter()
+            .map(|&e| report.final_holdout_mse[e] as f64)
+            .sum::<f64>()
+            / report.elites.len() as f64;
+        // Stats before weights: whoever sees a later consequence of this model finds its record.
+        stats_pub.send(&stats::model(
+            role.real_received(),
+            version,
+            mse,
+            report.epochs,
+            seconds,
+        ))?;
+        d.model.encode(&snapshot.weights, &mut flat)?;
+        let counters = WeightsCounters {
+            env_steps: role.real_received(),
+            sac_updates: 0,
+            model_trainings: version,
+        };
+        model_pub.publish(&flat, version, counters)?;
+        tracing::info!(
+            "model v{version} trained for step {t} on {} transitions: {} epochs, holdout mse {mse:.5}, {seconds:.2} s",
+            role.real_received(),
+            report.epochs
+        );
+    }
+    // Take the rest so that no actor blocks and the counts are complete.
+    let total = cfg.steps;
+    if !wait_for(
+        &waiter,
+        &control,
+        &|| format!("{total} real transitions"),
+        || {
+            inbox.pull(&real)?;
+            Ok(inbox.received() >= total)
+        },
+    )? {
+        return Ok(());
+    }
+    let lost = real.stats().missing;
+    stats_pub.send(
+        &stats::Done {
+            real: inbox.received(),
+            lost,
+            work: version,
+            ..Default::default()
+        }
+        .record(),
+    )?;
+    tracing::info!(
+        "done: {} real transitions received, {lost} lost, {version} trainings",
+        inbox.received()
+    );
+    wait_for_stop(&waiter, &control)
+}

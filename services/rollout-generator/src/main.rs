@@ -1,0 +1,179 @@
+//! `mbpo-rollout-generator`: at every train point t, loads model version v (the v-th training)
+//! and the newest allowed policy, branches M · model_train_freq k-step rollouts from start
+//! states drawn from its copy of the real data, and publishes them as one imagined batch
+//! (reliable; header `env_steps` = t − 1 names the train point, versions say what made it).
+//!
+//! Lockstep: model version exactly v, policy version exactly t − 1, exactly t − 1 real
+//! transitions. Pipelined: policy ≥ t − 1 − policy_lag, every real transition received.
+
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use mbpo_core::Batch;
+use mbpo_service_kit::{stats, *};
+use mbpo_train::roles::{ModelSnapshot, PolicySnapshot, RolloutRole, Schedule};
+use mbpo_wire::*;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "mbpo-rollout-generator",
+    about = "MBPO pipeline rollout generator"
+)]
+struct Args {
+    #[command(flatten)]
+    svc: ServiceArgs,
+}
+
+fn main() -> ExitCode {
+    match run(&Args::parse().svc) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &ServiceArgs) -> anyhow::Result<()> {
+    let s = Process::start(args, Role::RolloutGenerator)?;
+    let (cfg, d) = (&s.cfg, s.dims);
+    let control = ControlInbox::create(&s.node)?;
+    let stats_pub = StatsPublisher::create(&s.node)?;
+    let real = TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?;
+    let model = WeightsSubscriber::create(
+        &s.node,
+        WeightsKind::Model,
+        d.model.layout_hash,
+        d.model.len(),
+    )?;
+    let policy =
+        WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
+    let n_rollouts = cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize;
+    let imagined = TransitionPublisher::create(&s.node, Channel::Imagined, d.rows(), n_rollouts)?;
+    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
+    imagined.wait_for_subscribers(1, Duration::from_secs(120))?;
+    let mut waiter = Waiter::new()?;
+    waiter
+        .attach(&control.sub)
+        .attach(&real)
+        .attach(&model)
+        .attach(&policy);
+
+    let mut role = RolloutRole::new(cfg, d.obs, d.act)?;
+    let schedule = Schedule::of(cfg);
+    let mut inbox = RealInbox::new(d.rows());
+    let mut rows = Batch::default();
+    let mut snap = PolicySnapshot {
+        version: 0,
+        params: vec![0.0; d.policy_len],
+    };
+    let mut model_version = 0;
+    let mut staleness = stats::SlackTracker::default();
+    let mut branches = 0;
+    for t in (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some()) {
+        let epoch = schedule.train_point(t).expect("train point");
+        let v = branches + 1;
+        let need_policy = (t - 1).saturating_sub(s.slack.policy_lag);
+        let ok = wait_for(
+            &waiter,
+            &control,
+            &|| {
+                format!(
+                    "model v{v}, policy v{need_policy}, {} real transitions",
+                    t - 1
+                )
+            },
+            || {
+                inbox.pull(&real)?;
+                if let Some(w) = model.receive_latest()? {
+                    let weights = d.model.decode(w.params())?;
+                    model_version = w.version();
+                    role.set_model(&ModelSnapshot {
+                        version: model_version,
+                        weights,
+                    })?;
+                }
+                if let Some(w) = policy.receive_latest()? {
+                    snap.version = policy_version_of(w.version());
+                    snap.params.copy_from_slice(w.params());
+                    role.set_policy(&snap);
+                }
+                Ok(model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1)
+            },
+        )?;
+        if !ok {
+            return Ok(());
+        }
+        if s.mode == Mode::Lockstep {
+            anyhow::ensure!(
+                model_version == v && snap.version == t - 1,
+                "lockstep rollouts for step {t}: model v{model_version} (want v{v}), policy v{} (want v{})",
+                snap.version,
+                t - 1
+            );
+        }
+        staleness.see((t - 1) as f64 - snap.version as f64);
+        let n = match s.mode {
+            Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
+            Mode::Pipelined => inbox.pending(),
+        };
+        inbox.take(n, &mut rows);
+        role.add_real(&rows);
+        let started = Instant::now();
+        let batch = role.branch(epoch)?;
+        let seconds = started.elapsed().as_secs_f64();
+        stats_pub.send(&stats::rollout(
+            t - 1,
+            batch.model_version,
+            batch.policy_version,
+            batch.rows.len,
+            batch.rollout_length,
+            seconds,
+        ))?;
+        let meta = TransitionMeta {
+            policy_version: batch.policy_version,
+            model_version: batch.model_version,
+            env_steps: t - 1,
+        };
+        imagined.send_batch(&batch.rows, meta)?;
+        branches += 1;
+        tracing::info!(
+            "step {t}: {} rollouts of k={} with model v{} and policy v{}: {} rows in {seconds:.2} s",
+            n_rollouts,
+            batch.rollout_length,
+            batch.model_version,
+            batch.policy_version,
+            batch.rows.len
+        );
+    }
+    let total = cfg.steps;
+    if !wait_for(
+        &waiter,
+        &control,
+        &|| format!("{total} real transitions"),
+        || {
+            inbox.pull(&real)?;
+            Ok(inbox.received() >= total)
+        },
+    )? {
+        return Ok(());
+    }
+    let (lo, hi, mean) = staleness.get();
+    let lost = real.stats().missing;
+    let done = stats::Done {
+        real: inbox.received(),
+        lost,
+        work: branches,
+        slack_min: lo,
+        slack_max: hi,
+        slack_mean: mean,
+        ..Default::default()
+    };
+    stats_pub.send(&done.record())?;
+    tracing::info!(
+        "done: {} real transitions received, {lost} lost, {branches} branches",
+        inbox.received()
+    );
+    wait_for_stop(&waiter, &control)
+}

@@ -1,0 +1,205 @@
+//! `mbpo-sac-learner`: consumes real transitions one env step at a time and imagined batches,
+//! runs G SAC updates per env step after the warm-up, and publishes policy version r (= env
+//! steps consumed) once those updates are paid.
+//!
+//! The G ratio is a Reverb-style [`RateLimiter`] between steps consumed (inserts) and updates
+//! (samples): lockstep = zero slack (consume t, G updates, publish t, consume t + 1: Algorithm 2);
+//! pipelined = ± `update_buffer` updates. Before consuming step t the imagined batches of every
+//! train point ≤ t − model_lag must be in D_model (lockstep: the one branched for t itself).
+//! Lockstep also waits, before publishing version t + 1, until the evaluator confirmed it
+//! copied version t at an eval point (latest-value weights would otherwise skip it).
+
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use mbpo_core::rate_limit::RateLimiter;
+use mbpo_core::Batch;
+use mbpo_model::rollout_length;
+use mbpo_service_kit::{stats, *};
+use mbpo_train::roles::{ImaginedBatch, LearnerRole, Schedule};
+use mbpo_wire::*;
+
+#[derive(Debug, Parser)]
+#[command(name = "mbpo-sac-learner", about = "MBPO pipeline SAC learner")]
+struct Args {
+    #[command(flatten)]
+    svc: ServiceArgs,
+}
+
+fn main() -> ExitCode {
+    match run(&Args::parse().svc) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &ServiceArgs) -> anyhow::Result<()> {
+    let s = Process::start(args, Role::Learner)?;
+    let (cfg, d) = (&s.cfg, s.dims);
+    let control = ControlInbox::create(&s.node)?;
+    let stats_pub = StatsPublisher::create(&s.node)?;
+    let real = TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?;
+    let imagined = TransitionSubscriber::create(&s.node, Channel::Imagined, d.rows())?;
+    let policy =
+        WeightsPublisher::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
+    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
+    let mut waiter = Waiter::new()?;
+    waiter
+        .attach(&control.sub)
+        .attach(&real)
+        .attach(&imagined)
+        .attach(&policy);
+
+    let mut role = LearnerRole::new(cfg, d.obs, d.act);
+    let schedule = Schedule::of(cfg);
+    let g = cfg.mbpo.updates_per_step as f64;
+    let warm = cfg.mbpo.init_random_steps;
+    let total_updates = cfg.steps.saturating_sub(warm) * cfg.mbpo.updates_per_step as u64;
+    let limiter = match s.mode {
+        Mode::Lockstep => RateLimiter::lockstep(g, warm),
+        Mode::Pipelined => RateLimiter::pipelined(g, warm, s.slack.update_buffer as f64),
+    };
+    let mut inbox = RealInbox::new(d.rows());
+    let mut rows = Batch::default();
+    let mut batch = ImaginedBatch {
+        model_version: 0,
+        policy_version: 0,
+        rollout_length: 0,
+        rows: Batch::default(),
+    };
+    let (mut consumed, mut updates, mut published) = (0u64, 0u64, 0u64);
+    let mut model_batches = 0u64;
+    let mut owed = stats::SlackTracker::default();
+    let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
+    let mut last_publish = Instant::now();
+    let mut last_progress = Instant::now();
+    let publish = |version: u64,
+                   role: &LearnerRole,
+                   updates: u64,
+                   model_version: u64|
+     -> anyhow::Result<()> {
+        let counters = WeightsCounters {
+            env_steps: version,
+            sac_updates: updates,
+            model_trainings: model_version,
+        };
+        policy.publish(
+            &role.sac().actor_params,
+            policy_wire_version(version),
+            counters,
+        )?;
+        Ok(())
+    };
+    // Version 0: the initial parameters (actors of step 1 use them when there is no warm-up).
+    publish(0, &role, 0, 0)?;
+    loop {
+        control.poll()?;
+        if control.stopped() {
+            tracing::info!("stopped after {consumed} steps");
+            return Ok(());
+        }
+        inbox.pull(&real)?;
+        while let Some(b) = imagined.receive()? {
+            b.to_batch(&mut batch.rows);
+            let tp = b.header().env_steps + 1;
+            let epoch = schedule.train_point(tp).ok_or_else(|| {
+                anyhow::anyhow!("imagined batch for step {tp}, not a train point")
+            })?;
+            batch.rollout_length = rollout_length(epoch, cfg.mbpo.rollout_schedule);
+            batch.model_version = b.header().model_version;
+            batch.policy_version = b.header().policy_version;
+            role.add_imagined(&batch);
+            model_batches += 1;
+        }
+        // Publish version `consumed` once its updates are paid (within the buffer).
+        // The last version is published only when every update is paid.
+        let paid = consumed < cfg.steps || updates >= total_updates;
+        if published < consumed && paid && limiter.can_insert(consumed, updates) {
+            // Lockstep: the evaluator must have copied the previous version if it evaluates it.
+            if s.mode == Mode::Lockstep
+                && published > 0
+                && is_eval_point(cfg, published)
+                && !control.take_ack(published)
+            {
+                waiter.wait(Duration::from_secs(5))?;
+                continue;
+            }
+            publish(consumed, &role, updates, model_batches)?;
+            if published > warm {
+                step_seconds.push(last_publish.elapsed().as_secs_f64());
+            }
+            last_publish = Instant::now();
+            published = consumed;
+            if is_eval_point(cfg, consumed) {
+                let row = stats::LearnerRow {
+                    env_steps: consumed,
+                    sac_updates: role.sac().updates(),
+                    stats: role.last_stats,
+                    alpha: role.sac().alpha(),
+                    rollout_length: role.rollout_length,
+                    model_buffer: role.model_buffer_len(),
+                    model_version: batch.model_version,
+                };
+                stats_pub.send(&row.record())?;
+            }
+            if last_progress.elapsed() >= Duration::from_millis(500) {
+                last_progress = Instant::now();
+                stats_pub.send(&stats::progress(
+                    consumed,
+                    updates,
+                    batch.model_version,
+                    published,
+                ))?;
+            }
+            if consumed == cfg.steps {
+                break;
+            }
+        }
+        let next = consumed + 1;
+        let imagined_ready =
+            model_batches >= train_points_upto(&schedule, next.saturating_sub(s.slack.model_lag));
+        if consumed < cfg.steps
+            && inbox.pending() > 0
+            && imagined_ready
+            && limiter.can_insert(consumed, updates)
+            && published == consumed
+        {
+            inbox.take(1, &mut rows);
+            role.add_real(&rows);
+            if !schedule.is_warm_up(next) {
+                owed.see((next - warm) as f64 * g - updates as f64);
+            }
+            consumed = next;
+            continue;
+        }
+        if consumed > warm && limiter.can_sample(consumed, updates) && updates < total_updates {
+            role.update();
+            updates += 1;
+            continue;
+        }
+        waiter.wait(Duration::from_secs(5))?;
+    }
+    step_seconds.sort_by(f64::total_cmp);
+    let median = step_seconds
+        .get(step_seconds.len() / 2)
+        .copied()
+        .unwrap_or(0.0);
+    let (lo, hi, mean) = owed.get();
+    let lost = real.stats().missing;
+    let done = stats::Done {
+        real: inbox.received(),
+        lost,
+        work: updates,
+        median_step_seconds: median as f32,
+        slack_min: lo,
+        slack_max: hi,
+        slack_mean: mean,
+    };
+    stats_pub.send(&done.record())?;
+    tracing::info!("done: {consumed} steps, {updates} updates, {lost} real lost, median {median:.4} s per step");
+    wait_for_stop(&waiter, &control)
+}
