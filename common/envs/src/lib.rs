@@ -18,10 +18,12 @@
 mod mountain_car;
 mod pendulum;
 mod space;
+mod termination;
 
 pub use mountain_car::MountainCarContinuous;
 pub use pendulum::Pendulum;
 pub use space::BoxSpace;
+pub use termination::{termination_fn, TerminationFn, TERMINATION_ENV_IDS};
 
 use mbpo_core::Rng;
 

@@ -1,0 +1,242 @@
+//! [`ModelConfig`]: every hyper-parameter of the dynamics model, with MBPO's values as defaults.
+
+use serde::{Deserialize, Serialize};
+
+/// Hyper-parameters of the probabilistic ensemble and of its training.
+///
+/// Defaults are those of the MBPO code (`mbpo/models/constructor.py`, `bnn.py`), identical to
+/// the PETS HalfCheetah model. Deserialises from a partial table: missing fields keep their
+/// defaults, unknown fields are an error (a typo must not silently fall back to a default).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Ensemble size B ("num_networks", 7).
+    pub members: usize,
+    /// Number of elites used for predictions ("num_elites", 5): the members with the lowest
+    /// holdout MSE after each training call.
+    pub elites: usize,
+    /// Hidden widths ("hidden_dim", 4 x 200; Humanoid uses 400). Activation: SiLU ("swish").
+    pub hidden: Vec<usize>,
+    /// L2 weight decay per dense layer, input to output ("weight_decay" of each `FC`; 2.5e-5,
+    /// 5e-5, 7.5e-5, 7.5e-5, 1e-4). The loss gets `wd · ½‖W‖²` per layer (TensorFlow's
+    /// `l2_loss`); biases are not decayed. Length must be `hidden.len() + 1`.
+    pub weight_decay: Vec<f32>,
+    /// Adam learning rate (1e-3). Adam's other constants are the usual (0.9, 0.999, 1e-8).
+    pub lr: f32,
+    /// Minibatch rows per member per gradient step ("batch_size", 256).
+    pub batch_size: usize,
+    /// Fraction of each training call's data held out for early stopping ("holdout_ratio", 0.2).
+    pub holdout_ratio: f64,
+    /// Cap on the holdout size ("max_logging", 5000).
+    pub max_holdout: usize,
+    /// A member's snapshot is taken when its holdout MSE improves by more than this fraction of
+    /// its best so far (0.01, the 1 % rule of `_save_best`).
+    pub improvement_threshold: f32,
+    /// Training stops once more than this many epochs in a row improved no member
+    /// ("max_epochs_since_update", 5).
+    pub max_epochs_since_update: usize,
+    /// Optional cap on the epochs of one training call ("max_epochs"; MBPO: none).
+    pub max_epochs: Option<usize>,
+    /// Optional wall-clock cap on one training call, in seconds ("max_model_t"; MBPO: none).
+    /// Checked after each epoch, so at least one epoch runs. A time cap makes training depend
+    /// on machine speed, so it breaks run-to-run reproducibility; leave it unset for that.
+    pub max_train_seconds: Option<f64>,
+    /// Initial upper soft bound on every output log-variance ("max_logvar", 0.5).
+    pub init_max_logvar: f32,
+    /// Initial lower soft bound on every output log-variance ("min_logvar", −10).
+    pub init_min_logvar: f32,
+    /// Whether the bounds are trained (MBPO/PETS: yes; mbrl-lib and Xingyu-Lin's port freeze them).
+    pub learn_logvar_bounds: bool,
+    /// Coefficient of the bound regulariser `c · (Σ max_logvar − Σ min_logvar)` (0.01).
+    pub logvar_bound_penalty: f32,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            members: 7,
+            elites: 5,
+            hidden: vec![200; 4],
+            weight_decay: vec![2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4],
+            lr: 1e-3,
+            batch_size: 256,
+            holdout_ratio: 0.2,
+            max_holdout: 5000,
+            improvement_threshold: 0.01,
+            max_epochs_since_update: 5,
+            max_epochs: None,
+            max_train_seconds: None,
+            init_max_logvar: 0.5,
+            init_min_logvar: -10.0,
+            learn_logvar_bounds: true,
+            logvar_bound_penalty: 0.01,
+        }
+    }
+}
+
+/// Why a [`ModelConfig`] cannot build a model.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ModelConfigError {
+    /// `members` is zero.
+    #[error("the ensemble needs at least one member (members = 0)")]
+    NoMembers,
+    /// `elites` is zero or exceeds `members`.
+    #[error("elites must be between 1 and members ({members}), got {elites}")]
+    Elites {
+        /// Configured elites.
+        elites: usize,
+        /// Configured members.
+        members: usize,
+    },
+    /// A hidden width is zero.
+    #[error("hidden widths must be positive, got {0:?}")]
+    Hidden(Vec<usize>),
+    /// `weight_decay` does not have one entry per dense layer.
+    #[error("weight_decay needs one value per dense layer ({layers} = hidden layers + output), got {found}")]
+    WeightDecayLen {
+        /// Dense layers.
+        layers: usize,
+        /// Values given.
+        found: usize,
+    },
+    /// Observation or action dimension is zero.
+    #[error("observation and action dimensions must be positive (obs {obs_dim}, act {act_dim})")]
+    Dims {
+        /// Observation dimension.
+        obs_dim: usize,
+        /// Action dimension.
+        act_dim: usize,
+    },
+    /// A numeric setting is out of its range.
+    #[error("{field} = {value} is out of range ({expected})")]
+    OutOfRange {
+        /// Field name.
+        field: &'static str,
+        /// Offending value.
+        value: f64,
+        /// What is accepted.
+        expected: &'static str,
+    },
+}
+
+impl ModelConfig {
+    /// Check the settings for a model with the given dimensions.
+    pub fn validate(&self, obs_dim: usize, act_dim: usize) -> Result<(), ModelConfigError> {
+        if obs_dim == 0 || act_dim == 0 {
+            return Err(ModelConfigError::Dims { obs_dim, act_dim });
+        }
+        if self.members == 0 {
+            return Err(ModelConfigError::NoMembers);
+        }
+        if self.elites == 0 || self.elites > self.members {
+            return Err(ModelConfigError::Elites {
+                elites: self.elites,
+                members: self.members,
+            });
+        }
+        if self.hidden.contains(&0) {
+            return Err(ModelConfigError::Hidden(self.hidden.clone()));
+        }
+        if self.weight_decay.len() != self.hidden.len() + 1 {
+            return Err(ModelConfigError::WeightDecayLen {
+                layers: self.hidden.len() + 1,
+                found: self.weight_decay.len(),
+            });
+        }
+        let range = |field, value: f64, ok: bool, expected| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ModelConfigError::OutOfRange {
+                    field,
+                    value,
+                    expected,
+                })
+            }
+        };
+        range(
+            "lr",
+            self.lr as f64,
+            self.lr >= 0.0 && self.lr.is_finite(),
+            ">= 0",
+        )?;
+        range(
+            "batch_size",
+            self.batch_size as f64,
+            self.batch_size > 0,
+            "> 0",
+        )?;
+        range(
+            "holdout_ratio",
+            self.holdout_ratio,
+            self.holdout_ratio > 0.0 && self.holdout_ratio < 1.0,
+            "in (0, 1)",
+        )?;
+        range(
+            "max_holdout",
+            self.max_holdout as f64,
+            self.max_holdout > 0,
+            "> 0",
+        )?;
+        range(
+            "init_min_logvar",
+            self.init_min_logvar as f64,
+            self.init_min_logvar < self.init_max_logvar,
+            "< init_max_logvar",
+        )?;
+        for &wd in &self.weight_decay {
+            range("weight_decay", wd as f64, wd >= 0.0, ">= 0")?;
+        }
+        if let Some(s) = self.max_train_seconds {
+            range("max_train_seconds", s, s > 0.0, "> 0")?;
+        }
+        if let Some(e) = self.max_epochs {
+            range("max_epochs", e as f64, e > 0, "> 0")?;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_mbpo_and_validate() {
+        let c = ModelConfig::default();
+        assert_eq!((c.members, c.elites, c.batch_size), (7, 5, 256));
+        assert_eq!(c.hidden, vec![200; 4]);
+        assert_eq!(c.weight_decay, vec![2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4]);
+        c.validate(17, 6).unwrap();
+    }
+
+    #[test]
+    fn deserialises_a_partial_table_and_rejects_typos() {
+        let c: ModelConfig =
+            serde_json::from_str(r#"{"hidden": [400, 400, 400, 400], "max_epochs": 50}"#).unwrap();
+        assert_eq!(c.hidden, vec![400; 4]);
+        assert_eq!(c.max_epochs, Some(50));
+        assert_eq!((c.members, c.lr), (7, 1e-3));
+        let err = serde_json::from_str::<ModelConfig>(r#"{"hiden": [400]}"#).unwrap_err();
+        assert!(err.to_string().contains("hiden"), "{err}");
+    }
+
+    #[test]
+    fn bad_settings_are_named() {
+        let c = ModelConfig {
+            elites: 8,
+            ..Default::default()
+        };
+        assert!(matches!(
+            c.validate(3, 1),
+            Err(ModelConfigError::Elites { elites: 8, .. })
+        ));
+        let c = ModelConfig {
+            hidden: vec![64, 64],
+            ..Default::default()
+        };
+        let err = c.validate(3, 1).unwrap_err();
+        assert!(err.to_string().contains("weight_decay"), "{err}");
+    }
+}

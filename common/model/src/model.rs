@@ -1,0 +1,599 @@
+//! [`ProbabilisticEnsemble`]: construction, parameters, the training objective and predictions.
+
+use crate::config::{ModelConfig, ModelConfigError};
+use crate::error::{ParamsError, PredictError};
+use crate::network::{
+    member_forward, member_loss_and_grad, members_mse, InferBuffers, Net, TrainBuffers, INFER_CHUNK,
+};
+use crate::normalizer::InputNormalizer;
+use crate::rollout::RolloutBuffers;
+use crate::simd::{dispatch, fill_standard_normal};
+use mbpo_core::rng::index;
+use mbpo_core::{Batch, Rng};
+use mbpo_nn::{Adam, AdamConfig, Init, ParamLayout, WeightDecay};
+use serde::{Deserialize, Serialize};
+
+/// MBPO's dynamics model: an ensemble of Gaussian MLPs predicting `[reward, Δobs]` from
+/// `[obs, act]` (Chua et al. 2018, "PE"; Janner et al. 2019, §4).
+///
+/// Member b outputs a mean μ_b and a log-variance, softly bounded by learned `max_logvar` /
+/// `min_logvar` shared by all members. Training ([`ProbabilisticEnsemble::train`]) fits the
+/// members on bootstrap resamples with holdout early stopping and picks the elites; predictions
+/// use one member per sample, chosen by the caller ([`ProbabilisticEnsemble::predict_gaussian`],
+/// [`ProbabilisticEnsemble::predict_sample`]) or uniformly among the elites
+/// ([`ProbabilisticEnsemble::rollout`]).
+///
+/// All scratch memory is owned by the model and sized on first use, so repeated calls of the
+/// same size allocate nothing.
+#[derive(Debug, Clone)]
+pub struct ProbabilisticEnsemble {
+    pub(crate) config: ModelConfig,
+    pub(crate) obs_dim: usize,
+    pub(crate) act_dim: usize,
+    pub(crate) net: Net,
+    /// θ = `[MLP weights and biases, member-major | max_logvar | min_logvar]`.
+    pub(crate) theta: Vec<f32>,
+    pub(crate) adam: Adam,
+    pub(crate) normalizer: InputNormalizer,
+    pub(crate) elites: Vec<usize>,
+    pub(crate) ws: Workspace,
+}
+
+/// Everything a rollout worker needs to reproduce the model's predictions: parameters,
+/// input normaliser and elites (what a weight broadcast or checkpoint carries).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelWeights {
+    /// [`ParamLayout::hash`] of the writer's [`ProbabilisticEnsemble::layout`].
+    pub layout_hash: u64,
+    /// θ in the layout's order.
+    pub params: Vec<f32>,
+    /// The input standardisation fitted by the last training call.
+    pub normalizer: InputNormalizer,
+    /// Elite member indices, best first.
+    pub elites: Vec<usize>,
+}
+
+/// Scratch memory (not model state: cloning or loading weights never depends on it).
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Workspace {
+    pub(crate) train: TrainBuffers,
+    pub(crate) infer: InferBuffers,
+    /// Standardised inputs of one training minibatch.
+    pub(crate) x_chunk: Vec<f32>,
+    /// Standardised inputs of one inference chunk.
+    pub(crate) input: InputChunk,
+    /// Targets of one training minibatch.
+    pub(crate) t_chunk: Vec<f32>,
+    pub(crate) grads: Vec<f32>,
+    /// Standardised inputs and targets of a whole data set (training call, evaluation).
+    pub(crate) x_all: Vec<f32>,
+    pub(crate) t_all: Vec<f32>,
+    pub(crate) group: Grouping,
+    /// Standard-normal draws of a sampled prediction, in member-grouped order (`n x d`).
+    pub(crate) eps: Vec<f32>,
+    /// Member per sample.
+    pub(crate) members: Vec<usize>,
+    pub(crate) rollout: RolloutBuffers,
+}
+
+/// Samples ordered by member (a counting sort), so each member runs once on its own rows.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Grouping {
+    /// Sample indices, member 0's first; stable within a member.
+    order: Vec<u32>,
+    /// `starts[e]..starts[e + 1]` is member e's part of `order`.
+    starts: Vec<usize>,
+}
+
+impl Grouping {
+    pub(crate) fn build(&mut self, members: &[usize], n_members: usize) {
+        self.starts.clear();
+        self.starts.resize(n_members + 1, 0);
+        for &m in members {
+            self.starts[m + 1] += 1;
+        }
+        for e in 0..n_members {
+            self.starts[e + 1] += self.starts[e];
+        }
+        self.order.resize(members.len(), 0);
+        // `starts[e]` is used as member e's write cursor, then restored.
+        for (i, &m) in members.iter().enumerate() {
+            self.order[self.starts[m]] = i as u32;
+            self.starts[m] += 1;
+        }
+        for e in (0..n_members).rev() {
+            self.starts[e + 1] = self.starts[e];
+        }
+        self.starts[0] = 0;
+    }
+}
+
+impl ProbabilisticEnsemble {
+    /// A freshly initialised model for observations of width `obs_dim` and actions of width
+    /// `act_dim`: truncated-normal weights (σ = 1/(2√fan_in)), zero biases, bounds at their
+    /// configured initial values, identity input normaliser, elites `0..config.elites`.
+    pub fn new(
+        obs_dim: usize,
+        act_dim: usize,
+        config: ModelConfig,
+        rng: &mut Rng,
+    ) -> Result<Self, ModelConfigError> {
+        config.validate(obs_dim, act_dim)?;
+        let d = 1 + obs_dim;
+        let net = Net::new(config.members, obs_dim + act_dim, &config.hidden, d);
+        let mut theta = vec![0.0; net.num_params()];
+        net.ensemble().init(
+            &mut theta[..net.num_net_params()],
+            Init::TruncatedNormal,
+            rng,
+        );
+        theta[net.max_logvar_range()].fill(config.init_max_logvar);
+        theta[net.min_logvar_range()].fill(config.init_min_logvar);
+        let mut adam = Adam::new(theta.len(), AdamConfig::with_lr(config.lr));
+        // Weight decay wd_l·½‖W_l‖² on every member's weights (not biases, not the bounds).
+        for e in 0..config.members {
+            let offset = net.ensemble().member_range(e).start;
+            for (l, &wd) in config.weight_decay.iter().enumerate() {
+                let r = net.mlp().weight_range(l);
+                if wd > 0.0 {
+                    adam.set_decay(offset + r.start..offset + r.end, WeightDecay::L2(wd));
+                }
+            }
+        }
+        Ok(Self {
+            elites: (0..config.elites).collect(),
+            normalizer: InputNormalizer::identity(obs_dim + act_dim),
+            config,
+            obs_dim,
+            act_dim,
+            net,
+            theta,
+            adam,
+            ws: Workspace::default(),
+        })
+    }
+
+    /// The configuration the model was built with.
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+    /// Observation width.
+    pub fn obs_dim(&self) -> usize {
+        self.obs_dim
+    }
+    /// Action width.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
+    /// Width of a prediction target `[reward, Δobs]`: 1 + obs_dim.
+    pub fn target_dim(&self) -> usize {
+        self.net.d()
+    }
+    /// Ensemble size.
+    pub fn members(&self) -> usize {
+        self.config.members
+    }
+    /// Elite member indices, best holdout MSE first.
+    pub fn elites(&self) -> &[usize] {
+        &self.elites
+    }
+    /// The input standardisation in use.
+    pub fn normalizer(&self) -> &InputNormalizer {
+        &self.normalizer
+    }
+    /// Names and shapes of θ: `ensemble.m{e}.l{l}.{w,b}`, `max_logvar`, `min_logvar`.
+    pub fn layout(&self) -> &ParamLayout {
+        self.net.layout()
+    }
+    /// All parameters θ (see [`ProbabilisticEnsemble::layout`]).
+    pub fn params(&self) -> &[f32] {
+        &self.theta
+    }
+    /// Current upper log-variance bounds (one per target dimension).
+    pub fn max_logvar(&self) -> &[f32] {
+        &self.theta[self.net.max_logvar_range()]
+    }
+    /// Current lower log-variance bounds (one per target dimension).
+    pub fn min_logvar(&self) -> &[f32] {
+        &self.theta[self.net.min_logvar_range()]
+    }
+
+    /// Replace θ (Adam's moments are kept).
+    pub fn set_params(&mut self, params: &[f32]) -> Result<(), ParamsError> {
+        if params.len() != self.theta.len() {
+            return Err(ParamsError::Length {
+                expected: self.theta.len(),
+                found: params.len(),
+            });
+        }
+        self.theta.copy_from_slice(params);
+        Ok(())
+    }
+
+    /// Parameters, normaliser and elites, for a weight broadcast or a checkpoint.
+    pub fn weights(&self) -> ModelWeights {
+        ModelWeights {
+            layout_hash: self.layout().hash(),
+            params: self.theta.clone(),
+            normalizer: self.normalizer.clone(),
+            elites: self.elites.clone(),
+        }
+    }
+
+    /// Load [`ModelWeights`] from a model of the same architecture.
+    pub fn load_weights(&mut self, w: &ModelWeights) -> Result<(), ParamsError> {
+        if w.layout_hash != self.layout().hash() {
+            return Err(ParamsError::Layout {
+                expected: self.layout().hash(),
+                found: w.layout_hash,
+                layout: self.layout().describe(),
+            });
+        }
+        let dim = self.obs_dim + self.act_dim;
+        if w.normalizer.mean.len() != dim || w.normalizer.std.len() != dim {
+            return Err(ParamsError::Inconsistent(format!(
+                "normaliser has {} means / {} stds for {dim} inputs",
+                w.normalizer.mean.len(),
+                w.normalizer.std.len()
+            )));
+        }
+        if w.elites.is_empty() || w.elites.iter().any(|&e| e >= self.members()) {
+            return Err(ParamsError::Inconsistent(format!(
+                "elites {:?} for {} members",
+                w.elites,
+                self.members()
+            )));
+        }
+        self.set_params(&w.params)?;
+        self.normalizer = w.normalizer.clone();
+        self.elites = w.elites.clone();
+        Ok(())
+    }
+
+    /// The training objective and its gradient on one minibatch per member, *without* weight
+    /// decay (Adam adds `wd·W` to the gradient, the derivative of `wd·½‖W‖²`):
+    ///
+    /// ```text
+    /// L = Σ_b [ mean((μ_b − y)²·e^(−lv_b)) + mean(lv_b) ] + c·(Σ max_logvar − Σ min_logvar)
+    /// ```
+    ///
+    /// `inputs` are standardised `[obs, act]` rows stacked per member (`[E, batch, in]`),
+    /// `targets` the `[reward, Δobs]` rows (`[E, batch, d]`); `grads` (θ-shaped) is overwritten.
+    /// The bound gradients are zero when `learn_logvar_bounds` is off. Exposed for gradient checks
+    /// and custom training loops; [`ProbabilisticEnsemble::train`] runs the same code.
+    pub fn loss_and_gradient(
+        &mut self,
+        inputs: &[f32],
+        targets: &[f32],
+        batch: usize,
+        grads: &mut [f32],
+    ) -> Result<f64, PredictError> {
+        let (e_n, in_dim, d) = (self.members(), self.net.in_dim(), self.net.d());
+        check_len("inputs", e_n * batch * in_dim, inputs.len())?;
+        check_len("targets", e_n * batch * d, targets.len())?;
+        check_len("grads", self.theta.len(), grads.len())?;
+        grads[self.net.num_net_params()..].fill(0.0);
+        let mut loss = 0.0;
+        for e in 0..e_n {
+            loss += member_loss_and_grad(
+                &self.net,
+                &self.theta,
+                e,
+                &inputs[e * batch * in_dim..(e + 1) * batch * in_dim],
+                &targets[e * batch * d..(e + 1) * batch * d],
+                batch,
+                &mut self.ws.train,
+                grads,
+            );
+        }
+        Ok(loss + self.finish_bound_grads(grads))
+    }
+
+    /// Add the bound regulariser's gradient (or zero the bound gradients when the bounds are
+    /// frozen); returns the regulariser's value.
+    pub(crate) fn finish_bound_grads(&self, grads: &mut [f32]) -> f64 {
+        let c = self.config.logvar_bound_penalty;
+        let (max_r, min_r) = (self.net.max_logvar_range(), self.net.min_logvar_range());
+        if !self.config.learn_logvar_bounds {
+            grads[max_r.start..min_r.end].fill(0.0);
+            return 0.0;
+        }
+        grads[max_r.clone()].iter_mut().for_each(|g| *g += c);
+        grads[min_r.clone()].iter_mut().for_each(|g| *g -= c);
+        let sum = |r: std::ops::Range<usize>| self.theta[r].iter().map(|&v| v as f64).sum::<f64>();
+        c as f64 * (sum(max_r) - sum(min_r))
+    }
+
+    /// Draw one member per sample uniformly among the elites (MBPO's `random_inds`).
+    pub fn sample_elite_members(&self, rng: &mut Rng, members: &mut [usize]) {
+        for m in members.iter_mut() {
+            *m = self.elites[index(rng, self.elites.len())];
+        }
+    }
+
+    /// Gaussian one-step predictions of `n` samples, sample i by member `members[i]`.
+    ///
+    /// Writes the means of `[reward, next_obs]` (next_obs = obs + Δobs) into `mean` and the
+    /// log-variances of `[reward, Δobs]` (equally of next_obs given obs) into `logvar`, both
+    /// `n x (1 + obs_dim)`. Planners (PETS' TS∞) fix a member per particle through `members`.
+    pub fn predict_gaussian(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        n: usize,
+        members: &[usize],
+        mean: &mut [f32],
+        logvar: &mut [f32],
+    ) -> Result<(), PredictError> {
+        let (o, d) = (self.obs_dim, self.net.d());
+        self.check_predict(obs, act, n, members)?;
+        check_len("mean", n * d, mean.len())?;
+        check_len("logvar", n * d, logvar.len())?;
+        let Workspace {
+            infer,
+            group,
+            input,
+            ..
+        } = &mut self.ws;
+        group.build(&members[..n], self.config.members);
+        forward_grouped(
+            &self.net,
+            &self.theta,
+            &self.normalizer,
+            infer,
+            input,
+            group,
+            obs,
+            act,
+            |_, idx, y| {
+                for (row, &i) in y.chunks_exact(2 * d).zip(idx) {
+                    let i = i as usize;
+                    let (m, lv) = row.split_at(d);
+                    let out = &mut mean[i * d..(i + 1) * d];
+                    out[0] = m[0];
+                    for ((v, &dm), &s) in out[1..]
+                        .iter_mut()
+                        .zip(&m[1..])
+                        .zip(&obs[i * o..(i + 1) * o])
+                    {
+                        *v = s + dm;
+                    }
+                    logvar[i * d..(i + 1) * d].copy_from_slice(lv);
+                }
+            },
+        );
+        Ok(())
+    }
+
+    /// Sampled one-step predictions of `n` samples, sample i by member `members[i]`:
+    /// `[reward, Δobs] = μ + σ·ε` with σ = e^(logvar/2) and ε ~ N(0, I) drawn from `rng`
+    /// (Box-Muller, member 0's samples first); `reward` gets the first component
+    /// (`n`), `next_obs` = obs + Δobs (`n x obs_dim`).
+    #[allow(clippy::too_many_arguments)]
+    pub fn predict_sample(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        n: usize,
+        members: &[usize],
+        rng: &mut Rng,
+        reward: &mut [f32],
+        next_obs: &mut [f32],
+    ) -> Result<(), PredictError> {
+        self.check_predict(obs, act, n, members)?;
+        check_len("reward", n, reward.len())?;
+        check_len("next_obs", n * self.obs_dim, next_obs.len())?;
+        self.ws.group.build(&members[..n], self.config.members);
+        self.sample_grouped(obs, act, n, rng, reward, next_obs);
+        Ok(())
+    }
+
+    /// The body of [`ProbabilisticEnsemble::predict_sample`] once `ws.group` is built.
+    pub(crate) fn sample_grouped(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        n: usize,
+        rng: &mut Rng,
+        reward: &mut [f32],
+        next_obs: &mut [f32],
+    ) {
+        let (o, d) = (self.obs_dim, self.net.d());
+        let Workspace {
+            infer,
+            group,
+            eps,
+            input,
+            ..
+        } = &mut self.ws;
+        // ε in member-grouped order (the order the chunks are computed in), so each chunk's
+        // draws are contiguous; the grouping is a fixed function of `members`, so a seed still
+        // fixes every sample's noise.
+        eps.resize(n * d, 0.0);
+        fill_standard_normal(rng, eps);
+        forward_grouped(
+            &self.net,
+            &self.theta,
+            &self.normalizer,
+            infer,
+            input,
+            group,
+            obs,
+            act,
+            |pos, idx, y| {
+                let eps = &eps[pos * d..(pos + idx.len()) * d];
+                dispatch!(sample_gaussian_rows(y, eps, d));
+                for (row, &i) in y.chunks_exact(2 * d).zip(idx) {
+                    let i = i as usize;
+                    reward[i] = row[0];
+                    let next = &mut next_obs[i * o..(i + 1) * o];
+                    for ((v, &dm), &s) in next
+                        .iter_mut()
+                        .zip(&row[1..d])
+                        .zip(&obs[i * o..(i + 1) * o])
+                    {
+                        *v = s + dm;
+                    }
+                }
+            },
+        );
+    }
+
+    /// Mean-squared error of each member's mean prediction of `[reward, Δobs]` on `data`
+    /// (mean over rows and dimensions; the holdout criterion of training).
+    pub fn evaluate_mse(&mut self, data: &Batch) -> Result<Vec<f32>, PredictError> {
+        if (data.obs_dim, data.act_dim) != (self.obs_dim, self.act_dim) {
+            return Err(PredictError::Dims {
+                obs_dim: self.obs_dim,
+                act_dim: self.act_dim,
+                found_obs: data.obs_dim,
+                found_act: data.act_dim,
+            });
+        }
+        let n = data.len;
+        check_len("obs", n * self.obs_dim, data.obs.len())?;
+        check_len("next_obs", n * self.obs_dim, data.next_obs.len())?;
+        check_len("act", n * self.act_dim, data.act.len())?;
+        check_len("reward", n, data.reward.len())?;
+        let rows = (0..n as u32).collect::<Vec<_>>();
+        let Workspace {
+            infer,
+            x_all,
+            t_all,
+            ..
+        } = &mut self.ws;
+        standardize(&self.normalizer, data, &rows, x_all, t_all);
+        let mut mse = vec![0.0; self.config.members];
+        members_mse(&self.net, &self.theta, x_all, t_all, n, infer, &mut mse);
+        Ok(mse)
+    }
+
+    fn check_predict(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        n: usize,
+        members: &[usize],
+    ) -> Result<(), PredictError> {
+        check_len("obs", n * self.obs_dim, obs.len())?;
+        check_len("act", n * self.act_dim, act.len())?;
+        check_len("members", n, members.len())?;
+        if let Some(&member) = members.iter().find(|&&m| m >= self.members()) {
+            return Err(PredictError::Member {
+                member,
+                members: self.members(),
+            });
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn check_len(
+    what: &'static str,
+    expected: usize,
+    found: usize,
+) -> Result<(), PredictError> {
+    if expected == found {
+        Ok(())
+    } else {
+        Err(PredictError::Length {
+            what,
+            expected,
+            found,
+        })
+    }
+}
+
+/// Standardised inputs (`rows x in`) and targets `[reward, Δobs]` (`rows x d`) of the given
+/// rows of `data`, written into `x` and `t` (resized; reuses their capacity).
+pub(crate) fn standardize(
+    normalizer: &InputNormalizer,
+    data: &Batch,
+    rows: &[u32],
+    x: &mut Vec<f32>,
+    t: &mut Vec<f32>,
+) {
+    let (o, a) = (data.obs_dim, data.act_dim);
+    let (in_dim, d) = (o + a, o + 1);
+    x.resize(rows.len() * in_dim, 0.0);
+    t.resize(rows.len() * d, 0.0);
+    for ((&r, xr), tr) in rows
+        .iter()
+        .zip(x.chunks_exact_mut(in_dim))
+        .zip(t.chunks_exact_mut(d))
+    {
+        let r = r as usize;
+        let obs = &data.obs[r * o..(r + 1) * o];
+        normalizer.transform_into(obs, &data.act[r * a..(r + 1) * a], xr);
+        tr[0] = data.reward[r];
+        for ((v, &s), &s2) in tr[1..]
+            .iter_mut()
+            .zip(obs)
+            .zip(&data.next_obs[r * o..(r + 1) * o])
+        {
+            *v = s2 - s;
+        }
+    }
+}
+
+/// Standardised inputs of one inference chunk, built vectorised: the raw `[obs, act]` rows are
+/// copied in, then `(x − mean)/std` runs over blocks of 8 rows against mean and std tiled 8
+/// times (so every lane's column parameter sits at the same offset). Same IEEE operations as
+/// [`InputNormalizer::transform_into`], hence the same values as the training path.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct InputChunk {
+    x: Vec<f32>,
+    mean_tile: Vec<f32>,
+    std_tile: Vec<f32>,
+}
+
+impl InputChunk {
+    fn prepare(&mut self, normalizer: &InputNormalizer) {
+        let in_dim = normalizer.dim();
+        self.x.resize(INFER_CHUNK * in_dim, 0.0);
+        self.mean_tile.clear();
+        self.std_tile.clear();
+        for _ in 0..8 {
+            self.mean_tile.extend_from_slice(&normalizer.mean);
+            self.std_tile.extend_from_slice(&normalizer.std);
+        }
+    }
+}
+
+/// Run each member once over its own samples (in chunks of [`INFER_CHUNK`] rows) and hand each
+/// chunk's position in the grouped order, its sample indices and its `[μ | logvar]` rows to
+/// `sink`. This is the rollout's speed lever:
+/// every sample costs one member's forward pass, not E.
+#[allow(clippy::too_many_arguments)]
+fn forward_grouped(
+    net: &Net,
+    theta: &[f32],
+    normalizer: &InputNormalizer,
+    infer: &mut InferBuffers,
+    chunk: &mut InputChunk,
+    group: &Grouping,
+    obs: &[f32],
+    act: &[f32],
+    mut sink: impl FnMut(usize, &[u32], &mut [f32]),
+) {
+    let in_dim = net.in_dim();
+    let o = net.d() - 1;
+    let a = in_dim - o;
+    chunk.prepare(normalizer);
+    for e in 0..net.members() {
+        let mine = &group.order[group.starts[e]..group.starts[e + 1]];
+        for (c, idx) in mine.chunks(INFER_CHUNK).enumerate() {
+            let rows = idx.len();
+            let pos = group.starts[e] + c * INFER_CHUNK;
+            for (&i, x) in idx.iter().zip(chunk.x.chunks_exact_mut(in_dim)) {
+                let i = i as usize;
+                x[..o].copy_from_slice(&obs[i * o..(i + 1) * o]);
+                x[o..].copy_from_slice(&act[i * a..(i + 1) * a]);
+            }
+            let x = &mut chunk.x[..rows * in_dim];
+            dispatch!(standardize_tiled(x, &chunk.mean_tile, &chunk.std_tile));
+            member_forward(net, theta, e, x, rows, infer, true);
+            sink(pos, idx, &mut infer.y[..rows * 2 * net.d()]);
+        }
+    }
+}

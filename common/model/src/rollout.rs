@@ -1,0 +1,250 @@
+//! Model rollouts: the inner loop of MBPO's Alg. 2 (paraphrased: for M model rollouts, take a
+//! start state s_t from D_env, roll the model out k steps under π_φ, add the transitions to
+//! D_model). The caller samples the M start states; this runs the k steps.
+//!
+//! Follows `mbpo.py::_rollout_model` and `fake_env.py::step`: at each of k steps the policy acts
+//! on the live batch, every sample is predicted by a uniformly random *elite*, the next state and
+//! reward are drawn from that member's Gaussian (`μ + σ·ε`), `done` comes from the task's
+//! hand-written termination function, every transition is pushed to the model buffer, and
+//! terminated samples are dropped before the next step.
+
+use crate::error::RolloutError;
+use crate::model::ProbabilisticEnsemble;
+use mbpo_core::{BatchPolicy, ReplayBuffer, Rng};
+use serde::{Deserialize, Serialize};
+
+/// A termination predicate `done(obs, act, next_obs)` (see `mbpo_envs::termination_fn`).
+pub type Termination<'a> = &'a dyn Fn(&[f32], &[f32], &[f32]) -> bool;
+
+/// What one call of [`ProbabilisticEnsemble::rollout`] produced.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RolloutStats {
+    /// Model steps run (≤ k; fewer when every rollout terminated).
+    pub steps: usize,
+    /// Transitions pushed into the model buffer.
+    pub transitions: usize,
+    /// Transitions whose next state is terminal.
+    pub terminated: usize,
+    /// Live rollouts at the start of each step run.
+    pub alive_per_step: Vec<usize>,
+    /// Mean model reward over the pushed transitions.
+    pub mean_reward: f64,
+}
+
+/// Rollout buffers, taken out of the model's workspace for the duration of a call.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RolloutBuffers {
+    obs: Vec<f32>,
+    act: Vec<f32>,
+    next_obs: Vec<f32>,
+    reward: Vec<f32>,
+}
+
+impl ProbabilisticEnsemble {
+    /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
+    /// `policy`, pushing every transition into `out` (the model buffer D_model).
+    ///
+    /// Random draws come from `rng` in a fixed order (per step: the policy's actions, one elite
+    /// per sample, then the Gaussian noise), so a seed fixes the result.
+    #[allow(clippy::too_many_arguments)]
+    pub fn rollout(
+        &mut self,
+        start_obs: &[f32],
+        n: usize,
+        policy: &mut dyn BatchPolicy,
+        k: usize,
+        termination: Termination,
+        rng: &mut Rng,
+        out: &mut ReplayBuffer,
+    ) -> Result<RolloutStats, RolloutError> {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        if start_obs.len() != n * o {
+            return Err(RolloutError::StartObs {
+                n,
+                obs_dim: o,
+                expected: n * o,
+                found: start_obs.len(),
+            });
+        }
+        if (out.obs_dim(), out.act_dim()) != (o, a) {
+            return Err(RolloutError::BufferDims {
+                obs_dim: o,
+                act_dim: a,
+                found_obs: out.obs_dim(),
+                found_act: out.act_dim(),
+            });
+        }
+        let mut stats = RolloutStats {
+            steps: 0,
+            transitions: 0,
+            terminated: 0,
+            alive_per_step: Vec::with_capacity(k),
+            mean_reward: 0.0,
+        };
+        let mut buf = std::mem::take(&mut self.ws.rollout);
+        buf.obs.clear();
+        buf.obs.extend_from_slice(start_obs);
+        buf.act.resize(n * a, 0.0);
+        buf.next_obs.resize(n * o, 0.0);
+        buf.reward.resize(n, 0.0);
+        let mut members = std::mem::take(&mut self.ws.members);
+        members.resize(n, 0);
+        let mut reward_sum = 0.0f64;
+        let mut alive = n;
+        for _ in 0..k {
+            if alive == 0 {
+                break;
+            }
+            stats.steps += 1;
+            stats.alive_per_step.push(alive);
+            // a_t ~ π(s_t) on the live batch.
+            policy.act_batch(&buf.obs[..alive * o], alive, &mut buf.act[..alive * a], rng);
+            // One uniformly random elite per sample, then (r, s') ~ N(μ, σ²) of that member.
+            self.sample_elite_members(rng, &mut members[..alive]);
+            self.ws.group.build(&members[..alive], self.config.members);
+            self.sample_grouped(
+                &buf.obs[..alive * o],
+                &buf.act[..alive * a],
+                alive,
+                rng,
+                &mut buf.reward[..alive],
+                &mut buf.next_obs[..alive * o],
+            );
+            // Push every transition; keep the non-terminated next states, compacted in place.
+            let mut kept = 0;
+            for i in 0..alive {
+                let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
+                let s_next = &buf.next_obs[i * o..(i + 1) * o];
+                let done = termination(s, act, s_next);
+                out.push(s, act, buf.reward[i], s_next, done);
+                reward_sum += buf.reward[i] as f64;
+                if done {
+                    stats.terminated += 1;
+                } else {
+                    // Row `kept` ≤ i of obs has been pushed already, so it may be overwritten.
+                    let (dst, src) = (kept * o, i * o);
+                    let next = &buf.next_obs[src..src + o];
+                    buf.obs[dst..dst + o].copy_from_slice(next);
+                    kept += 1;
+                }
+            }
+            stats.transitions += alive;
+            alive = kept;
+        }
+        stats.mean_reward = if stats.transitions > 0 {
+            reward_sum / stats.transitions as f64
+        } else {
+            0.0
+        };
+        self.ws.rollout = buf;
+        self.ws.members = members;
+        Ok(stats)
+    }
+}
+
+/// MBPO's rollout-length schedule `[e_min, e_max, k_min, k_max]` (`_set_rollout_length`):
+/// k = k_min up to epoch e_min, then linear in the epoch up to k_max at e_max, truncated
+/// towards zero with `int()`, and k_max afterwards.
+///
+/// A degenerate schedule with `e_max ≤ e_min` jumps to k_max after e_min (Python would divide
+/// by zero).
+pub fn rollout_length(epoch: usize, schedule: [usize; 4]) -> usize {
+    let [e_min, e_max, k_min, k_max] = schedule;
+    if epoch <= e_min {
+        return k_min;
+    }
+    let dx = if e_max > e_min {
+        ((epoch - e_min) as f64 / (e_max - e_min) as f64).min(1.0)
+    } else {
+        1.0
+    };
+    let y = dx * (k_max as f64 - k_min as f64) + k_min as f64;
+    y as usize
+}
+
+/// The terms of MBPO's model-buffer capacity (`_reallocate_model_pool`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ModelPoolSizing {
+    /// Epochs of model data retained ("model_retain_epochs", 1; Humanoid 5).
+    pub retain_epochs: usize,
+    /// Model rollouts started per model training, M·train_freq ("rollout_batch_size", 100e3).
+    pub rollout_batch_size: usize,
+    /// Environment steps per epoch ("epoch_length", 1000).
+    pub epoch_length: usize,
+    /// Environment steps between model trainings ("model_train_freq", 250).
+    pub model_train_freq: usize,
+}
+
+impl Default for ModelPoolSizing {
+    /// MBPO's MuJoCo defaults: 1 epoch, 100k rollouts, 1000-step epochs, retrain every 250.
+    fn default() -> Self {
+        Self {
+            retain_epochs: 1,
+            rollout_batch_size: 100_000,
+            epoch_length: 1000,
+            model_train_freq: 250,
+        }
+    }
+}
+
+impl ModelPoolSizing {
+    /// Capacity for rollout length k:
+    /// `retain_epochs · int(k · rollout_batch_size · epoch_length / model_train_freq)`, i.e.
+    /// one epoch's worth of rollouts, every step of each kept. Reallocate the buffer whenever k
+    /// changes (`ReplayBuffer::set_capacity` keeps the newest transitions).
+    ///
+    /// # Panics
+    /// If `model_train_freq` is 0.
+    pub fn capacity(&self, k: usize) -> usize {
+        assert!(
+            self.model_train_freq > 0,
+            "model_train_freq must be positive"
+        );
+        let rollouts_per_epoch = self.rollout_batch_size as f64 * self.epoch_length as f64
+            / self.model_train_freq as f64;
+        let model_steps_per_epoch = (k as f64 * rollouts_per_epoch) as usize;
+        self.retain_epochs * model_steps_per_epoch
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rollout_length_follows_the_hopper_schedule() {
+        let hopper = [20, 150, 1, 15];
+        assert_eq!(rollout_length(0, hopper), 1);
+        assert_eq!(rollout_length(20, hopper), 1);
+        // Epoch 21: 1 + 14/130 = 1.107 → 1; epoch 30: 1 + 14·10/130 = 2.08 → 2.
+        assert_eq!(rollout_length(21, hopper), 1);
+        assert_eq!(rollout_length(30, hopper), 2);
+        assert_eq!(rollout_length(85, hopper), 8); // 1 + 14·65/130 = 8.0
+        assert_eq!(rollout_length(149, hopper), 14); // 14.89 truncates
+        assert_eq!(rollout_length(150, hopper), 15);
+        assert_eq!(rollout_length(1000, hopper), 15);
+        let ant = [20, 100, 1, 25];
+        assert_eq!(rollout_length(60, ant), 13); // 1 + 24·0.5
+        let flat = [1, 15, 1, 1];
+        assert!((0..100).all(|e| rollout_length(e, flat) == 1));
+        assert_eq!(rollout_length(6, [5, 5, 1, 4]), 4, "degenerate schedule");
+    }
+
+    #[test]
+    fn model_pool_capacity_is_400k_per_step_of_rollout() {
+        let mujoco = ModelPoolSizing::default();
+        assert_eq!(mujoco.capacity(1), 400_000);
+        assert_eq!(mujoco.capacity(15), 6_000_000);
+        let humanoid = ModelPoolSizing {
+            retain_epochs: 5,
+            model_train_freq: 1000,
+            ..mujoco
+        };
+        assert_eq!(humanoid.capacity(25), 12_500_000);
+        let inverted_pendulum = ModelPoolSizing {
+            epoch_length: 250,
+            ..mujoco
+        };
+        assert_eq!(inverted_pendulum.capacity(1), 100_000);
+    }
+}

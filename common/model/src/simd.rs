@@ -1,0 +1,603 @@
+//! Element-wise kernels of the dynamics model, compiled twice and chosen at run time.
+//!
+//! The workspace builds for the x86-64 baseline (SSE2, no FMA), so a plain loop over `exp`
+//! runs four lanes at a time. Every kernel here is an `#[inline(always)]` function over slices
+//! that the compiler vectorises, wrapped once in an AVX2+FMA `#[target_feature]` function and
+//! once without; [`dispatch!`] picks the AVX2 copy when the CPU has it (faer dispatches its GEMM
+//! kernels the same way). Both copies perform the same IEEE operations in the same order: fused
+//! multiply-adds are written as `mul_add`, which is one instruction in the AVX2+FMA copy and a
+//! correctly rounded libm call in the baseline copy (slow, but only CPUs without FMA take it),
+//! and rustc never contracts anything else into an FMA; so results do not depend on the path.
+//!
+//! The kernels fuse what would otherwise be separate passes over the `batch x 200` activations:
+//! bias + SiLU in one pass (keeping σ(z) for the backward pass, which then needs no division),
+//! the SiLU derivative + the bias-gradient column sums in one pass, and the whole Gaussian NLL
+//! with all its gradients in one pass over the outputs.
+//!
+//! Every helper a kernel calls must be `#[inline(always)]` (and must not be a closure): code that
+//! is not inlined into the `#[target_feature]` twin is compiled for the baseline, and a
+//! non-inlined `mul_add` there becomes a libm call per element.
+
+/// Call `kernel(args..)` through an AVX2+FMA-compiled copy when the CPU has it.
+macro_rules! dispatch {
+    ($kernel:ident($($arg:expr),* $(,)?)) => {{
+        #[cfg(target_arch = "x86_64")]
+        {
+            if $crate::simd::has_avx2() {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                unsafe { $crate::simd::avx2::$kernel($($arg),*) }
+            } else {
+                $crate::simd::$kernel($($arg),*)
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            $crate::simd::$kernel($($arg),*)
+        }
+    }};
+}
+pub(crate) use dispatch;
+
+/// Whether the CPU has AVX2 and FMA (std caches the detection).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+pub(crate) fn has_avx2() -> bool {
+    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+}
+
+/// Declares each kernel's AVX2+FMA twin in `mod avx2`, forwarding to the inline body.
+macro_rules! avx2_twins {
+    ($(fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;)*) => {
+        #[cfg(target_arch = "x86_64")]
+        pub(crate) mod avx2 {
+            #[allow(unused_imports)]
+            use super::*;
+            $(
+                #[target_feature(enable = "avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                pub(crate) unsafe fn $name($($arg: $ty),*) $(-> $ret)? {
+                    super::$name($($arg),*)
+                }
+            )*
+        }
+    };
+}
+
+avx2_twins! {
+    fn bias_silu(z: &mut [f32], sig: Option<&mut [f32]>, bias: &[f32]);
+    fn silu_backward_bias_grad(g: &mut [f32], a: &[f32], sig: &[f32], db: &mut [f32]);
+    fn add_bias(y: &mut [f32], bias: &[f32]);
+    fn standardize_tiled(x: &mut [f32], mean_tile: &[f32], std_tile: &[f32]);
+    fn gaussian_head(y: &mut [f32], bias: &[f32], max_lv: &[f32], min_lv: &[f32]);
+    fn gaussian_nll_rows(
+        y: &mut [f32],
+        target: &[f32],
+        bias: &[f32],
+        bounds: &LogvarBounds,
+        scale: f32,
+        acc: &mut NllAccumulators,
+    ) -> f64;
+    fn sample_gaussian_rows(out: &mut [f32], eps: &[f32], d: usize);
+    fn box_muller(bits: &[u32; NORMAL_BLOCK], out: &mut [f32; NORMAL_BLOCK]);
+}
+
+/// e^(−x) for f32, branch-free and vectorisable (every exponential of the model is of a negated
+/// quantity: σ(z) = 1/(1 + e^(−z)), softplus through e^(−|x|), the precision e^(−logvar), the
+/// noise scale e^(−(−logvar/2))). Range reduction −x = n·ln2 + r with |r| ≤ ln2/2, a fitted
+/// polynomial for e^r, and 2^n built from exponent bits; x is clamped to [−88, 87], so the
+/// result is never a denormal, zero or infinity. Relative error below 5e-7 (tested).
+///
+/// The scheme of [`mbpo_nn::activation::exp_f32`], with changes that matter for speed under
+/// AVX2, where this is most of the cost of SiLU:
+/// * 2^n comes from integer arithmetic on the bits of the rounded float (adding 1.5·2^23 leaves
+///   n in the low mantissa bits) instead of an `f32 as i32` cast, whose saturating semantics
+///   LLVM does not vectorise (it emits a compare-and-select per lane);
+/// * one fused reduction step: n·ln2(f32) is exact inside the FMA, so r is off by at most
+///   127·|ln2 − ln2(f32)| ≈ 2.4e-7 (no second Cody-Waite constant);
+/// * e^r ≈ 1 + r + r²·p(r) with p a cubic fitted for minimal relative error on |r| ≤ ln2/2
+///   (1.1e-7 exactly, 1.9e-7 evaluated in f32; Cephes `expf` spends two more terms for no gain
+///   at f32 precision), by Estrin's scheme: a shorter dependency chain than Horner's, which is
+///   what bounds the loop (the FP scheduler cannot hold enough iterations to hide a long one);
+/// * the negation is folded into the constants (r̃ = −r is what the FMA produces);
+/// * every step is `mul_add`, one FMA instruction in the AVX2+FMA build. `mul_add` is a
+///   correctly rounded fused multiply-add everywhere (a libm call without FMA hardware), so both
+///   builds give identical results.
+#[inline(always)]
+pub fn exp_neg_f32(x: f32) -> f32 {
+    const LOG2E: f32 = std::f32::consts::LOG2_E;
+    const LN2: f32 = std::f32::consts::LN_2;
+    const ROUND: f32 = 12_582_912.0; // 1.5·2^23
+                                     // bits(t) − bits(ROUND) = n; adding the exponent bias 127 folds into one constant.
+    const BIAS_BITS: u32 = 127u32.wrapping_sub(0x4b40_0000);
+    let x = x.clamp(-88.0, 87.0);
+    let t = x.mul_add(-LOG2E, ROUND); // ROUND + n, n = round(−x·log2 e)
+    let n = t - ROUND;
+    let rn = n.mul_add(LN2, x); // −r, with −x = n·ln2 + r
+    let r2 = rn * rn;
+    // p(r) = (c0 + c1 r) + r²(c2 + c3 r) at r = −rn.
+    let p01 = rn.mul_add(-0.166_671_14, 0.499_992_3);
+    let p23 = rn.mul_add(-0.008_312_558, 0.041_890_107);
+    let p = r2.mul_add(p23, p01);
+    let er = r2.mul_add(p, 1.0 - rn);
+    let scale = f32::from_bits(t.to_bits().wrapping_add(BIAS_BITS) << 23);
+    er * scale
+}
+
+/// ln x for finite x > 0, branch-free (Cephes `logf`): x = m·2^e with m in [√½, √2), a
+/// degree-9 polynomial in m − 1. Absolute error below 1e-7 on [2^-24, 1] (tested).
+#[inline(always)]
+pub fn ln_f32(x: f32) -> f32 {
+    let bits = x.to_bits();
+    let mut e = ((bits >> 23) & 0xff) as i32 - 127;
+    let mut m = f32::from_bits((bits & 0x007f_ffff) | 0x3f80_0000); // [1, 2)
+                                                                    // Move m into [√½, √2) so the polynomial's argument is small.
+    let big = m > std::f32::consts::SQRT_2;
+    m = if big { m * 0.5 } else { m };
+    e += big as i32;
+    let e = e as f32;
+    let f = m - 1.0;
+    let z = f * f;
+    let mut p = 7.037_683_6e-2f32;
+    p = p.mul_add(f, -1.151_461e-1);
+    p = p.mul_add(f, 1.167_699_9e-1);
+    p = p.mul_add(f, -1.242_014_1e-1);
+    p = p.mul_add(f, 1.424_932_3e-1);
+    p = p.mul_add(f, -1.666_805_8e-1);
+    p = p.mul_add(f, 2.000_071_4e-1);
+    p = p.mul_add(f, -2.499_999_4e-1);
+    p = p.mul_add(f, 3.333_333e-1);
+    let y = (p * f * z).mul_add(1.0, e.mul_add(-2.121_944_4e-4, -0.5 * z));
+    e.mul_add(0.693_359_4, f + y)
+}
+
+/// sin(πx) and cos(πx) for |x| ≤ 1/2 (Taylor polynomials in (πx)², degree 11 and 12; absolute
+/// error below 1e-6, tested).
+#[inline(always)]
+fn sin_cos_pi_half(x: f32) -> (f32, f32) {
+    let a = x * std::f32::consts::PI;
+    let a2 = a * a;
+    let mut s = -1.0f32 / 39_916_800.0;
+    s = s.mul_add(a2, 1.0 / 362_880.0);
+    s = s.mul_add(a2, -1.0 / 5040.0);
+    s = s.mul_add(a2, 1.0 / 120.0);
+    s = s.mul_add(a2, -1.0 / 6.0);
+    s = s.mul_add(a2, 1.0);
+    let mut c = 1.0f32 / 479_001_600.0;
+    c = c.mul_add(a2, -1.0 / 3_628_800.0);
+    c = c.mul_add(a2, 1.0 / 40_320.0);
+    c = c.mul_add(a2, -1.0 / 720.0);
+    c = c.mul_add(a2, 1.0 / 24.0);
+    c = c.mul_add(a2, -0.5);
+    c = c.mul_add(a2, 1.0);
+    (a * s, c)
+}
+
+/// Normals produced per [`box_muller`] call.
+pub(crate) const NORMAL_BLOCK: usize = 64;
+
+/// Standard normals from random bits by the Box-Muller transform, vectorised: pair i turns
+/// `u1 = (bits[i] >> 8 + 1)·2^-24 ∈ (0, 1]` and `u2 = (bits[32 + i] >> 8)·2^-24 ∈ [0, 1)` into
+/// `out[i] = r·cos θ` and `out[32 + i] = r·sin θ` with `r = √(−2 ln u1)`, `θ = 2π·u2`.
+///
+/// With 24-bit uniforms the largest |z| is √(2·24·ln 2) ≈ 5.77 (P(|z| > 5.77) ≈ 8e-9 for a true
+/// normal), which is immaterial for model rollouts.
+#[inline(always)]
+pub(crate) fn box_muller(bits: &[u32; NORMAL_BLOCK], out: &mut [f32; NORMAL_BLOCK]) {
+    const HALF: usize = NORMAL_BLOCK / 2;
+    const SCALE: f32 = 1.0 / (1u32 << 24) as f32;
+    let mut r = [0.0f32; HALF];
+    let mut sin = [0.0f32; HALF];
+    let mut cos = [0.0f32; HALF];
+    for i in 0..HALF {
+        let u1 = ((bits[i] >> 8) + 1) as f32 * SCALE;
+        r[i] = (-2.0 * ln_f32(u1)).sqrt();
+        // θ = 2π·u2 = π·x with x = 2·u2 − 1 ∈ [−1, 1) shifted by π, i.e. (cos, sin)(θ) =
+        // −(cos, sin)(πx); fold |x| > ½ back with sin(π − φ) = sin φ, cos(π − φ) = −cos φ.
+        let x = ((bits[HALF + i] >> 8) as f32).mul_add(2.0 * SCALE, -1.0);
+        let fold = x.abs() > 0.5;
+        let xf = if fold { x.signum() - x } else { x };
+        let (s, c) = sin_cos_pi_half(xf);
+        sin[i] = -s;
+        cos[i] = if fold { c } else { -c };
+    }
+    for i in 0..HALF {
+        out[i] = r[i] * cos[i];
+        out[HALF + i] = r[i] * sin[i];
+    }
+}
+
+/// Fill `out` with standard normals from `rng` ([`box_muller`] on blocks of
+/// [`NORMAL_BLOCK`]; a partial last block still consumes a whole block of bits).
+pub(crate) fn fill_standard_normal(rng: &mut mbpo_core::Rng, out: &mut [f32]) {
+    use rand::RngCore;
+    let mut bits = [0u32; NORMAL_BLOCK];
+    let mut block = [0.0f32; NORMAL_BLOCK];
+    for chunk in out.chunks_mut(NORMAL_BLOCK) {
+        for pair in bits.chunks_exact_mut(2) {
+            let v = rng.next_u64();
+            pair[0] = v as u32;
+            pair[1] = (v >> 32) as u32;
+        }
+        dispatch!(box_muller(&bits, &mut block));
+        chunk.copy_from_slice(&block[..chunk.len()]);
+    }
+}
+
+/// ln(1 + t) for t in [0, 1], as 2·atanh(s) with s = t/(2 + t) ∈ [0, 1/3]:
+/// `2s·(1 + s²/3 + s⁴/5 + … + s¹²/13)`. The first omitted term is below 1.4e-8 of the result,
+/// and the form stays accurate for tiny t (no `1 + t` cancellation); one division and eight
+/// multiply-adds, about half the work of a general logarithm plus a log1p correction.
+#[inline(always)]
+pub fn log1p_unit(t: f32) -> f32 {
+    let s = t / (2.0 + t);
+    let z = s * s;
+    let mut p = 1.0f32 / 13.0;
+    p = p.mul_add(z, 1.0 / 11.0);
+    p = p.mul_add(z, 1.0 / 9.0);
+    p = p.mul_add(z, 1.0 / 7.0);
+    p = p.mul_add(z, 1.0 / 5.0);
+    p = p.mul_add(z, 1.0 / 3.0);
+    p = p.mul_add(z, 1.0);
+    2.0 * s * p
+}
+
+/// softplus(x) = ln(1 + eˣ) and σ(x) = 1/(1 + e⁻ˣ) from one exp: with t = e^(−|x|),
+/// softplus(x) = max(x, 0) + ln(1 + t) and σ(x) = 1/(1+t) for x ≥ 0, t/(1+t) otherwise.
+///
+/// `ln(1 + t)` is [`log1p_unit`], accurate when t is tiny.
+#[inline(always)]
+pub fn softplus_sigmoid(x: f32) -> (f32, f32) {
+    let t = exp_neg_f32(x.abs());
+    let log1p = log1p_unit(t);
+    let r = 1.0 / (1.0 + t);
+    let sig = if x >= 0.0 { r } else { t * r };
+    (x.max(0.0) + log1p, sig)
+}
+
+/// Hidden-layer epilogue, in place on `z` (`rows x n`): z ← z + b, then a = z·σ(z) replaces z
+/// and σ(z) goes to `sig` when given (the backward pass needs it; inference does not).
+#[inline(always)]
+pub(crate) fn bias_silu(z: &mut [f32], sig: Option<&mut [f32]>, bias: &[f32]) {
+    let n = bias.len();
+    match sig {
+        Some(sig) => {
+            for (zr, sr) in z.chunks_exact_mut(n).zip(sig.chunks_exact_mut(n)) {
+                for ((zv, sv), &b) in zr.iter_mut().zip(sr.iter_mut()).zip(bias) {
+                    let x = *zv + b;
+                    let s = 1.0 / (1.0 + exp_neg_f32(x));
+                    *sv = s;
+                    *zv = x * s;
+                }
+            }
+        }
+        None => {
+            for zr in z.chunks_exact_mut(n) {
+                for (zv, &b) in zr.iter_mut().zip(bias) {
+                    let x = *zv + b;
+                    *zv = x / (1.0 + exp_neg_f32(x));
+                }
+            }
+        }
+    }
+}
+
+/// SiLU backward, in place on `g` (`rows x n`): ∂L/∂z = ∂L/∂a · (σ + a(1 − σ)) (the derivative
+/// of z·σ(z) written with what the forward pass kept), and ∂L/∂b = Σ_rows ∂L/∂z into `db`.
+#[inline(always)]
+pub(crate) fn silu_backward_bias_grad(g: &mut [f32], a: &[f32], sig: &[f32], db: &mut [f32]) {
+    let n = db.len();
+    db.fill(0.0);
+    for ((gr, ar), sr) in g
+        .chunks_exact_mut(n)
+        .zip(a.chunks_exact(n))
+        .zip(sig.chunks_exact(n))
+    {
+        for (((gv, &av), &sv), d) in gr.iter_mut().zip(ar).zip(sr).zip(db.iter_mut()) {
+            let dz = *gv * (sv + av * (1.0 - sv));
+            *gv = dz;
+            *d += dz;
+        }
+    }
+}
+
+/// x ← (x − mean)/std over rows of width w, with `mean_tile`/`std_tile` the w parameters
+/// repeated 8 times: blocks of 8 rows line up with the tiles, so the loop is a plain vectorised
+/// element-wise pass (the last, partial block uses a prefix of the tiles).
+#[inline(always)]
+pub(crate) fn standardize_tiled(x: &mut [f32], mean_tile: &[f32], std_tile: &[f32]) {
+    for block in x.chunks_mut(mean_tile.len()) {
+        for ((v, &m), &s) in block.iter_mut().zip(mean_tile).zip(std_tile) {
+            *v = (*v - m) / s;
+        }
+    }
+}
+
+/// y ← y + b on every row.
+#[inline(always)]
+pub(crate) fn add_bias(y: &mut [f32], bias: &[f32]) {
+    for row in y.chunks_exact_mut(bias.len()) {
+        row.iter_mut().zip(bias).for_each(|(v, &b)| *v += b);
+    }
+}
+
+/// The soft log-variance bound of one output (PETS/MBPO):
+/// `u = max − softplus(max − raw)`, then `logvar = min + softplus(u − min)`.
+#[inline(always)]
+pub fn bounded_logvar(raw: f32, max_lv: f32, min_lv: f32) -> f32 {
+    let u = max_lv - softplus_sigmoid(max_lv - raw).0;
+    min_lv + softplus_sigmoid(u - min_lv).0
+}
+
+/// Output-layer epilogue for inference, in place on `y` (`rows x 2d`, rows `[μ | raw]` without
+/// bias): μ ← μ + b, raw ← bounded logvar of raw + b.
+///
+/// The d log-variances of a row are done in blocks of 8 (one AVX2 vector) so the two softplus
+/// evaluations vectorise fully; when 8 does not divide d, the last block overlaps the previous
+/// one, and is computed first from the untouched inputs and stored last, so every element is
+/// still computed once from its own input.
+#[inline(always)]
+pub(crate) fn gaussian_head(y: &mut [f32], bias: &[f32], max_lv: &[f32], min_lv: &[f32]) {
+    let d = max_lv.len();
+    let (b_mu, b_raw) = (&bias[..d], &bias[d..2 * d]);
+    let min_lv = &min_lv[..d];
+    for row in y.chunks_exact_mut(2 * d) {
+        let (mu, raw) = row.split_at_mut(d);
+        mu.iter_mut().zip(b_mu).for_each(|(m, &b)| *m += b);
+        if d < 8 {
+            for j in 0..d {
+                raw[j] = bounded_logvar(raw[j] + b_raw[j], max_lv[j], min_lv[j]);
+            }
+            continue;
+        }
+        let last = d - 8;
+        let tail = logvar_block(raw, b_raw, max_lv, min_lv, last);
+        let mut at = 0;
+        while at < last {
+            let out = logvar_block(raw, b_raw, max_lv, min_lv, at);
+            raw[at..at + 8].copy_from_slice(&out);
+            at += 8;
+        }
+        raw[last..].copy_from_slice(&tail);
+    }
+}
+
+/// Bounded log-variances of the 8 outputs `at..at + 8` (a function, not a closure: closures are
+/// not compiled with the caller's target features unless inlined, and this must be).
+#[inline(always)]
+fn logvar_block(raw: &[f32], b_raw: &[f32], max_lv: &[f32], min_lv: &[f32], at: usize) -> [f32; 8] {
+    let (raw, b_raw) = (&raw[at..at + 8], &b_raw[at..at + 8]);
+    let (max_lv, min_lv) = (&max_lv[at..at + 8], &min_lv[at..at + 8]);
+    let mut out = [0.0f32; 8];
+    for l in 0..8 {
+        out[l] = bounded_logvar(raw[l] + b_raw[l], max_lv[l], min_lv[l]);
+    }
+    out
+}
+
+/// The learned log-variance bounds, one per output dimension.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LogvarBounds<'a> {
+    /// Upper soft bound `max_logvar`.
+    pub max: &'a [f32],
+    /// Lower soft bound `min_logvar`.
+    pub min: &'a [f32],
+}
+
+/// Column accumulators of one member's loss pass (each of length d, or 2d for `db`).
+#[derive(Debug)]
+pub(crate) struct NllAccumulators<'a> {
+    /// ∂L/∂b of the output layer (`2d`: mean part then raw-logvar part).
+    pub db: &'a mut [f32],
+    /// ∂L/∂max_logvar, accumulated.
+    pub d_max: &'a mut [f32],
+    /// ∂L/∂min_logvar, accumulated.
+    pub d_min: &'a mut [f32],
+    /// Scratch of length d.
+    pub scratch: &'a mut [f32],
+}
+
+/// The Gaussian NLL of one member and its gradient, in one pass over the output rows.
+///
+/// `y` holds the output layer's `X W` (no bias) as rows `[μ (d) | raw logvar (d)]`; on return it
+/// holds `∂L/∂(XW)` for the same rows. With `lv` the bounded log-variance and `scale = 1/(B·d)`:
+///
+/// ```text
+/// L      = scale · Σ (μ − y)²·e^(−lv) + lv
+/// ∂L/∂μ  = scale · 2(μ − y)·e^(−lv)
+/// ∂L/∂lv = scale · (1 − (μ − y)²·e^(−lv))
+/// ∂lv/∂raw = σ(u − min)·σ(max − raw),  ∂lv/∂max = σ(u − min)·(1 − σ(max − raw)),
+/// ∂lv/∂min = 1 − σ(u − min)
+/// ```
+///
+/// (softplus' = σ). Bias and bound gradients are summed into `acc`; returns the loss.
+///
+/// Every per-dimension slice is cut to exactly d first, so the inner loop has no bounds checks
+/// and vectorises across the d dimensions of a row; the loss is summed per dimension in f32 and
+/// the d column sums are added in f64 at the end.
+#[inline(always)]
+pub(crate) fn gaussian_nll_rows(
+    y: &mut [f32],
+    target: &[f32],
+    bias: &[f32],
+    bounds: &LogvarBounds,
+    scale: f32,
+    acc: &mut NllAccumulators,
+) -> f64 {
+    let d = bounds.max.len();
+    let (max_lv, min_lv) = (&bounds.max[..d], &bounds.min[..d]);
+    let (b_mu, b_raw) = (&bias[..d], &bias[d..2 * d]);
+    let (db_mu, db_raw) = acc.db[..2 * d].split_at_mut(d);
+    let (d_max, d_min) = (&mut acc.d_max[..d], &mut acc.d_min[..d]);
+    let col_loss = &mut acc.scratch[..d];
+    db_mu.fill(0.0);
+    db_raw.fill(0.0);
+    col_loss.fill(0.0);
+    for (row, t) in y.chunks_exact_mut(2 * d).zip(target.chunks_exact(d)) {
+        let (mu, raw) = row.split_at_mut(d);
+        let t = &t[..d];
+        for j in 0..d {
+            let r = raw[j] + b_raw[j];
+            let (sp_hi, s_hi) = softplus_sigmoid(max_lv[j] - r);
+            let u = max_lv[j] - sp_hi;
+            let (sp_lo, s_lo) = softplus_sigmoid(u - min_lv[j]);
+            let lv = min_lv[j] + sp_lo;
+            let inv_var = exp_neg_f32(lv);
+            let err = mu[j] + b_mu[j] - t[j];
+            let e2 = err * err * inv_var;
+            col_loss[j] += e2 + lv;
+            let g_lv = scale * (1.0 - e2);
+            let g_mu = scale * 2.0 * err * inv_var;
+            let g_raw = g_lv * s_lo * s_hi;
+            mu[j] = g_mu;
+            raw[j] = g_raw;
+            d_max[j] += g_lv * s_lo * (1.0 - s_hi);
+            d_min[j] += g_lv * (1.0 - s_lo);
+            db_mu[j] += g_mu;
+            db_raw[j] += g_raw;
+        }
+    }
+    col_loss.iter().map(|&v| v as f64).sum::<f64>() * scale as f64
+}
+
+/// Sampling epilogue, in place on `out` (`rows x 2d`, rows `[μ | logvar]` with bias and bounds
+/// already applied): the first d values of each row become μ + e^(lv/2)·ε with ε from `eps`
+/// (`rows x d`).
+#[inline(always)]
+pub(crate) fn sample_gaussian_rows(out: &mut [f32], eps: &[f32], d: usize) {
+    for (row, e) in out.chunks_exact_mut(2 * d).zip(eps.chunks_exact(d)) {
+        let (mu, lv) = row.split_at_mut(d);
+        for ((m, &l), &z) in mu.iter_mut().zip(lv.iter()).zip(e) {
+            *m += exp_neg_f32(-0.5 * l) * z;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exp_matches_std_to_a_few_ulps_and_saturates() {
+        let mut worst = 0.0f64;
+        let mut x = -87.0f32;
+        while x <= 88.0 {
+            let want = (x as f64).exp();
+            worst = worst.max(((exp_neg_f32(-x) as f64 - want) / want).abs());
+            x += 0.000_71;
+        }
+        assert!(worst < 5e-7, "worst relative error {worst}");
+        assert_eq!(exp_neg_f32(0.0), 1.0);
+        assert!(exp_neg_f32(1e4) > 0.0 && exp_neg_f32(-1e4).is_finite());
+        assert!(exp_neg_f32(f32::NAN).is_nan());
+    }
+
+    #[test]
+    fn log1p_is_accurate_on_the_unit_interval() {
+        let mut worst = 0.0f64;
+        for i in 0..=100_000 {
+            let t = if i == 0 { 1e-30 } else { i as f32 * 1e-5 };
+            let want = (t as f64).ln_1p();
+            worst = worst.max((log1p_unit(t) as f64 - want).abs() / want);
+        }
+        assert!(worst < 3e-7, "worst relative error {worst}");
+        assert_eq!(log1p_unit(0.0), 0.0);
+    }
+
+    #[test]
+    fn ln_is_accurate_on_the_uniform_range() {
+        let mut worst = 0.0f64;
+        let mut x = 1.0f32 / (1u32 << 24) as f32;
+        while x <= 1.0 {
+            worst = worst.max((ln_f32(x) as f64 - (x as f64).ln()).abs());
+            x *= 1.000_3;
+        }
+        assert!(worst < 1e-6, "worst absolute error {worst}");
+        assert_eq!(ln_f32(1.0), 0.0);
+    }
+
+    #[test]
+    fn sin_cos_are_accurate() {
+        for i in -500..=500 {
+            let x = i as f32 / 1000.0;
+            let (s, c) = sin_cos_pi_half(x);
+            let a = x as f64 * std::f64::consts::PI;
+            assert!(
+                (s as f64 - a.sin()).abs() < 1e-6 && (c as f64 - a.cos()).abs() < 1e-6,
+                "{x}"
+            );
+        }
+    }
+
+    #[test]
+    fn box_muller_gives_standard_normals() {
+        use rand::RngCore;
+        let mut rng = mbpo_core::stream(0, "bm", 0);
+        let (mut bits, mut out) = ([0u32; NORMAL_BLOCK], [0.0f32; NORMAL_BLOCK]);
+        let mut moments = [0.0f64; 5];
+        let mut tail = 0usize;
+        let blocks = 20_000;
+        for _ in 0..blocks {
+            bits.iter_mut().for_each(|b| *b = rng.next_u32());
+            dispatch!(box_muller(&bits, &mut out));
+            for &z in &out {
+                let z = z as f64;
+                moments[0] += 1.0;
+                moments[1] += z;
+                moments[2] += z * z;
+                moments[3] += z * z * z;
+                moments[4] += z * z * z * z;
+                tail += (z.abs() > 1.959_964) as usize;
+            }
+        }
+        let n = moments[0];
+        let (m1, m2, m3, m4) = (
+            moments[1] / n,
+            moments[2] / n,
+            moments[3] / n,
+            moments[4] / n,
+        );
+        assert!(
+            m1.abs() < 0.005 && (m2 - 1.0).abs() < 0.01,
+            "mean {m1}, var {m2}"
+        );
+        assert!(
+            m3.abs() < 0.02 && (m4 - 3.0).abs() < 0.05,
+            "skew {m3}, kurtosis {m4}"
+        );
+        let p = tail as f64 / n;
+        assert!((p - 0.05).abs() < 0.002, "P(|z| > 1.96) = {p}");
+    }
+
+    #[test]
+    fn softplus_and_sigmoid_match_f64_including_extremes() {
+        for &x in &[
+            -100.0f32, -30.0, -5.0, -1e-3, 0.0, 1e-3, 0.7, 5.0, 30.0, 100.0,
+        ] {
+            let (sp, s) = softplus_sigmoid(x);
+            let xd = x as f64;
+            let want_sp = xd.max(0.0) + (-xd.abs()).exp().ln_1p();
+            let want_s = 1.0 / (1.0 + (-xd).exp());
+            let err = (sp as f64 - want_sp).abs();
+            assert!(
+                err <= 1e-6 * want_sp.max(1.0),
+                "softplus({x}) = {sp}, want {want_sp}"
+            );
+            if x > -80.0 {
+                assert!(err <= 1e-6 * want_sp, "softplus({x}) relative");
+            }
+            assert!((s as f64 - want_s).abs() < 1e-6, "sigmoid({x})");
+        }
+    }
+
+    #[test]
+    fn dispatched_and_baseline_kernels_agree_bit_for_bit() {
+        let z0: Vec<f32> = (0..3 * 8).map(|i| (i as f32 * 0.77).sin() * 6.0).collect();
+        let bias: Vec<f32> = (0..8).map(|i| i as f32 * 0.1 - 0.3).collect();
+        let (mut z1, mut z2) = (z0.clone(), z0.clone());
+        let (mut s1, mut s2) = (vec![0.0; 24], vec![0.0; 24]);
+        bias_silu(&mut z1, Some(&mut s1), &bias);
+        dispatch!(bias_silu(&mut z2, Some(&mut s2), &bias));
+        assert_eq!(z1, z2);
+        assert_eq!(s1, s2);
+    }
+}

@@ -1,0 +1,524 @@
+//! Training: bootstrap resampling, minibatch Adam epochs, holdout early stopping and elites,
+//! as MBPO's `BNN.train` (`mbpo/models/bnn.py`) does it.
+//!
+//! One training call on N transitions:
+//!
+//! 1. **Holdout split** ([`holdout_size`]): a random permutation; the first
+//!    `min(int(0.2·N), 5000)` rows are the holdout, the rest the training split.
+//! 2. **Normaliser**: mean/std of the training split's inputs ([`crate::InputNormalizer`]).
+//! 3. **Bootstrap** ([`BootstrapIndices`]): each member draws N_train row indices *with
+//!    replacement*, once per call. Each epoch shuffles every member's vector and walks it in
+//!    minibatches. (Redrawing the indices every iteration instead makes every member see the same
+//!    distribution of data, and the ensemble collapses; mbrl-lib PR #61.)
+//! 4. **Epoch**: for each minibatch, every member's Gaussian NLL gradient on its own rows, then
+//!    one Adam step on all parameters (the L2 decay enters through Adam).
+//! 5. **Early stopping** ([`EarlyStopping`]): after each epoch, each member's holdout MSE; a
+//!    member improving by more than 1 % relative to its best is snapshotted; training stops once
+//!    more than 5 epochs in a row improved no member (or at the optional epoch / time caps).
+//! 6. **Restore and elites** ([`select_elites`]): every member goes back to its snapshot and the
+//!    elites are the K members with the lowest holdout MSE.
+//!
+//! Weights, Adam's moments and the bounds carry over from one call to the next (MBPO never resets
+//! the model); snapshots restore member weights only, as `_set_state` does.
+
+use crate::error::TrainError;
+use crate::model::{standardize, ProbabilisticEnsemble, Workspace};
+use crate::network::{member_loss_and_grad, members_mse};
+use mbpo_core::rng::{index, shuffle};
+use mbpo_core::{Batch, Rng};
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Best holdout MSE before the first epoch (`_start_train`: `(None, 1e10)`).
+const INITIAL_BEST: f32 = 1e10;
+
+/// What one training call did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainReport {
+    /// Transitions in the training split.
+    pub n_train: usize,
+    /// Transitions in the holdout.
+    pub n_holdout: usize,
+    /// Epochs run.
+    pub epochs: usize,
+    /// Adam steps taken.
+    pub gradient_steps: usize,
+    /// Per epoch, each member's mean training loss (Gaussian NLL terms, no decay or bound term).
+    pub train_loss: Vec<Vec<f32>>,
+    /// Per epoch, each member's holdout MSE of the mean (before any restore).
+    pub holdout_mse: Vec<Vec<f32>>,
+    /// Per member, the epoch whose weights were restored (None: never improved, kept as is).
+    pub best_epoch: Vec<Option<usize>>,
+    /// Per member, the holdout MSE of the restored weights (its snapshot epoch's).
+    pub final_holdout_mse: Vec<f32>,
+    /// The new elites, best first.
+    pub elites: Vec<usize>,
+    /// Why training stopped.
+    pub stop: StopReason,
+    /// Wall-clock seconds of the call.
+    pub seconds: f64,
+}
+
+/// Why a training call ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum StopReason {
+    /// More than `max_epochs_since_update` epochs without an improving member.
+    NoImprovement,
+    /// `max_epochs` reached.
+    MaxEpochs,
+    /// `max_train_seconds` exceeded.
+    TimeLimit,
+}
+
+/// Holdout size for N transitions: `min(int(ratio·N), max_holdout)`.
+pub fn holdout_size(n: usize, ratio: f64, max_holdout: usize) -> usize {
+    ((n as f64 * ratio) as usize).min(max_holdout)
+}
+
+/// Each member's bootstrap resample of the training split: N_train indices drawn uniformly
+/// with replacement, once per training call (member-major storage).
+#[derive(Debug, Clone, PartialEq)]
+pub struct BootstrapIndices {
+    n: usize,
+    idx: Vec<u32>,
+}
+
+impl BootstrapIndices {
+    /// Draw `members` vectors of `n` indices in `0..n`, with replacement (`np.random.randint`).
+    pub fn draw(members: usize, n: usize, rng: &mut Rng) -> Self {
+        let mut b = Self { n, idx: Vec::new() };
+        b.redraw(members, n, rng);
+        b
+    }
+
+    /// [`BootstrapIndices::draw`] into the existing storage.
+    pub fn redraw(&mut self, members: usize, n: usize, rng: &mut Rng) {
+        self.n = n;
+        self.idx.resize(members * n, 0);
+        self.idx.iter_mut().for_each(|i| *i = index(rng, n) as u32);
+    }
+
+    /// Permute each member's vector independently (`shuffle_rows`, once per epoch): the same
+    /// resample, visited in a new order.
+    pub fn shuffle_rows(&mut self, rng: &mut Rng) {
+        if self.n > 0 {
+            self.idx
+                .chunks_exact_mut(self.n)
+                .for_each(|row| shuffle(rng, row));
+        }
+    }
+
+    /// Member e's indices, in the current epoch's order.
+    pub fn member(&self, e: usize) -> &[u32] {
+        &self.idx[e * self.n..(e + 1) * self.n]
+    }
+}
+
+/// MBPO's `_save_best`: per-member best holdout MSE and the patience counter.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EarlyStopping {
+    best: Vec<f32>,
+    best_epoch: Vec<Option<usize>>,
+    epochs_since_update: usize,
+    max_epochs_since_update: usize,
+    threshold: f32,
+    epoch: usize,
+}
+
+impl EarlyStopping {
+    /// Fresh state for a training call (every best at 1e10).
+    pub fn new(members: usize, max_epochs_since_update: usize, threshold: f32) -> Self {
+        Self {
+            best: vec![INITIAL_BEST; members],
+            best_epoch: vec![None; members],
+            epochs_since_update: 0,
+            max_epochs_since_update,
+            threshold,
+            epoch: 0,
+        }
+    }
+
+    /// Record one epoch's holdout MSEs. Sets `improved[e]` for each member whose MSE beat its
+    /// best by more than the threshold, relative (`(best − mse)/best > 0.01`; the caller
+    /// snapshots those), and returns true when training should stop: more than
+    /// `max_epochs_since_update` epochs in a row without any improvement.
+    pub fn update(&mut self, holdout_mse: &[f32], improved: &mut [bool]) -> bool {
+        let mut any = false;
+        for (e, &mse) in holdout_mse.iter().enumerate() {
+            let best = self.best[e];
+            // NaN compares false: a diverged member never counts as improving.
+            improved[e] = (best - mse) / best > self.threshold;
+            if improved[e] {
+                self.best[e] = mse;
+                self.best_epoch[e] = Some(self.epoch);
+                any = true;
+            }
+        }
+        self.epoch += 1;
+        if any {
+            self.epochs_since_update = 0;
+        } else {
+            self.epochs_since_update += 1;
+        }
+        self.epochs_since_update > self.max_epochs_since_update
+    }
+
+    /// Epoch of each member's snapshot.
+    pub fn best_epoch(&self) -> &[Option<usize>] {
+        &self.best_epoch
+    }
+}
+
+/// The `k` members with the lowest holdout MSE, best first (ties by index; NaN ranks last).
+pub fn select_elites(mse: &[f32], k: usize) -> Vec<usize> {
+    let key = |e: usize| {
+        if mse[e].is_nan() {
+            f32::INFINITY
+        } else {
+            mse[e]
+        }
+    };
+    let mut order: Vec<usize> = (0..mse.len()).collect();
+    order.sort_by(|&a, &b| key(a).total_cmp(&key(b)).then(a.cmp(&b)));
+    order.truncate(k);
+    order
+}
+
+impl ProbabilisticEnsemble {
+    /// Fit the ensemble to `data` (all transitions collected so far), continuing from the
+    /// current weights; see the module docs for the procedure. Draws the holdout permutation,
+    /// the bootstrap indices and the per-epoch shuffles from `rng`.
+    pub fn train(&mut self, data: &Batch, rng: &mut Rng) -> Result<TrainReport, TrainError> {
+        let start = Instant::now();
+        self.check_training_data(data)?;
+        let cfg = self.config.clone();
+        let (members, batch) = (cfg.members, cfg.batch_size);
+        let n = data.len;
+
+        // 1. Holdout split.
+        let n_hold = holdout_size(n, cfg.holdout_ratio, cfg.max_holdout);
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        shuffle(rng, &mut perm);
+        let (hold_rows, train_rows) = perm.split_at(n_hold);
+        let n_train = train_rows.len();
+
+        // 2. Normaliser on the training split, then standardised inputs and targets.
+        self.normalizer.fit(data, train_rows);
+        let mut x_hold = Vec::new();
+        let mut t_hold = Vec::new();
+        standardize(&self.normalizer, data, hold_rows, &mut x_hold, &mut t_hold);
+        {
+            let Workspace { x_all, t_all, .. } = &mut self.ws;
+            standardize(&self.normalizer, data, train_rows, x_all, t_all);
+        }
+
+        // 3. Bootstrap resamples, drawn once for the whole call.
+        let mut boot = BootstrapIndices::draw(members, n_train, rng);
+
+        let mut stopper = EarlyStopping::new(
+            members,
+            cfg.max_epochs_since_update,
+            cfg.improvement_threshold,
+        );
+        let mut snapshot = vec![0.0f32; self.net.num_net_params()];
+        let mut improved = vec![false; members];
+        let mut mse = vec![0.0f32; members];
+        let mut epoch_loss = vec![0.0f64; members];
+        let mut report = TrainReport {
+            n_train,
+            n_holdout: n_hold,
+            epochs: 0,
+            gradient_steps: 0,
+            train_loss: Vec::new(),
+            holdout_mse: Vec::new(),
+            best_epoch: vec![None; members],
+            final_holdout_mse: Vec::new(),
+            elites: Vec::new(),
+            stop: StopReason::NoImprovement,
+            seconds: 0.0,
+        };
+        self.ws.grads.resize(self.theta.len(), 0.0);
+        self.ws.train.ensure(&self.net, batch);
+
+        loop {
+            // 4. One epoch of minibatch steps over every member's bootstrap vector.
+            epoch_loss.fill(0.0);
+            let mut b0 = 0;
+            while b0 < n_train {
+                let rows = batch.min(n_train - b0);
+                self.train_step(&boot, b0, rows, &mut epoch_loss);
+                report.gradient_steps += 1;
+                b0 += rows;
+            }
+            boot.shuffle_rows(rng);
+
+            // 5. Holdout MSE, snapshots, patience.
+            members_mse(
+                &self.net,
+                &self.theta,
+                &x_hold,
+                &t_hold,
+                n_hold,
+                &mut self.ws.infer,
+                &mut mse,
+            );
+            let stop = stopper.update(&mse, &mut improved);
+            for e in (0..members).filter(|&e| improved[e]) {
+                let r = self.net.ensemble().member_range(e);
+                snapshot[r.clone()].copy_from_slice(&self.theta[r]);
+            }
+            report.epochs += 1;
+            report.train_loss.push(
+                epoch_loss
+                    .iter()
+                    .map(|&l| (l / n_train as f64) as f32)
+                    .collect(),
+            );
+            report.holdout_mse.push(mse.clone());
+            if stop {
+                report.stop = StopReason::NoImprovement;
+                break;
+            }
+            if cfg.max_epochs.is_some_and(|m| report.epochs >= m) {
+                report.stop = StopReason::MaxEpochs;
+                break;
+            }
+            if cfg
+                .max_train_seconds
+                .is_some_and(|s| start.elapsed().as_secs_f64() > s)
+            {
+                report.stop = StopReason::TimeLimit;
+                break;
+            }
+        }
+
+        // 6. Restore every member's best weights and pick the elites. MBPO re-evaluates the
+        // holdout here; the MSE depends only on the member's weights (not on the shared bounds)
+        // and the evaluation is deterministic, so a restored member's MSE is exactly the one
+        // recorded at its snapshot epoch, and a member never snapshotted keeps its last one.
+        report.best_epoch = stopper.best_epoch().to_vec();
+        for (e, best) in report.best_epoch.iter().enumerate() {
+            if let Some(epoch) = *best {
+                let r = self.net.ensemble().member_range(e);
+                self.theta[r.clone()].copy_from_slice(&snapshot[r]);
+                mse[e] = report.holdout_mse[epoch][e];
+            }
+        }
+        self.elites = select_elites(&mse, cfg.elites);
+        report.final_holdout_mse = mse;
+        report.elites = self.elites.clone();
+        report.seconds = start.elapsed().as_secs_f64();
+        Ok(report)
+    }
+
+    /// One Adam step: every member's loss gradient on rows `b0..b0 + rows` of its bootstrap
+    /// vector, the bound regulariser, then the update. Adds `loss·rows` per member to `loss`.
+    fn train_step(&mut self, boot: &BootstrapIndices, b0: usize, rows: usize, loss: &mut [f64]) {
+        let (in_dim, d) = (self.net.in_dim(), self.net.d());
+        let Workspace {
+            train,
+            grads,
+            x_all,
+            t_all,
+            x_chunk,
+            t_chunk,
+            ..
+        } = &mut self.ws;
+        x_chunk.resize(self.config.batch_size * in_dim, 0.0);
+        t_chunk.resize(self.config.batch_size * d, 0.0);
+        grads[self.net.num_net_params()..].fill(0.0);
+        for (e, l) in loss.iter_mut().enumerate() {
+            let idx = &boot.member(e)[b0..b0 + rows];
+            for (r, &i) in idx.iter().enumerate() {
+                let i = i as usize;
+                x_chunk[r * in_dim..(r + 1) * in_dim]
+                    .copy_from_slice(&x_all[i * in_dim..(i + 1) * in_dim]);
+                t_chunk[r * d..(r + 1) * d].copy_from_slice(&t_all[i * d..(i + 1) * d]);
+            }
+            let member_loss = member_loss_and_grad(
+                &self.net,
+                &self.theta,
+                e,
+                x_chunk,
+                t_chunk,
+                rows,
+                train,
+                grads,
+            );
+            *l += member_loss * rows as f64;
+        }
+        let mut g = std::mem::take(&mut self.ws.grads);
+        self.finish_bound_grads(&mut g);
+        self.adam.step(&mut self.theta, &g);
+        self.ws.grads = g;
+    }
+
+    fn check_training_data(&self, data: &Batch) -> Result<(), TrainError> {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        if (data.obs_dim, data.act_dim) != (o, a) {
+            return Err(TrainError::Dims {
+                obs_dim: o,
+                act_dim: a,
+                found_obs: data.obs_dim,
+                found_act: data.act_dim,
+            });
+        }
+        let n = data.len;
+        let fields: [(&'static str, &[f32], usize); 4] = [
+            ("obs", &data.obs, o),
+            ("act", &data.act, a),
+            ("reward", &data.reward, 1),
+            ("next_obs", &data.next_obs, o),
+        ];
+        for (field, values, width) in fields {
+            if values.len() < n * width {
+                return Err(TrainError::Ragged {
+                    field,
+                    found: values.len(),
+                    expected: n * width,
+                    len: n,
+                });
+            }
+            if let Some(pos) = values[..n * width].iter().position(|v| !v.is_finite()) {
+                return Err(TrainError::NonFinite {
+                    row: pos / width,
+                    field,
+                });
+            }
+        }
+        let (ratio, cap) = (self.config.holdout_ratio, self.config.max_holdout);
+        let usable = |n: usize| {
+            let h = holdout_size(n, ratio, cap);
+            h >= 1 && n > h
+        };
+        if !usable(n) {
+            let required = (2..=1_000_000).find(|&m| usable(m)).unwrap_or(usize::MAX);
+            return Err(TrainError::TooFewTransitions {
+                found: n,
+                required,
+                ratio,
+            });
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_core::stream;
+
+    #[test]
+    fn holdout_is_a_fifth_capped_at_5000() {
+        assert_eq!(holdout_size(10_000, 0.2, 5000), 2000);
+        assert_eq!(holdout_size(1_000_000, 0.2, 5000), 5000);
+        assert_eq!(holdout_size(9, 0.2, 5000), 1); // int(1.8)
+        assert_eq!(holdout_size(4, 0.2, 5000), 0);
+    }
+
+    #[test]
+    fn bootstrap_is_drawn_once_and_only_reordered_each_epoch() {
+        let mut rng = stream(1, "boot", 0);
+        let mut b = BootstrapIndices::draw(3, 500, &mut rng);
+        let sorted = |b: &BootstrapIndices, e| {
+            let mut v = b.member(e).to_vec();
+            v.sort_unstable();
+            v
+        };
+        let before: Vec<Vec<u32>> = (0..3).map(|e| sorted(&b, e)).collect();
+        // With replacement: some index repeats, some is missing (P(no repeat) is astronomically small).
+        let distinct = |v: &Vec<u32>| {
+            let mut d = v.clone();
+            d.dedup();
+            d.len()
+        };
+        assert!(distinct(&before[0]) < 500);
+        assert_ne!(before[0], before[1], "members resample independently");
+        let first_order = b.member(0).to_vec();
+        for _ in 0..3 {
+            b.shuffle_rows(&mut rng);
+            for (e, want) in before.iter().enumerate() {
+                assert_eq!(&sorted(&b, e), want, "epoch shuffles keep each resample");
+            }
+        }
+        assert_ne!(b.member(0), &first_order[..], "…but change the order");
+    }
+
+    #[test]
+    fn early_stopping_follows_save_best() {
+        let mut s = EarlyStopping::new(2, 5, 0.01);
+        let mut imp = [false; 2];
+        assert!(!s.update(&[1.0, 2.0], &mut imp));
+        assert_eq!(imp, [true, true]);
+        // 0.5 % better: not an improvement; member 1 improves by 10 %.
+        assert!(!s.update(&[0.995, 1.8], &mut imp));
+        assert_eq!(imp, [false, true]);
+        // Six flat epochs: the counter reaches 6 > 5 on the sixth and training stops.
+        for i in 0..6 {
+            let stop = s.update(&[0.999, 1.79], &mut imp);
+            assert_eq!(imp, [false, false]);
+            assert_eq!(stop, i == 5, "epoch {i}");
+        }
+        assert_eq!(s.best_epoch(), &[Some(0), Some(1)]);
+        // A NaN never improves.
+        let mut s = EarlyStopping::new(1, 5, 0.01);
+        s.update(&[f32::NAN], &mut imp[..1]);
+        assert!(!imp[0]);
+    }
+
+    #[test]
+    fn recorded_snapshot_mse_is_the_restored_weights_mse() {
+        // Long enough that members are restored to earlier epochs; then evaluate the restored
+        // weights on the same holdout (replaying the permutation from a clone of the stream).
+        use crate::ModelConfig;
+        let data = crate::bench::synthetic_transitions(600, 3);
+        let cfg = ModelConfig {
+            members: 3,
+            elites: 2,
+            hidden: vec![16, 16],
+            weight_decay: vec![1e-4; 3],
+            lr: 3e-3,
+            max_epochs: Some(25),
+            ..ModelConfig::default()
+        };
+        let mut rng = stream(4, "restore", 0);
+        let mut model = ProbabilisticEnsemble::new(17, 6, cfg, &mut rng).unwrap();
+        let replay = rng.clone();
+        let report = model.train(&data, &mut rng).unwrap();
+        let last = report.epochs - 1;
+        assert!(
+            report
+                .best_epoch
+                .iter()
+                .any(|b| b.is_some_and(|b| b < last)),
+            "some member must be restored to an earlier epoch: {:?}",
+            report.best_epoch
+        );
+        let mut replay = replay;
+        let mut perm: Vec<u32> = (0..data.len as u32).collect();
+        shuffle(&mut replay, &mut perm);
+        let hold = &perm[..report.n_holdout];
+        let (mut x, mut t) = (Vec::new(), Vec::new());
+        standardize(&model.normalizer, &data, hold, &mut x, &mut t);
+        let mut mse = vec![0.0; 3];
+        members_mse(
+            &model.net,
+            &model.theta,
+            &x,
+            &t,
+            hold.len(),
+            &mut model.ws.infer,
+            &mut mse,
+        );
+        assert_eq!(mse, report.final_holdout_mse);
+    }
+
+    #[test]
+    fn elites_are_the_lowest_mse_best_first() {
+        assert_eq!(
+            select_elites(&[0.3, 0.1, f32::NAN, 0.2, 0.1], 3),
+            vec![1, 4, 3]
+        );
+        assert_eq!(select_elites(&[f32::NAN, 1.0], 2), vec![1, 0]);
+    }
+}

@@ -1,0 +1,98 @@
+//! The hot loops allocate nothing: a training call's allocations do not grow with its number of
+//! gradient steps, and predictions and rollouts of a size seen before allocate (almost) nothing.
+//!
+//! A counting global allocator wraps the system one; this file holds one test so no other test
+//! allocates concurrently.
+
+mod common;
+
+use common::{pendulum_data, small_config};
+use mbpo_core::{stream, ReplayBuffer, UniformPolicy};
+use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Counting;
+static ALLOCS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        System.alloc(layout)
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        System.dealloc(ptr, layout)
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        System.realloc(ptr, layout, new_size)
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn count(f: impl FnOnce()) -> usize {
+    let before = ALLOCS.load(Ordering::Relaxed);
+    f();
+    ALLOCS.load(Ordering::Relaxed) - before
+}
+
+#[test]
+fn training_steps_predictions_and_rollouts_do_not_allocate() {
+    let data = pendulum_data(3000, 1); // 2400 training rows: 10 steps per epoch
+    let mut rng = stream(0, "alloc", 0);
+    let train_for = |epochs: usize| ModelConfig {
+        max_epochs: Some(epochs),
+        max_epochs_since_update: 100,
+        ..small_config(3, 2, &[32, 32])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, train_for(1), &mut rng).unwrap();
+    model.train(&data, &mut rng).unwrap(); // warm-up: buffers and faer's packing memory
+    let one = count(|| {
+        model.train(&data, &mut rng).unwrap();
+    });
+    let mut longer = ProbabilisticEnsemble::new(3, 1, train_for(6), &mut rng).unwrap();
+    longer.train(&data, &mut rng).unwrap();
+    let six = count(|| {
+        longer.train(&data, &mut rng).unwrap();
+    });
+    // 50 more gradient steps; only the per-epoch report rows (and their Vec's growth) may add.
+    assert!(
+        six - one <= 5 * 3,
+        "1 epoch: {one} allocations, 6 epochs: {six}"
+    );
+
+    let n = 1500;
+    let obs = vec![0.1f32; n * 3];
+    let act = vec![0.2f32; n];
+    let members: Vec<usize> = (0..n).map(|i| i % 3).collect();
+    let (mut reward, mut next) = (vec![0.0; n], vec![0.0; n * 3]);
+    let (mut mean, mut lv) = (vec![0.0; n * 4], vec![0.0; n * 4]);
+    let mut predict = |model: &mut ProbabilisticEnsemble| {
+        model
+            .predict_sample(&obs, &act, n, &members, &mut rng, &mut reward, &mut next)
+            .unwrap();
+        model
+            .predict_gaussian(&obs, &act, n, &members, &mut mean, &mut lv)
+            .unwrap();
+    };
+    predict(&mut model);
+    assert_eq!(count(|| predict(&mut model)), 0);
+
+    let mut policy = UniformPolicy {
+        low: vec![-2.0],
+        high: vec![2.0],
+    };
+    let mut pool = ReplayBuffer::new(3, 1, 10 * n);
+    let never = |_: &[f32], _: &[f32], _: &[f32]| false;
+    let mut rrng = stream(0, "alloc", 1);
+    let mut rollout = |model: &mut ProbabilisticEnsemble, k: usize| {
+        model
+            .rollout(&obs, n, &mut policy, k, &never, &mut rrng, &mut pool)
+            .unwrap();
+    };
+    rollout(&mut model, 5);
+    // One allocation: the returned statistics' per-step vector.
+    assert_eq!(count(|| rollout(&mut model, 5)), 1);
+}

@@ -1,0 +1,381 @@
+//! Model rollouts and predictions: termination, dropping terminated samples, elites only,
+//! grouping by member, sampling statistics, reproducibility.
+
+mod common;
+
+use common::small_config;
+use mbpo_core::{stream, ReplayBuffer, Rng, UniformPolicy};
+use mbpo_envs::termination_fn;
+use mbpo_model::{ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutStats};
+
+/// A model whose members ignore their input: member e predicts reward `reward[e]` and
+/// Δobs `delta[e]` with σ ≈ e^(−15) (zero weights; output bias only; bounds pulled to −30).
+fn scripted_model(
+    obs_dim: usize,
+    act_dim: usize,
+    reward: &[f32],
+    delta: &[Vec<f32>],
+    elites: &[usize],
+) -> ProbabilisticEnsemble {
+    let members = reward.len();
+    let cfg = ModelConfig {
+        init_max_logvar: -29.0,
+        init_min_logvar: -30.0,
+        ..small_config(members, 1, &[4])
+    };
+    let mut m =
+        ProbabilisticEnsemble::new(obs_dim, act_dim, cfg, &mut stream(0, "scripted", 0)).unwrap();
+    let d = obs_dim + 1;
+    let mut p = vec![0.0f32; m.params().len()];
+    for e in 0..members {
+        let r = m
+            .layout()
+            .get(&format!("ensemble.m{e}.l1.b"))
+            .unwrap()
+            .range();
+        let b = &mut p[r];
+        b[0] = reward[e];
+        b[1..d].copy_from_slice(&delta[e]);
+        b[d..].fill(-30.0);
+    }
+    let bounds = m.layout().get("max_logvar").unwrap().offset;
+    p[bounds..bounds + d].fill(-29.0);
+    p[bounds + d..].fill(-30.0);
+    m.set_params(&p).unwrap();
+    let mut w = m.weights();
+    w.elites = elites.to_vec();
+    m.load_weights(&w).unwrap();
+    m
+}
+
+/// Check the buffer against the rollout's structure: step t pushed `alive_per_step[t]` rows in
+/// order; each row's flag is the termination function's verdict; the next step's start states
+/// are exactly the non-terminated next states, in order.
+fn check_rollout_chain(
+    out: &ReplayBuffer,
+    stats: &RolloutStats,
+    done: fn(&[f32], &[f32], &[f32]) -> bool,
+) {
+    let b = out.to_batch();
+    let (o, a) = (b.obs_dim, b.act_dim);
+    assert_eq!(b.len, stats.transitions);
+    assert_eq!(
+        stats.alive_per_step.iter().sum::<usize>(),
+        stats.transitions
+    );
+    let mut start = 0;
+    let mut terminated = 0;
+    for (t, &alive) in stats.alive_per_step.iter().enumerate() {
+        let mut survivors = Vec::new();
+        for r in start..start + alive {
+            let (s, act, s2) = (
+                &b.obs[r * o..(r + 1) * o],
+                &b.act[r * a..(r + 1) * a],
+                &b.next_obs[r * o..(r + 1) * o],
+            );
+            let flagged = b.terminated[r] == 1.0;
+            assert_eq!(flagged, done(s, act, s2), "step {t} row {r}");
+            if flagged {
+                terminated += 1;
+            } else {
+                survivors.extend_from_slice(s2);
+            }
+        }
+        start += alive;
+        if let Some(&next_alive) = stats.alive_per_step.get(t + 1) {
+            assert_eq!(
+                next_alive * o,
+                survivors.len(),
+                "step {t}: terminated samples are dropped"
+            );
+            assert_eq!(&b.obs[start * o..(start + next_alive) * o], &survivors[..]);
+        }
+    }
+    assert_eq!(terminated, stats.terminated);
+}
+
+fn uniform(act_dim: usize) -> UniformPolicy {
+    UniformPolicy {
+        low: vec![-1.0; act_dim],
+        high: vec![1.0; act_dim],
+    }
+}
+
+#[test]
+fn mountain_car_rollouts_stop_at_the_goal() {
+    // Every member drives +0.02 in position per step, velocity unchanged.
+    let mut model = scripted_model(
+        2,
+        1,
+        &[-1.0, -1.0],
+        &[vec![0.02, 0.0], vec![0.02, 0.0]],
+        &[0, 1],
+    );
+    let done = termination_fn("MountainCarContinuous-v0").unwrap();
+    #[rustfmt::skip]
+    let start = [
+        0.401, 0.01,  // goal after 3 steps (0.461)
+        0.435, 0.01,  // goal after 1 step
+        0.415, 0.01,  // goal after 2 steps
+        0.401, -0.01, // moving left: never the goal
+        -0.5, 0.03,   // far away
+    ];
+    let mut out = ReplayBuffer::new(2, 1, 100);
+    let stats = model
+        .rollout(
+            &start,
+            5,
+            &mut uniform(1),
+            5,
+            &done,
+            &mut stream(0, "r", 0),
+            &mut out,
+        )
+        .unwrap();
+    assert_eq!(stats.alive_per_step, vec![5, 4, 3, 2, 2]);
+    assert_eq!(
+        (stats.steps, stats.transitions, stats.terminated),
+        (5, 16, 3)
+    );
+    assert!((stats.mean_reward + 1.0).abs() < 1e-4);
+    check_rollout_chain(&out, &stats, done);
+    // The terminal transitions are the ones crossing 0.45 with velocity ≥ 0.
+    let b = out.to_batch();
+    let terminal: Vec<f32> = (0..b.len)
+        .filter(|&r| b.terminated[r] == 1.0)
+        .map(|r| b.next_obs[2 * r])
+        .collect();
+    assert_eq!(terminal.len(), 3);
+    assert!(
+        terminal.iter().all(|&p| (0.45..0.47).contains(&p)),
+        "{terminal:?}"
+    );
+}
+
+#[test]
+fn everything_terminating_ends_the_rollout_after_one_step() {
+    let mut model = scripted_model(2, 1, &[0.0], &[vec![0.0, 0.0]], &[0]);
+    let mut out = ReplayBuffer::new(2, 1, 100);
+    let always = |_: &[f32], _: &[f32], _: &[f32]| true;
+    let stats = model
+        .rollout(
+            &[0.0; 20],
+            10,
+            &mut uniform(1),
+            7,
+            &always,
+            &mut stream(0, "r", 1),
+            &mut out,
+        )
+        .unwrap();
+    assert_eq!(
+        (stats.steps, stats.transitions, stats.terminated),
+        (1, 10, 10)
+    );
+    assert_eq!(out.len(), 10);
+}
+
+fn random_start(n: usize, obs_dim: usize, rng: &mut Rng) -> Vec<f32> {
+    (0..n * obs_dim)
+        .map(|_| mbpo_core::rng::normal_f32(rng))
+        .collect()
+}
+
+fn fake_done(_: &[f32], _: &[f32], s2: &[f32]) -> bool {
+    s2[0] > 0.8
+}
+
+#[test]
+fn stochastic_rollouts_drop_terminated_samples() {
+    let mut rng = stream(3, "r", 0);
+    let mut model =
+        ProbabilisticEnsemble::new(4, 2, small_config(5, 3, &[32, 32]), &mut rng).unwrap();
+    let start = random_start(600, 4, &mut rng);
+    let mut out = ReplayBuffer::new(4, 2, 10_000);
+    let stats = model
+        .rollout(
+            &start,
+            600,
+            &mut uniform(2),
+            4,
+            &fake_done,
+            &mut rng,
+            &mut out,
+        )
+        .unwrap();
+    assert_eq!(stats.steps, 4);
+    assert!(
+        stats.terminated > 50 && stats.alive_per_step[3] > 50,
+        "{stats:?}"
+    );
+    check_rollout_chain(&out, &stats, fake_done);
+}
+
+#[test]
+fn rollouts_are_bit_reproducible() {
+    let run = || {
+        let mut rng = stream(4, "r", 0);
+        let mut model =
+            ProbabilisticEnsemble::new(4, 2, small_config(5, 3, &[32, 32]), &mut rng).unwrap();
+        let start = random_start(700, 4, &mut rng);
+        let mut out = ReplayBuffer::new(4, 2, 10_000);
+        let stats = model
+            .rollout(
+                &start,
+                700,
+                &mut uniform(2),
+                3,
+                &fake_done,
+                &mut rng,
+                &mut out,
+            )
+            .unwrap();
+        (stats, out.to_batch())
+    };
+    assert_eq!(run(), run());
+}
+
+#[test]
+fn rollouts_use_only_elites() {
+    let rewards: Vec<f32> = (0..7).map(|e| 10.0 * e as f32).collect();
+    let deltas = vec![vec![0.0; 3]; 7];
+    let mut model = scripted_model(3, 1, &rewards, &deltas, &[2, 5]);
+    let mut out = ReplayBuffer::new(3, 1, 2000);
+    let never = |_: &[f32], _: &[f32], _: &[f32]| false;
+    model
+        .rollout(
+            &[0.0; 3000],
+            1000,
+            &mut uniform(1),
+            1,
+            &never,
+            &mut stream(5, "r", 0),
+            &mut out,
+        )
+        .unwrap();
+    let b = out.to_batch();
+    let count = |v: f32| b.reward.iter().filter(|&&r| (r - v).abs() < 1e-3).count();
+    let (n20, n50) = (count(20.0), count(50.0));
+    assert_eq!(n20 + n50, 1000, "only elites 2 and 5 predict");
+    assert!(
+        n20 > 400 && n50 > 400,
+        "uniform among elites: {n20} / {n50}"
+    );
+}
+
+#[test]
+fn grouped_predictions_equal_single_member_predictions() {
+    let mut rng = stream(6, "p", 0);
+    let mut model =
+        ProbabilisticEnsemble::new(3, 2, small_config(3, 2, &[16, 16]), &mut rng).unwrap();
+    let n = 2000; // several inference chunks per member
+    let obs = random_start(n, 3, &mut rng);
+    let act = random_start(n, 2, &mut rng);
+    let members: Vec<usize> = (0..n).map(|i| (i * 7 + i / 3) % 3).collect();
+    let (mut mean, mut lv) = (vec![0.0; n * 4], vec![0.0; n * 4]);
+    model
+        .predict_gaussian(&obs, &act, n, &members, &mut mean, &mut lv)
+        .unwrap();
+    for e in 0..3 {
+        let (mut me, mut le) = (vec![0.0; n * 4], vec![0.0; n * 4]);
+        model
+            .predict_gaussian(&obs, &act, n, &vec![e; n], &mut me, &mut le)
+            .unwrap();
+        for i in (0..n).filter(|&i| members[i] == e) {
+            assert_eq!(mean[i * 4..(i + 1) * 4], me[i * 4..(i + 1) * 4]);
+            assert_eq!(lv[i * 4..(i + 1) * 4], le[i * 4..(i + 1) * 4]);
+        }
+    }
+    assert!(
+        lv.iter().all(|&v| (-10.0..=0.5).contains(&v)),
+        "log-variances inside the bounds"
+    );
+}
+
+#[test]
+fn samples_follow_the_predicted_gaussian() {
+    let mut rng = stream(7, "p", 0);
+    let mut model = ProbabilisticEnsemble::new(2, 1, small_config(2, 1, &[8]), &mut rng).unwrap();
+    let n = 40_000;
+    let obs: Vec<f32> = [0.3f32, -0.2].repeat(n);
+    let act = vec![0.5f32; n];
+    let members = vec![1usize; n];
+    let (mut mean, mut lv) = (vec![0.0; n * 3], vec![0.0; n * 3]);
+    model
+        .predict_gaussian(&obs, &act, n, &members, &mut mean, &mut lv)
+        .unwrap();
+    let (mut reward, mut next) = (vec![0.0; n], vec![0.0; n * 2]);
+    model
+        .predict_sample(&obs, &act, n, &members, &mut rng, &mut reward, &mut next)
+        .unwrap();
+    for j in 0..3 {
+        let xs: Vec<f64> = (0..n).map(|i| if j == 0 { reward[i] } else { next[i * 2 + j - 1] } as f64).collect();
+        let m = xs.iter().sum::<f64>() / n as f64;
+        let v = xs.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n as f64;
+        let (want_m, want_v) = (mean[j] as f64, (lv[j] as f64).exp());
+        assert!(
+            (m - want_m).abs() < 5.0 * (want_v / n as f64).sqrt(),
+            "dim {j}: mean {m} vs {want_m}"
+        );
+        assert!(
+            (v / want_v - 1.0).abs() < 0.05,
+            "dim {j}: var {v} vs {want_v}"
+        );
+    }
+}
+
+#[test]
+fn bad_rollout_and_prediction_arguments_are_typed_errors() {
+    let mut rng = stream(8, "p", 0);
+    let mut model = ProbabilisticEnsemble::new(2, 1, small_config(2, 1, &[8]), &mut rng).unwrap();
+    let never = |_: &[f32], _: &[f32], _: &[f32]| false;
+    let mut out = ReplayBuffer::new(2, 1, 10);
+    let err = model
+        .rollout(&[0.0; 5], 3, &mut uniform(1), 1, &never, &mut rng, &mut out)
+        .unwrap_err();
+    assert!(
+        matches!(
+            err,
+            RolloutError::StartObs {
+                expected: 6,
+                found: 5,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    let mut wrong = ReplayBuffer::new(3, 1, 10);
+    let err = model
+        .rollout(
+            &[0.0; 6],
+            3,
+            &mut uniform(1),
+            1,
+            &never,
+            &mut rng,
+            &mut wrong,
+        )
+        .unwrap_err();
+    assert!(
+        matches!(err, RolloutError::BufferDims { found_obs: 3, .. }),
+        "{err}"
+    );
+    let (mut m, mut l) = (vec![0.0; 3], vec![0.0; 3]);
+    let err = model
+        .predict_gaussian(&[0.0; 2], &[0.0], 1, &[2], &mut m, &mut l)
+        .unwrap_err();
+    assert_eq!(
+        err,
+        PredictError::Member {
+            member: 2,
+            members: 2
+        }
+    );
+    let err = model
+        .predict_gaussian(&[0.0; 2], &[0.0], 1, &[0], &mut m[..2], &mut l)
+        .unwrap_err();
+    assert!(
+        matches!(err, PredictError::Length { what: "mean", .. }),
+        "{err}"
+    );
+}

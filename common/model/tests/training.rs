@@ -1,0 +1,228 @@
+//! Training behaviour: learning Pendulum, early stopping, elites, bootstrap, reproducibility.
+
+mod common;
+
+use common::{pendulum_data, small_config};
+use mbpo_core::{stream, Batch};
+use mbpo_model::{ModelConfig, ProbabilisticEnsemble, StopReason, TrainError};
+
+fn elite_mean(m: &ProbabilisticEnsemble, mse: &[f32]) -> f32 {
+    m.elites().iter().map(|&e| mse[e]).sum::<f32>() / m.elites().len() as f32
+}
+
+#[test]
+fn pendulum_model_learns_one_step_dynamics() {
+    let train = pendulum_data(8000, 1);
+    let test = pendulum_data(2000, 2);
+    let cfg = ModelConfig {
+        // Patience long enough to see the MSE fall: with MBPO's patience of 5 the first call
+        // stops near epoch 12, at MSE ≈ 0.3, while the NLL still improves (MBPO retrains every
+        // 250 steps, continuing from there).
+        max_epochs: Some(45),
+        max_epochs_since_update: 45,
+        ..small_config(5, 3, &[128, 128, 128])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 0)).unwrap();
+    let untrained = model.evaluate_mse(&test).unwrap();
+    let mut rng = stream(0, "test.train", 0);
+    let first = model.train(&train, &mut rng).unwrap();
+    let trained = model.evaluate_mse(&test).unwrap();
+    let (before, after) = (elite_mean(&model, &untrained), elite_mean(&model, &trained));
+    eprintln!(
+        "held-out one-step MSE: untrained {before:.4}, trained {after:.4}; epochs {}, {:?}",
+        first.epochs, first.stop
+    );
+    // Targets are [reward, Δcosθ, Δsinθ, Δθ̇]; predicting zero gives ≈ E[r²]/4 ≈ 10.
+    assert!(before > 5.0, "untrained elites: {before}");
+    assert!(after < 0.06, "trained elites: {after}");
+    assert_eq!(first.elites, model.elites());
+    assert!(
+        first.final_holdout_mse.iter().all(|&m| m < 0.1),
+        "{:?}",
+        first.final_holdout_mse
+    );
+}
+
+#[test]
+fn frozen_weights_stop_after_patience_and_keep_epoch_zero() {
+    // lr = 0: the holdout MSE never changes, so epoch 0 improves on 1e10 and epochs 1..=6 do
+    // not; the counter exceeds 5 after epoch 6, i.e. 7 epochs.
+    let data = pendulum_data(1000, 3);
+    let cfg = ModelConfig {
+        lr: 0.0,
+        ..small_config(3, 2, &[16, 16])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 1)).unwrap();
+    let before = model.params().to_vec();
+    let r = model.train(&data, &mut stream(0, "test.train", 1)).unwrap();
+    assert_eq!((r.epochs, r.stop), (7, StopReason::NoImprovement));
+    assert_eq!(r.best_epoch, vec![Some(0); 3]);
+    assert_eq!(r.holdout_mse.len(), 7);
+    assert_eq!(model.params(), &before[..]);
+    assert_eq!(r.final_holdout_mse, r.holdout_mse[6]);
+}
+
+#[test]
+fn epoch_cap_and_snapshot_restore() {
+    let data = pendulum_data(4000, 4);
+    let cfg = ModelConfig {
+        max_epochs: Some(6),
+        max_epochs_since_update: 10,
+        ..small_config(2, 1, &[64, 64, 64])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 2)).unwrap();
+    let mut rng = stream(0, "test.train", 2);
+    let r = model.train(&data, &mut rng).unwrap();
+    assert_eq!((r.epochs, r.stop), (6, StopReason::MaxEpochs));
+    // After the restore each member's final MSE is its snapshot epoch's.
+    for e in 0..2 {
+        let best = r.best_epoch[e].expect("the first epoch always improves on 1e10");
+        assert_eq!(r.final_holdout_mse[e], r.holdout_mse[best][e], "member {e}");
+    }
+    // A second call continues from these weights: its first epoch starts far ahead.
+    let second = model.train(&data, &mut rng).unwrap();
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    assert!(
+        mean(&second.holdout_mse[0]) < 0.5 * mean(&r.holdout_mse[0]),
+        "{:?} vs {:?}",
+        second.holdout_mse[0],
+        r.holdout_mse[0]
+    );
+}
+
+#[test]
+fn elites_are_the_members_with_the_lowest_holdout_mse() {
+    // Data whose targets are all zero (reward 0, next_obs = obs). Members 1 and 4 get a zero
+    // output layer, so they predict exactly 0 (MSE 0); the others predict something else.
+    let mut data = pendulum_data(500, 5);
+    data.reward.iter_mut().for_each(|r| *r = 0.0);
+    data.next_obs = data.obs.clone();
+    let cfg = ModelConfig {
+        lr: 0.0,
+        ..small_config(5, 2, &[16])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 3)).unwrap();
+    let mut p = model.params().to_vec();
+    for e in [1, 4] {
+        for t in ["w", "b"] {
+            let r = model
+                .layout()
+                .get(&format!("ensemble.m{e}.l1.{t}"))
+                .unwrap()
+                .range();
+            p[r].fill(0.0);
+        }
+    }
+    // Give the others a clearly non-zero output bias.
+    for e in [0, 2, 3] {
+        let r = model
+            .layout()
+            .get(&format!("ensemble.m{e}.l1.b"))
+            .unwrap()
+            .range();
+        p[r].fill(0.5 + e as f32);
+    }
+    model.set_params(&p).unwrap();
+    let r = model.train(&data, &mut stream(0, "test.train", 3)).unwrap();
+    assert_eq!(r.elites, vec![1, 4]);
+    assert_eq!(model.elites(), &[1, 4]);
+    assert_eq!((r.final_holdout_mse[1], r.final_holdout_mse[4]), (0.0, 0.0));
+    // The rest are ranked by MSE: 0 (bias 0.5) < 2 (2.5) < 3 (3.5).
+    assert!(
+        r.final_holdout_mse[0] < r.final_holdout_mse[2]
+            && r.final_holdout_mse[2] < r.final_holdout_mse[3]
+    );
+}
+
+#[test]
+fn identical_members_diverge_through_their_own_bootstrap_resamples() {
+    let data = pendulum_data(1500, 6);
+    let cfg = ModelConfig {
+        max_epochs: Some(2),
+        ..small_config(3, 2, &[32, 32])
+    };
+    let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 4)).unwrap();
+    let mut p = model.params().to_vec();
+    let per = p.len() - 2 * 4; // minus the two bounds of width d = 4
+    let per_member = per / 3;
+    let m0 = p[..per_member].to_vec();
+    for e in 1..3 {
+        p[e * per_member..(e + 1) * per_member].copy_from_slice(&m0);
+    }
+    model.set_params(&p).unwrap();
+    model.train(&data, &mut stream(0, "test.train", 4)).unwrap();
+    let p = model.params();
+    let member = |e: usize| &p[e * per_member..(e + 1) * per_member];
+    assert_ne!(member(0), member(1));
+    assert_ne!(member(1), member(2));
+    // And not by a rounding error: the members' predictions differ measurably.
+    let mse = model.evaluate_mse(&data).unwrap();
+    assert!(mse[0] != mse[1] && mse[1] != mse[2], "{mse:?}");
+}
+
+#[test]
+fn training_is_bit_reproducible() {
+    let data = pendulum_data(1200, 7);
+    let run = || {
+        let cfg = ModelConfig {
+            max_epochs: Some(3),
+            ..small_config(3, 2, &[32, 32])
+        };
+        let mut rng = stream(9, "test.model", 0);
+        let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut rng).unwrap();
+        let mut reports = Vec::new();
+        for _ in 0..2 {
+            let mut r = model.train(&data, &mut rng).unwrap();
+            r.seconds = 0.0;
+            reports.push(r);
+        }
+        (model.weights(), reports)
+    };
+    let (w1, r1) = run();
+    let (w2, r2) = run();
+    assert_eq!(w1, w2);
+    assert_eq!(r1, r2);
+}
+
+#[test]
+fn bad_training_data_is_rejected_with_typed_errors() {
+    let mut model =
+        ProbabilisticEnsemble::new(3, 1, small_config(2, 1, &[8]), &mut stream(0, "t", 0)).unwrap();
+    let mut rng = stream(0, "t", 1);
+    let err = model.train(&Batch::new(2, 1, 100), &mut rng).unwrap_err();
+    assert!(
+        matches!(err, TrainError::Dims { found_obs: 2, .. }),
+        "{err}"
+    );
+    let err = model.train(&Batch::new(3, 1, 4), &mut rng).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            TrainError::TooFewTransitions {
+                found: 4,
+                required: 5,
+                ..
+            }
+        ),
+        "{err}"
+    );
+    let mut nan = pendulum_data(50, 8);
+    nan.next_obs[3 * 17 + 1] = f32::NAN;
+    let err = model.train(&nan, &mut rng).unwrap_err();
+    assert_eq!(
+        err,
+        TrainError::NonFinite {
+            row: 17,
+            field: "next_obs"
+        }
+    );
+    let mut ragged = pendulum_data(50, 8);
+    ragged.reward.truncate(10);
+    assert!(matches!(
+        model.train(&ragged, &mut rng),
+        Err(TrainError::Ragged {
+            field: "reward",
+            ..
+        })
+    ));
+}
