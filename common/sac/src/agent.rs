@@ -429,7 +429,8 @@ mod tests {
         let obs = [0.3f32, -1.2, 0.7];
         let (mut a, mut b) = ([0.0f32; 2], [0.0f32; 2]);
         for i in 0..10 {
-            sac.policy().act_batch(&obs, 1, &mut a, &mut stream(i, "p", 0));
+            sac.policy()
+                .act_batch(&obs, 1, &mut a, &mut stream(i, "p", 0));
             copy.act_batch(&obs, 1, &mut b, &mut stream(i, "p", 0));
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
         }
