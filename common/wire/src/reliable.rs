@@ -534,8 +534,10 @@ impl<S: Service> SubscriberSide<S> {
         let Ok(svc) = self.node.service_builder(&sn).event().open() else {
             return false;
         };
+        // The publisher creates its attach listener right after the attach service: a
+        // notification that reached no listener is not a confirmation; retry it.
         match svc.notifier_builder().create() {
-            Ok(n) => n.notify().is_ok(),
+            Ok(n) => matches!(n.notify(), Ok(listeners) if listeners > 0),
             Err(_) => false,
         }
     }

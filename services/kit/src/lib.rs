@@ -394,7 +394,7 @@ pub fn wait_for(
         if ready()? {
             return Ok(true);
         }
-        if waiter.wait(Duration::from_secs(5))? == WaitOutcome::Terminate {
+        if waiter.wait(Duration::from_secs(1))? == WaitOutcome::Terminate {
             return Ok(false);
         }
         if start.elapsed() >= next_warn {

@@ -125,7 +125,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
                 && is_eval_point(cfg, published)
                 && !control.take_ack(published)
             {
-                waiter.wait(Duration::from_secs(5))?;
+                waiter.wait(Duration::from_secs(1))?;
                 continue;
             }
             publish(consumed, &role, updates, model_batches)?;
@@ -181,7 +181,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             updates += 1;
             continue;
         }
-        waiter.wait(Duration::from_secs(5))?;
+        waiter.wait(Duration::from_secs(1))?;
     }
     step_seconds.sort_by(f64::total_cmp);
     let median = step_seconds

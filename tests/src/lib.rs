@@ -1,0 +1,191 @@
+//! Helpers for the pipeline's end-to-end tests: build the service binaries once, run
+//! `mbpo run`, read what a run left behind.
+//!
+//! The binaries are built with `cargo build --profile test` (optimised, as the tests
+//! themselves) into `target/debug`, next to each other, where the supervisor looks for them.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+use mbpo_train::{Algo, ExperimentConfig};
+
+/// The packages whose binaries a pipeline run needs.
+pub const PACKAGES: [&str; 5] = [
+    "mbpo",
+    "mbpo-actor",
+    "mbpo-model-trainer",
+    "mbpo-rollout-generator",
+    "mbpo-sac-learner",
+];
+
+/// Directory holding `mbpo` and the service binaries (built on first use).
+pub fn bin_dir() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let mut cmd = Command::new(cargo);
+        cmd.current_dir(&root).args(["build", "--profile", "test"]);
+        for p in PACKAGES {
+            cmd.args(["-p", p]);
+        }
+        let status = cmd.status().expect("running cargo build");
+        assert!(status.success(), "building the service binaries failed");
+        // <target>/<profile>/deps/<this test> -> <target>/debug (the test profile's directory).
+        let exe = std::env::current_exe().unwrap();
+        let target = exe.ancestors().nth(3).unwrap().to_path_buf();
+        target.join("debug")
+    })
+}
+
+/// MBPO on Pendulum with tiny networks (as `common/train/tests/mbpo_trainer.rs`).
+pub fn tiny_config(steps: u64) -> ExperimentConfig {
+    let mut cfg = ExperimentConfig {
+        algo: Algo::Mbpo,
+        steps,
+        ..Default::default()
+    };
+    cfg.eval.every = 200;
+    cfg.eval.episodes = 3;
+    cfg.sac.hidden = vec![64, 64];
+    cfg.sac.batch_size = 64;
+    cfg.sac.actor_lr = 1e-3;
+    cfg.sac.critic_lr = 1e-3;
+    cfg.sac.alpha_lr = 1e-3;
+    cfg.mbpo.init_random_steps = 200;
+    cfg.mbpo.epoch_length = 200;
+    cfg.mbpo.model_train_freq = 100;
+    cfg.mbpo.rollouts_per_step = 50;
+    cfg.mbpo.rollout_schedule = [1, 15, 1, 1];
+    cfg.mbpo.updates_per_step = 8;
+    cfg.model.members = 4;
+    cfg.model.elites = 3;
+    cfg.model.hidden = vec![32, 32];
+    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
+    cfg.model.batch_size = 64;
+    cfg
+}
+
+/// A fresh scratch directory.
+pub fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mbpo-it-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A short per-test iceoryx2 base directory.
+pub fn ipc_root(name: &str) -> PathBuf {
+    PathBuf::from(format!("/tmp/mbpo-it-{}-{name}", std::process::id()))
+}
+
+/// Write `cfg` to `<dir>/config.toml`.
+pub fn write_config(cfg: &ExperimentConfig, dir: &Path) -> PathBuf {
+    let p = dir.join("input.toml");
+    std::fs::write(&p, cfg.to_toml()).unwrap();
+    p
+}
+
+/// `mbpo run` with `args` (plus `--quiet`), not waited for.
+pub fn spawn_run(args: &[&str]) -> Child {
+    Command::new(bin_dir().join("mbpo"))
+        .arg("run")
+        .args(args)
+        .arg("--quiet")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawning mbpo run")
+}
+
+/// Wait for `child` at most `timeout`; kills it and panics on timeout.
+pub fn wait_output(mut child: Child, timeout: Duration) -> Output {
+    let t = Instant::now();
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if t.elapsed() > timeout {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "mbpo run did not finish within {timeout:?}; stderr:\n{}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// `<dir>/summary.json`.
+pub fn summary(dir: &Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json"))
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()));
+    serde_json::from_str(&text).unwrap()
+}
+
+/// The `metrics.csv` rows without the two timing columns (`wall_seconds`, `env_steps_per_sec`).
+pub fn metrics_without_timing(dir: &Path) -> Vec<String> {
+    std::fs::read_to_string(dir.join("metrics.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            cells[..cells.len() - 2].join(",")
+        })
+        .collect()
+}
+
+/// Every iceoryx2 resource of run `run_id` under `root` that still exists (`/dev/shm` objects
+/// with the run's prefix, files under its root path).
+pub fn leftovers(run_id: &str, root: &Path) -> Vec<PathBuf> {
+    let run = mbpo_wire::RunIpc::new(run_id, root).unwrap();
+    let left = run.leftovers();
+    // RunIpc::new re-created the (empty) root directory of the run.
+    let _ = std::fs::remove_dir(run.root_path());
+    left
+}
+
+/// Whatever is left under an iceoryx2 base directory; removes the directory.
+pub fn base_dir_leftovers(root: &Path) -> Vec<PathBuf> {
+    let left = std::fs::read_dir(root)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    let _ = std::fs::remove_dir_all(root);
+    left
+}
+
+/// Live processes whose command line mentions `needle`.
+pub fn processes_mentioning(needle: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
+            if cmd.contains(needle) && !cmd.contains("cargo") {
+                out.push(format!("{}: {cmd}", e.file_name().to_string_lossy()));
+            }
+        }
+    }
+    out
+}
+
+/// The pid a service logged at start (`... pid N)`).
+pub fn logged_pid(log: &Path, timeout: Duration) -> Option<i32> {
+    let t = Instant::now();
+    while t.elapsed() < timeout {
+        if let Ok(text) = std::fs::read_to_string(log) {
+            if let Some(i) = text.find(", pid ") {
+                let rest = &text[i + 6..];
+                let end = rest.find(')').unwrap_or(rest.len());
+                return rest[..end].trim().parse().ok();
+            }
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    None
+}

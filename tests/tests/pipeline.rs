@@ -1,0 +1,202 @@
+//! The multi-process pipeline end to end: real binaries, real shared memory.
+
+use std::time::{Duration, Instant};
+
+use mbpo_integration_tests::*;
+use mbpo_train::train_mbpo;
+
+const TIMEOUT: Duration = Duration::from_secs(120);
+
+fn run_id(s: &serde_json::Value) -> String {
+    s["run_id"].as_str().unwrap().to_string()
+}
+
+fn assert_no_loss(s: &serde_json::Value, steps: u64) {
+    let real = &s["real_transitions"];
+    assert_eq!(real["produced"], steps, "{s}");
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
+    }
+    assert_eq!(real["lost"], 0, "{s}");
+}
+
+/// THE correctness oracle: a lockstep pipeline equals the sequential reference bit for bit
+/// (final policy, every metrics column but the timings). Two lockstep runs of the same run
+/// config go concurrently on one iceoryx2 base directory: they must not see each other.
+#[test]
+fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
+    let cfg = tiny_config(500);
+    let dir = scratch("lockstep");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("lockstep");
+    let (a, b) = (dir.join("run-a"), dir.join("run-b"));
+    let spawn = |out: &std::path::Path| {
+        spawn_run(&[
+            "--config",
+            input.to_str().unwrap(),
+            "--mode",
+            "lockstep",
+            "--out",
+            out.to_str().unwrap(),
+            "--ipc-root",
+            root.to_str().unwrap(),
+        ])
+    };
+    bin_dir();
+    let (ca, cb) = (spawn(&a), spawn(&b));
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let outputs = [wait_output(ca, TIMEOUT), wait_output(cb, TIMEOUT)];
+    for (o, out) in outputs.iter().zip([&a, &b]) {
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let s = summary(out);
+        assert_eq!(s["status"], "completed");
+        assert_eq!(
+            s["policy_sha256"],
+            seq.policy_sha256.as_str(),
+            "lockstep != sequential"
+        );
+        assert_eq!(s["final_eval_return"], seq.final_eval_return);
+        assert_eq!(s["sac_updates"], seq.sac_updates);
+        assert_eq!(
+            metrics_without_timing(out),
+            metrics_without_timing(&dir.join("sequential")),
+            "metrics.csv differs from the sequential run"
+        );
+        assert_no_loss(&s, 500);
+        assert_eq!(s["ratios"]["updates_per_env_step"], 8.0);
+        assert_eq!(s["ratios"]["actor_policy_lag"]["max"], 0.0);
+        assert_eq!(s["ipc_leftovers"].as_array().unwrap().len(), 0);
+        assert!(out.join("logs/learner.log").exists());
+        let left = leftovers(&run_id(&s), &root);
+        assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    }
+    assert_ne!(run_id(&summary(&a)), run_id(&summary(&b)));
+    assert_eq!(base_dir_leftovers(&root), Vec::<std::path::PathBuf>::new());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Pipelined with two actors: completes, loses nothing, holds the ratios within their buffers.
+#[test]
+fn pipelined_run_holds_its_ratios_and_loses_nothing() {
+    let cfg = tiny_config(600);
+    let dir = scratch("pipelined");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("pipelined");
+    let out = dir.join("run");
+    let o = wait_output(
+        spawn_run(&[
+            "--config",
+            input.to_str().unwrap(),
+            "--mode",
+            "pipelined",
+            "--actors",
+            "2",
+            "--policy-lag",
+            "3",
+            "--update-buffer",
+            "24",
+            "--model-lag",
+            "20",
+            "--out",
+            out.to_str().unwrap(),
+            "--ipc-root",
+            root.to_str().unwrap(),
+        ]),
+        TIMEOUT,
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, 600);
+    let r = &s["ratios"];
+    eprintln!("ratios: {r}");
+    // Exactly G updates per env step after the warm-up in total ...
+    assert_eq!(r["updates_per_env_step"], 8.0);
+    // ... and never more than the buffer ahead or behind while running.
+    let owed = &r["learner_updates_owed"];
+    assert!(owed["min"].as_f64().unwrap() >= -24.0, "{owed}");
+    assert!(owed["max"].as_f64().unwrap() <= 8.0 + 24.0, "{owed}");
+    assert!(r["actor_policy_lag"]["max"].as_f64().unwrap() <= 3.0, "{r}");
+    assert_eq!(r["model_trainings"], 4);
+    assert_eq!(r["rollout_batches"], 4);
+    let rows = metrics_without_timing(&out);
+    assert_eq!(
+        rows.len(),
+        1 + 3,
+        "header + eval at 200, 400, 600: {rows:?}"
+    );
+    let left = leftovers(&run_id(&s), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    assert_eq!(base_dir_leftovers(&root), Vec::<std::path::PathBuf>::new());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// SIGINT stops every process within seconds and removes the run's shared memory.
+#[test]
+fn sigint_stops_the_run_cleanly() {
+    let cfg = tiny_config(20_000);
+    let dir = scratch("sigint");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("sigint");
+    let out = dir.join("run");
+    let child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ]);
+    // Let it get past start-up and into training.
+    assert!(logged_pid(&out.join("logs/learner.log"), Duration::from_secs(30)).is_some());
+    std::thread::sleep(Duration::from_millis(1500));
+    // SAFETY: kill(2) on our child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let t = Instant::now();
+    let o = wait_output(child, Duration::from_secs(20));
+    let took = t.elapsed();
+    assert!(!o.status.success());
+    assert!(took < Duration::from_secs(5), "stop took {took:?}");
+    let s = summary(&out);
+    assert_eq!(s["status"], "interrupted");
+    let left = leftovers(&run_id(&s), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    assert_eq!(base_dir_leftovers(&root), Vec::<std::path::PathBuf>::new());
+    let alive = processes_mentioning(&run_id(&s));
+    assert!(alive.is_empty(), "processes still alive: {alive:?}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A crashed service fails the run with a message naming it; nothing is left behind.
+#[test]
+fn a_crash_fails_the_run_with_a_clear_message() {
+    let cfg = tiny_config(20_000);
+    let dir = scratch("crash");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("crash");
+    let out = dir.join("run");
+    let child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ]);
+    let pid = logged_pid(&out.join("logs/model-trainer.log"), Duration::from_secs(30)).unwrap();
+    std::thread::sleep(Duration::from_millis(800));
+    // SAFETY: kill(2) on a grandchild we just read the pid of (still alive: the run is long).
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+    let o = wait_output(child, Duration::from_secs(30));
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("model-trainer exited with signal: 9"), "{err}");
+    assert!(err.contains("the run failed"), "{err}");
+    let s = summary(&out);
+    assert_eq!(s["status"], "failed");
+    let left = leftovers(&run_id(&s), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    assert_eq!(base_dir_leftovers(&root), Vec::<std::path::PathBuf>::new());
+    assert!(processes_mentioning(&run_id(&s)).is_empty());
+    let _ = std::fs::remove_dir_all(dir);
+}
