@@ -65,6 +65,8 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut lag = stats::SlackTracker::default();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
+    let started = Instant::now();
+    let mut ipc = Duration::ZERO;
     for t in 1..=steps {
         let g = global_step(t, args.actors, args.index);
         let behaviour = if schedule.is_warm_up(g) {
@@ -111,7 +113,9 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
             model_version: 0,
             env_steps: g,
         };
+        let t0 = Instant::now();
         real.send_batch(&rows, meta)?;
+        ipc += t0.elapsed();
         if last_progress.elapsed() >= Duration::from_millis(500) {
             last_progress = Instant::now();
             stats_pub.send(&stats::progress(g, 0, 0, role.policy_version()))?;
@@ -124,6 +128,8 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,
+        ipc_seconds: ipc.as_secs_f32(),
+        wall_seconds: started.elapsed().as_secs_f32(),
         ..Default::default()
     };
     stats_pub.send(&done.record())?;

@@ -173,6 +173,10 @@ pub struct Done {
     pub slack_max: f32,
     /// Mean of the slack value.
     pub slack_mean: f32,
+    /// Seconds spent inside IPC calls (send, receive, copy in/out of shared memory; not waiting).
+    pub ipc_seconds: f32,
+    /// Wall seconds of the process's work loop.
+    pub wall_seconds: f32,
 }
 
 impl Done {
@@ -189,8 +193,8 @@ impl Done {
                 self.slack_min,
                 self.slack_max,
                 self.slack_mean,
-                0.0,
-                0.0,
+                self.ipc_seconds,
+                self.wall_seconds,
                 0.0,
             ],
             ..Default::default()
@@ -206,6 +210,8 @@ impl Done {
             slack_min: r.metrics[2],
             slack_max: r.metrics[3],
             slack_mean: r.metrics[4],
+            ipc_seconds: r.metrics[5],
+            wall_seconds: r.metrics[6],
         })
     }
 }

@@ -94,9 +94,12 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         )?;
         Ok(())
     };
+    let started = Instant::now();
+    let mut ipc = Duration::ZERO;
     // Version 0: the initial parameters (actors of step 1 use them when there is no warm-up).
     publish(0, &role, 0, 0)?;
     loop {
+        let t0 = Instant::now();
         control.poll()?;
         if control.stopped() {
             tracing::info!("stopped after {consumed} steps");
@@ -115,6 +118,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             role.add_imagined(&batch);
             model_batches += 1;
         }
+        ipc += t0.elapsed();
         // Publish version `consumed` once its updates are paid (within the buffer).
         // The last version is published only when every update is paid.
         let paid = consumed < cfg.steps || updates >= total_updates;
@@ -128,7 +132,9 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
                 waiter.wait(Duration::from_secs(1))?;
                 continue;
             }
+            let t0 = Instant::now();
             publish(consumed, &role, updates, model_batches)?;
+            ipc += t0.elapsed();
             if published > warm {
                 step_seconds.push(last_publish.elapsed().as_secs_f64());
             }
@@ -198,8 +204,14 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,
+        ipc_seconds: ipc.as_secs_f32(),
+        wall_seconds: started.elapsed().as_secs_f32(),
     };
     stats_pub.send(&done.record())?;
-    tracing::info!("done: {consumed} steps, {updates} updates, {lost} real lost, median {median:.4} s per step");
+    tracing::info!(
+        "done: {consumed} steps, {updates} updates, {lost} real lost, median {median:.4} s per step, {:.3} s of {:.1} s in IPC calls",
+        ipc.as_secs_f64(),
+        started.elapsed().as_secs_f64()
+    );
     wait_for_stop(&waiter, &control)
 }

@@ -62,6 +62,18 @@ pub struct Ratios {
     pub model_trainings: u64,
 }
 
+/// Time a process spent inside IPC calls (sending, receiving, copying weights and rows in and
+/// out of shared memory; sleeping in a wait is not counted).
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct IpcShare {
+    /// Seconds inside IPC calls.
+    pub ipc_seconds: f64,
+    /// Wall seconds of the work loop.
+    pub wall_seconds: f64,
+    /// `ipc_seconds / wall_seconds`.
+    pub share: f64,
+}
+
 /// `summary.json` of `mbpo run`: the fields of `mbpo train`'s summary plus the pipeline's.
 #[derive(Debug, Clone, Serialize)]
 pub struct PipelineSummary {
@@ -80,6 +92,8 @@ pub struct PipelineSummary {
     pub real_transitions: RealCounts,
     /// Ratios.
     pub ratios: Ratios,
+    /// IPC cost per process that measures it (learner, actors).
+    pub ipc: BTreeMap<String, IpcShare>,
     /// Process restarts.
     pub restarts: u32,
     /// iceoryx2 files removed at the end.
@@ -283,7 +297,19 @@ impl Collector {
             max: f32::NEG_INFINITY,
             ..Default::default()
         };
+        let mut ipc = BTreeMap::new();
         for (who, d) in &self.done {
+            if d.wall_seconds > 0.0 {
+                let (i, w) = (d.ipc_seconds as f64, d.wall_seconds as f64);
+                ipc.insert(
+                    who.to_string(),
+                    IpcShare {
+                        ipc_seconds: i,
+                        wall_seconds: w,
+                        share: i / w,
+                    },
+                );
+            }
             match who.role() {
                 Some(Role::Actor) => {
                     real.produced += d.real;
@@ -360,6 +386,7 @@ impl Collector {
             run_id: self.run_id.clone(),
             real_transitions: real,
             ratios,
+            ipc,
             restarts: self.restarts,
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
