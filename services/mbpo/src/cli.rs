@@ -144,7 +144,7 @@ pub enum RestartPolicy {
     OnFailure,
 }
 
-#[derive(Debug, Args)]
+#[derive(Debug, Clone, Args)]
 pub struct RunArgs {
     #[command(flatten)]
     pub common: CommonTrainArgs,
@@ -155,6 +155,9 @@ pub struct RunArgs {
     /// Number of environment actors (lockstep needs exactly 1).
     #[arg(long, default_value_t = 1)]
     pub actors: u16,
+    /// Actors per CPU core (overrides --actors: K x available cores).
+    #[arg(long)]
+    pub actors_per_core: Option<u16>,
     #[command(flatten)]
     pub slack: mbpo_service_kit::Slack,
     /// Base directory of the run's iceoryx2 files (kept short: unix socket paths live under it).

@@ -142,6 +142,11 @@ fn make_run_id(env: &str, seed: u64) -> String {
 
 /// Run the pipeline per `args`.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
+    let mut args = args.clone();
+    if let Some(k) = args.actors_per_core {
+        args.actors = k.saturating_mul(ncpu() as u16);
+    }
+    let args = &args;
     let cfg = resolve_config(&args.common, None, None)?;
     if cfg.algo != Algo::Mbpo {
         bail!("mbpo run runs MBPO; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
