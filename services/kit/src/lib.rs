@@ -38,7 +38,8 @@ pub enum Mode {
     /// Zero slack: every hand-off waits for exactly the version the sequential algorithm uses;
     /// with one actor the run equals `mbpo train --mode sequential` bit for bit.
     Lockstep,
-    /// Bounded slack ([`Slack`]): acting, model training, rollouts and SAC updates overlap.
+    /// Bounded slack (--policy-lag, --update-buffer, --model-lag): acting, model training,
+    /// rollouts and SAC updates overlap.
     Pipelined,
 }
 
