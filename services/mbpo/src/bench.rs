@@ -11,6 +11,18 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(t) => env(&t),
         BenchCommand::Learning(args) => learning(&args),
+        BenchCommand::ModelTrain(r) => {
+            let cfg = model_bench_config(&r);
+            let report = mbpo_model::bench::model_train(10_000, &cfg)?;
+            println!("{}", serde_json::to_string(&report)?);
+            Ok(())
+        }
+        BenchCommand::ModelRollout(r) => {
+            let cfg = model_bench_config(&r);
+            let report = mbpo_model::bench::model_rollout(100_000, &cfg)?;
+            println!("{}", serde_json::to_string(&report)?);
+            Ok(())
+        }
         BenchCommand::SacUpdate(t) => {
             let r = mbpo_sac::bench::sac_update(
                 17,
@@ -107,4 +119,11 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
                "results": args.out.join(format!("learning-{}.json", cfg.env))})
     );
     Ok(())
+}
+
+fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBenchConfig {
+    mbpo_model::bench::ModelBenchConfig {
+        repetitions: r.repetitions,
+        ..Default::default()
+    }
 }

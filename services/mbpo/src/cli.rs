@@ -56,6 +56,10 @@ pub enum BenchCommand {
     Env(BenchTime),
     /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims), single thread.
     SacUpdate(BenchTime),
+    /// One dynamics-model training epoch over 10k transitions (7 x 4x200, HalfCheetah dims).
+    ModelTrain(Repetitions),
+    /// 100k one-step model rollouts (7 x 4x200, HalfCheetah dims).
+    ModelRollout(Repetitions),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
     Learning(LearningArgs),
 }
@@ -175,4 +179,11 @@ pub struct RunArgs {
     /// Do not draw the live progress line.
     #[arg(long)]
     pub quiet: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct Repetitions {
+    /// Timed repetitions after one warm-up; the best is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repetitions: usize,
 }
