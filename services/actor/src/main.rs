@@ -29,17 +29,11 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    match if args.eval {
+    mbpo_service_kit::exit_code(if args.eval {
         evaluate(&args.svc)
     } else {
         act(&args.svc)
-    } {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    })
 }
 
 fn act(args: &ServiceArgs) -> anyhow::Result<()> {

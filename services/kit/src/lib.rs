@@ -527,6 +527,18 @@ pub fn global_step(t: u64, actors: u16, index: u16) -> u64 {
     (t - 1) * actors.max(1) as u64 + index as u64 + 1
 }
 
+/// A service's exit code: success, or the error (with its context chain) logged and failure.
+/// Every service `main` ends with it, so a failing service always leaves its reason in its log.
+pub fn exit_code(result: anyhow::Result<()>) -> std::process::ExitCode {
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -28,13 +28,7 @@ struct Args {
 }
 
 fn main() -> ExitCode {
-    match run(&Args::parse().svc) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!("{e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    mbpo_service_kit::exit_code(run(&Args::parse().svc))
 }
 
 fn run(args: &ServiceArgs) -> anyhow::Result<()> {
