@@ -15,5 +15,5 @@ pub mod replay;
 pub mod rng;
 
 pub use policy::{BatchPolicy, UniformPolicy};
-pub use replay::{sample_mixed, Batch, ReplayBuffer};
+pub use replay::{sample_mixed, Batch, ReplayBuffer, ReplaySnapshot, SnapshotMismatch};
 pub use rng::{stream, Rng};

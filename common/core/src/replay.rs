@@ -7,9 +7,10 @@
 //! [`Batch`].
 
 use crate::rng::{index, Rng};
+use serde::{Deserialize, Serialize};
 
 /// A batch of transitions, row-major per field (`obs` is `len x obs_dim`, ...).
-#[derive(Debug, Clone, Default, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Batch {
     /// Observation width.
     pub obs_dim: usize,
@@ -211,6 +212,92 @@ impl ReplayBuffer {
     }
 }
 
+/// A [`ReplayBuffer`] as a checkpoint stores it: the held slots in slot order (not age order)
+/// and the write position, because sampling draws slot indices -- a buffer rebuilt from this
+/// samples exactly the rows the original would have.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReplaySnapshot {
+    /// Maximum transitions held.
+    pub capacity: usize,
+    /// Slot the next push writes.
+    pub head: usize,
+    /// Transitions ever pushed.
+    pub pushed: u64,
+    /// Slots `0..len`, in slot order.
+    pub slots: Batch,
+}
+
+/// Why a [`ReplaySnapshot`] cannot be restored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SnapshotMismatch(pub String);
+
+impl std::fmt::Display for SnapshotMismatch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for SnapshotMismatch {}
+
+impl ReplayBuffer {
+    /// The buffer's contents and positions (allocates; for checkpoints).
+    pub fn snapshot(&self) -> ReplaySnapshot {
+        let mut slots = Batch::new(self.obs_dim, self.act_dim, self.len);
+        for i in 0..self.len {
+            slots.copy_row(i, self, i);
+        }
+        ReplaySnapshot {
+            capacity: self.capacity,
+            head: self.head,
+            pushed: self.pushed,
+            slots,
+        }
+    }
+
+    /// Rebuild a buffer from [`ReplayBuffer::snapshot`]; `obs_dim`/`act_dim` are what the
+    /// caller expects (a mismatch or an inconsistent snapshot is an error, not a panic).
+    pub fn from_snapshot(
+        s: &ReplaySnapshot,
+        obs_dim: usize,
+        act_dim: usize,
+    ) -> Result<Self, SnapshotMismatch> {
+        let b = &s.slots;
+        let consistent = s.capacity > 0
+            && b.len <= s.capacity
+            && s.head < s.capacity
+            && (b.len == s.capacity || s.head == b.len)
+            && s.pushed >= b.len as u64
+            && b.obs.len() == b.len * b.obs_dim
+            && b.next_obs.len() == b.len * b.obs_dim
+            && b.act.len() == b.len * b.act_dim
+            && b.reward.len() == b.len
+            && b.terminated.len() == b.len;
+        if (b.obs_dim, b.act_dim) != (obs_dim, act_dim) {
+            return Err(SnapshotMismatch(format!(
+                "replay snapshot has obs/act dims {}/{}, expected {obs_dim}/{act_dim}",
+                b.obs_dim, b.act_dim
+            )));
+        }
+        if !consistent {
+            return Err(SnapshotMismatch(format!(
+                "replay snapshot is inconsistent: {} rows, capacity {}, head {}, pushed {}",
+                b.len, s.capacity, s.head, s.pushed
+            )));
+        }
+        let mut buf = Self::new(obs_dim, act_dim, s.capacity);
+        let (o, a) = (obs_dim, act_dim);
+        buf.obs[..b.len * o].copy_from_slice(&b.obs);
+        buf.act[..b.len * a].copy_from_slice(&b.act);
+        buf.reward[..b.len].copy_from_slice(&b.reward);
+        buf.next_obs[..b.len * o].copy_from_slice(&b.next_obs);
+        buf.terminated[..b.len].copy_from_slice(&b.terminated);
+        buf.len = b.len;
+        buf.head = s.head;
+        buf.pushed = s.pushed;
+        Ok(buf)
+    }
+}
+
 /// Fill `out` with `n_real = floor(out.len · real_ratio)` rows from `real` followed by the rest
 /// from `model` (MBPO's `_training_batch`: 12 real + 244 model rows at 256 x 0.05). Falls back to
 /// all-real while the model buffer is empty.
@@ -245,6 +332,37 @@ mod tests {
             let v = i as f32;
             buf.push(&[v, -v], &[v * 0.5], v, &[v + 1.0, 0.0], i % 2 == 0);
         }
+    }
+
+    #[test]
+    fn snapshot_restores_slots_so_sampling_continues_identically() {
+        for pushes in [3, 4, 11] {
+            let mut original = ReplayBuffer::new(2, 1, 4);
+            push_n(&mut original, 0, pushes);
+            let mut restored = ReplayBuffer::from_snapshot(&original.snapshot(), 2, 1).unwrap();
+            assert_eq!(restored, original);
+            push_n(&mut original, 100, 2);
+            push_n(&mut restored, 100, 2);
+            let (mut a, mut b) = (Batch::new(2, 1, 16), Batch::new(2, 1, 16));
+            original.sample_into(&mut stream(3, "t", 0), &mut a);
+            restored.sample_into(&mut stream(3, "t", 0), &mut b);
+            assert_eq!(a, b);
+        }
+    }
+
+    #[test]
+    fn bad_snapshots_are_errors() {
+        let mut buf = ReplayBuffer::new(2, 1, 4);
+        push_n(&mut buf, 0, 3);
+        let snap = buf.snapshot();
+        let err = ReplayBuffer::from_snapshot(&snap, 3, 1).unwrap_err();
+        assert!(err.0.contains("expected 3/1"), "{err}");
+        let mut bad = snap.clone();
+        bad.head = 1;
+        assert!(ReplayBuffer::from_snapshot(&bad, 2, 1).is_err());
+        let mut bad = snap;
+        bad.slots.reward.pop();
+        assert!(ReplayBuffer::from_snapshot(&bad, 2, 1).is_err());
     }
 
     #[test]

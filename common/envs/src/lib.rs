@@ -78,6 +78,10 @@ pub trait Env: Send {
     fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError>;
     /// The current physical state (length [`Env::state_dim`]).
     fn state(&self) -> Vec<f64>;
+    /// Steps taken in the current episode (what the time limit counts).
+    fn elapsed_steps(&self) -> usize;
+    /// Set the episode's step count (checkpoint restore, after [`Env::reset_to`]).
+    fn set_elapsed_steps(&mut self, steps: usize);
     /// Advance one step with `action` (length `act_dim`) and write the next observation.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
 

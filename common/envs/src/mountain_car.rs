@@ -129,6 +129,14 @@ impl Env for MountainCarContinuous {
         &self.action_space
     }
 
+    fn elapsed_steps(&self) -> usize {
+        self.steps
+    }
+
+    fn set_elapsed_steps(&mut self, steps: usize) {
+        self.steps = steps;
+    }
+
     fn state_dim(&self) -> usize {
         2
     }

@@ -49,7 +49,7 @@ mod train;
 
 pub use config::{ModelConfig, ModelConfigError};
 pub use error::{ParamsError, PredictError, RolloutError, TrainError};
-pub use model::{ModelWeights, ProbabilisticEnsemble};
+pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
 pub use rollout::{rollout_length, ModelPoolSizing, RolloutStats, Termination};
 pub use train::{

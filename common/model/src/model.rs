@@ -10,7 +10,7 @@ use crate::rollout::RolloutBuffers;
 use crate::simd::{dispatch, fill_standard_normal};
 use mbpo_core::rng::index;
 use mbpo_core::{Batch, Rng};
-use mbpo_nn::{Adam, AdamConfig, Init, ParamLayout, WeightDecay};
+use mbpo_nn::{Adam, AdamConfig, AdamState, Init, ParamLayout, WeightDecay};
 use serde::{Deserialize, Serialize};
 
 /// MBPO's dynamics model: an ensemble of Gaussian MLPs predicting `[reward, Δobs]` from
@@ -51,6 +51,16 @@ pub struct ModelWeights {
     pub normalizer: InputNormalizer,
     /// Elite member indices, best first.
     pub elites: Vec<usize>,
+}
+
+/// What a checkpoint stores of a model being trained: its [`ModelWeights`] and the Adam
+/// moments, so training resumes exactly where it stopped.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelState {
+    /// Parameters, normaliser, elites.
+    pub weights: ModelWeights,
+    /// Adam's moments and step count over θ.
+    pub adam: AdamState,
 }
 
 /// Scratch memory (not model state: cloning or loading weights never depends on it).
@@ -247,6 +257,29 @@ impl ProbabilisticEnsemble {
         self.set_params(&w.params)?;
         self.normalizer = w.normalizer.clone();
         self.elites = w.elites.clone();
+        Ok(())
+    }
+
+    /// Weights and optimiser state (allocates; for checkpoints).
+    pub fn checkpoint(&self) -> ModelState {
+        ModelState {
+            weights: self.weights(),
+            adam: self.adam.state().clone(),
+        }
+    }
+
+    /// Continue training from a [`ProbabilisticEnsemble::checkpoint`] of the same architecture.
+    pub fn restore(&mut self, state: &ModelState) -> Result<(), ParamsError> {
+        let n = self.theta.len();
+        if state.adam.m.len() != n || state.adam.v.len() != n {
+            return Err(ParamsError::Inconsistent(format!(
+                "optimiser state has {}/{} moments for {n} parameters",
+                state.adam.m.len(),
+                state.adam.v.len()
+            )));
+        }
+        self.load_weights(&state.weights)?;
+        self.adam.set_state(state.adam.clone());
         Ok(())
     }
 

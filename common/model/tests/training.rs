@@ -226,3 +226,31 @@ fn bad_training_data_is_rejected_with_typed_errors() {
         })
     ));
 }
+
+#[test]
+fn checkpoint_restores_weights_and_optimiser_so_training_continues_identically() {
+    let data = pendulum_data(600, 5);
+    let cfg = ModelConfig {
+        max_epochs: Some(3),
+        ..small_config(3, 2, &[16, 16])
+    };
+    let build = |seed| {
+        ProbabilisticEnsemble::new(3, 1, cfg.clone(), &mut stream(seed, "test.model", 3)).unwrap()
+    };
+    let mut original = build(0);
+    let mut rng = stream(0, "test.train", 3);
+    original.train(&data, &mut rng).unwrap();
+    let state = original.checkpoint();
+    assert!(state.adam.t > 0, "training moved the optimiser");
+    let mut restored = build(1); // other initial weights: all must be overwritten
+    restored.restore(&state).unwrap();
+    let mut rng2 = rng.clone();
+    original.train(&data, &mut rng).unwrap();
+    restored.train(&data, &mut rng2).unwrap();
+    assert_eq!(restored.checkpoint(), original.checkpoint());
+
+    let mut wrong = state.clone();
+    wrong.adam.m.pop();
+    let err = build(2).restore(&wrong).unwrap_err().to_string();
+    assert!(err.contains("moments"), "{err}");
+}

@@ -18,7 +18,7 @@ pub mod config;
 pub mod critic;
 
 pub use actor::{ActorCache, ActorPolicy, TanhGaussianActor};
-pub use agent::{Sac, SacPolicy, SacStats};
+pub use agent::{Sac, SacPolicy, SacState, SacStats};
 pub use config::SacConfig;
 pub use critic::{CriticCache, TwinCritic};
 

@@ -5,6 +5,7 @@ use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{BatchPolicy, ReplayBuffer, Rng};
 use mbpo_envs::{make, Env, EnvError};
 use mbpo_sac::ActionScale;
+use serde::{Deserialize, Serialize};
 
 /// How the next real action is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -35,7 +36,69 @@ pub struct EnvActor {
     pub last_return: Option<f64>,
 }
 
+/// What a checkpoint keeps of an [`EnvActor`]: the episode in progress (physical state, its
+/// step count, the observation the policy sees next), the random streams and the counters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EnvActorState {
+    /// `Env::state()` of the episode in progress.
+    pub env_state: Vec<f64>,
+    /// Steps taken in that episode (the time limit's count).
+    pub elapsed_steps: usize,
+    /// The `actor.env` stream (start states).
+    pub env_rng: Rng,
+    /// The `actor.policy` stream (action noise).
+    pub policy_rng: Rng,
+    /// The current observation.
+    pub obs: Vec<f32>,
+    /// Return of the episode so far.
+    pub episode_return: f64,
+    /// Env steps taken.
+    pub steps: u64,
+    /// Episodes finished.
+    pub episodes: u64,
+    /// Return of the last finished episode.
+    pub last_return: Option<f64>,
+}
+
 impl EnvActor {
+    /// The actor's state (for checkpoints).
+    pub fn checkpoint(&self) -> EnvActorState {
+        EnvActorState {
+            env_state: self.env.state(),
+            elapsed_steps: self.env.elapsed_steps(),
+            env_rng: self.env_rng.clone(),
+            policy_rng: self.policy_rng.clone(),
+            obs: self.obs.clone(),
+            episode_return: self.episode_return,
+            steps: self.steps,
+            episodes: self.episodes,
+            last_return: self.last_return,
+        }
+    }
+
+    /// Continue from [`EnvActor::checkpoint`]: the same episode, streams and counters.
+    pub fn restore(&mut self, s: EnvActorState) -> Result<(), EnvError> {
+        if s.obs.len() != self.obs.len() {
+            return Err(EnvError::StateDim {
+                env: self.env.id(),
+                expected: self.obs.len(),
+                found: s.obs.len(),
+                layout: "the observation of a checkpointed actor",
+            });
+        }
+        let mut scratch = vec![0.0; self.obs.len()];
+        self.env.reset_to(&s.env_state, &mut scratch)?;
+        self.env.set_elapsed_steps(s.elapsed_steps);
+        self.env_rng = s.env_rng;
+        self.policy_rng = s.policy_rng;
+        self.obs = s.obs;
+        self.episode_return = s.episode_return;
+        self.steps = s.steps;
+        self.episodes = s.episodes;
+        self.last_return = s.last_return;
+        Ok(())
+    }
+
     /// Actor `index` of run `seed` on environment `env_id`, reset to its first start state.
     pub fn new(env_id: &str, seed: u64, index: u64) -> Result<Self, EnvError> {
         let mut env = make(env_id)?;

@@ -58,6 +58,25 @@ impl Default for SacLoopConfig {
     }
 }
 
+/// When runs write checkpoints (`<run>/checkpoints/`, see [`crate::checkpoint`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct CheckpointConfig {
+    /// Checkpoint every this many real env steps (0: only at the end and on a clean stop).
+    pub every: u64,
+    /// Complete checkpoints kept; older ones are deleted.
+    pub keep: usize,
+}
+
+impl Default for CheckpointConfig {
+    fn default() -> Self {
+        Self {
+            every: 1000,
+            keep: 2,
+        }
+    }
+}
+
 /// MBPO's loop settings (Janner et al. 2019, Alg. 2; names as in the paper and the MBPO code).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -121,6 +140,8 @@ pub struct ExperimentConfig {
     pub mbpo: MbpoConfig,
     /// Dynamics-model settings (algo = "mbpo").
     pub model: mbpo_model::ModelConfig,
+    /// Checkpoint schedule.
+    pub checkpoint: CheckpointConfig,
 }
 
 impl Default for ExperimentConfig {
@@ -135,6 +156,7 @@ impl Default for ExperimentConfig {
             sac_loop: SacLoopConfig::default(),
             mbpo: MbpoConfig::default(),
             model: mbpo_model::ModelConfig::default(),
+            checkpoint: CheckpointConfig::default(),
         }
     }
 }
@@ -156,6 +178,14 @@ pub enum ConfigError {
         /// The file.
         path: PathBuf,
         /// toml's message: line, column, key, expected and found.
+        message: String,
+    },
+    /// A `--set key=value` override that is malformed, names an unknown key or has the wrong type.
+    #[error("command line --set {spec}: {message}")]
+    Override {
+        /// The override as given.
+        spec: String,
+        /// What is wrong: unknown key (with the known ones), expected vs found type.
         message: String,
     },
     /// A value outside its allowed range.
@@ -184,6 +214,57 @@ impl ExperimentConfig {
             message: e.to_string(),
         })?;
         cfg.validate(&path.display().to_string())?;
+        Ok(cfg)
+    }
+
+    /// The config a run uses: the file (or the defaults), then each `--set key=value` in order,
+    /// validated as a whole. Errors name the file or the override that caused them.
+    ///
+    /// A value is read as a TOML literal (`sac.gamma=0.98`, `sac.hidden=[64,64]`,
+    /// `sac.autotune_alpha=false`); anything that is not one is taken as a string
+    /// (`env=MountainCarContinuous-v0`).
+    pub fn resolve(path: Option<&Path>, overrides: &[String]) -> Result<Self, ConfigError> {
+        let (mut table, source) = match path {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                    path: path.to_path_buf(),
+                    source,
+                })?;
+                let table: toml::Table = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                })?;
+                // Full typed parse first, so errors in the file point at its line and column.
+                toml::from_str::<Self>(&text).map_err(|e| ConfigError::Parse {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                })?;
+                (table, path.display().to_string())
+            }
+            None => (toml::Table::new(), "defaults".to_string()),
+        };
+        let mut cfg: Self =
+            toml::Value::Table(table.clone())
+                .try_into()
+                .map_err(|e: toml::de::Error| ConfigError::Parse {
+                    path: PathBuf::from(&source),
+                    message: e.to_string(),
+                })?;
+        for spec in overrides {
+            apply_override(&mut table, spec)?;
+            cfg = toml::Value::Table(table.clone())
+                .try_into()
+                .map_err(|e: toml::de::Error| ConfigError::Override {
+                    spec: spec.clone(),
+                    message: e.message().trim().to_string(),
+                })?;
+        }
+        let source = if overrides.is_empty() {
+            source
+        } else {
+            format!("{source} with --set {}", overrides.join(" --set "))
+        };
+        cfg.validate(&source)?;
         Ok(cfg)
     }
 
@@ -233,6 +314,7 @@ impl ExperimentConfig {
             ("mbpo.retain_epochs", m.retain_epochs as f64),
             ("mbpo.updates_per_step", m.updates_per_step as f64),
             ("mbpo.replay_capacity", m.replay_capacity as f64),
+            ("checkpoint.keep", self.checkpoint.keep as f64),
         ];
         for (key, v) in positive_mbpo {
             if v <= 0.0 {
@@ -282,6 +364,43 @@ impl ExperimentConfig {
         }
         Ok(())
     }
+}
+
+/// Apply one `key=value` override to a parsed TOML table (dotted keys address sub-tables).
+fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ConfigError> {
+    let fail = |message: &str| ConfigError::Override {
+        spec: spec.to_string(),
+        message: message.to_string(),
+    };
+    let (key, raw) = spec
+        .split_once('=')
+        .ok_or_else(|| fail("expected key=value, e.g. sac.gamma=0.98"))?;
+    let path: Vec<&str> = key.trim().split('.').collect();
+    if path.iter().any(|part| part.is_empty()) {
+        return Err(fail(
+            "the key is empty or has an empty part; e.g. sac.gamma",
+        ));
+    }
+    let raw = raw.trim();
+    let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let (last, parents) = path.split_last().expect("at least one part");
+    let mut node = table;
+    for (depth, part) in parents.iter().enumerate() {
+        let entry = node
+            .entry(part.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        node = entry.as_table_mut().ok_or_else(|| {
+            fail(&format!(
+                "`{}` is a value, not a section",
+                path[..=depth].join(".")
+            ))
+        })?;
+    }
+    node.insert(last.to_string(), value);
+    Ok(())
 }
 
 #[cfg(test)]
@@ -335,6 +454,58 @@ mod tests {
         let err = parse("env = \"CartPole-v1\"\n").unwrap_err().to_string();
         assert!(
             err.contains("Pendulum-v1") && err.contains("CartPole-v1"),
+            "{err}"
+        );
+    }
+
+    fn overridden(overrides: &[&str]) -> Result<ExperimentConfig, ConfigError> {
+        let overrides: Vec<String> = overrides.iter().map(|s| s.to_string()).collect();
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/configs/pendulum.toml");
+        ExperimentConfig::resolve(Some(&file), &overrides)
+    }
+
+    #[test]
+    fn overrides_apply_in_order_over_the_file() {
+        let cfg = overridden(&[
+            "sac.gamma=0.98",
+            "sac.hidden=[64, 64]",
+            "mbpo.updates_per_step=5",
+            "sac.target_entropy=-0.5",
+            "env=MountainCarContinuous-v0",
+            "sac.gamma=0.97",
+        ])
+        .unwrap();
+        assert_eq!(cfg.sac.gamma, 0.97);
+        assert_eq!(cfg.sac.hidden, vec![64, 64]);
+        assert_eq!(cfg.mbpo.updates_per_step, 5);
+        assert_eq!(cfg.sac.target_entropy, Some(-0.5));
+        assert_eq!(cfg.env, "MountainCarContinuous-v0");
+        // Everything not overridden comes from the file.
+        assert_eq!(cfg.mbpo.init_random_steps, 400);
+        let no_file = ExperimentConfig::resolve(None, &["seed=7".into()]).unwrap();
+        assert_eq!(no_file.seed, 7);
+        assert_eq!(no_file.sac, ExperimentConfig::default().sac);
+    }
+
+    #[test]
+    fn bad_overrides_name_the_override_and_the_problem() {
+        let err = overridden(&["sac.gama=0.9"]).unwrap_err().to_string();
+        assert!(
+            err.contains("--set sac.gama=0.9") && err.contains("gama"),
+            "{err}"
+        );
+        let err = overridden(&["sac.gamma=high"]).unwrap_err().to_string();
+        assert!(
+            err.contains("--set sac.gamma=high") && err.contains("f32"),
+            "{err}"
+        );
+        let err = overridden(&["sac.gamma"]).unwrap_err().to_string();
+        assert!(err.contains("key=value"), "{err}");
+        let err = overridden(&["seed.x=1"]).unwrap_err().to_string();
+        assert!(err.contains("`seed` is a value"), "{err}");
+        let err = overridden(&["sac.gamma=1.5"]).unwrap_err().to_string();
+        assert!(
+            err.contains("--set sac.gamma=1.5") && err.contains("(0, 1]"),
             "{err}"
         );
     }

@@ -7,7 +7,8 @@ use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
 use mbpo_sac::{ActionScale, ActorPolicy, Sac, SacStats};
-use std::time::Instant;
+use serde::{Deserialize, Serialize};
+use std::time::{Duration, Instant};
 
 /// Mean undiscounted return of `episodes` episodes with `policy` (deterministic: tanh μ(s));
 /// start states come from `rng` (the evaluation stream, separate from training's).
@@ -53,7 +54,53 @@ pub struct Evaluator {
     to_minus_200: Option<u64>,
 }
 
+/// What a checkpoint keeps of an [`Evaluator`]: its stream and the run's bookkeeping.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvaluatorState {
+    /// The `eval.env` stream.
+    pub rng: Rng,
+    /// Wall seconds of the run so far (the clock continues from here).
+    pub elapsed_seconds: f64,
+    /// Wall seconds at the last evaluation.
+    pub last_time: f64,
+    /// Env steps at the last evaluation.
+    pub last_steps: u64,
+    /// Last evaluation return.
+    pub final_return: f64,
+    /// Best evaluation return.
+    pub best_return: f64,
+    /// First evaluation point with return ≥ −200.
+    pub to_minus_200: Option<u64>,
+}
+
 impl Evaluator {
+    /// The evaluator's state (for checkpoints).
+    pub fn checkpoint(&self) -> EvaluatorState {
+        EvaluatorState {
+            rng: self.rng.clone(),
+            elapsed_seconds: self.start.elapsed().as_secs_f64(),
+            last_time: self.last_time,
+            last_steps: self.last_steps,
+            final_return: self.final_return,
+            best_return: self.best_return,
+            to_minus_200: self.to_minus_200,
+        }
+    }
+
+    /// Continue from [`Evaluator::checkpoint`]; the wall clock continues from its time.
+    pub fn restore(&mut self, s: EvaluatorState) {
+        self.rng = s.rng;
+        self.start = Instant::now()
+            .checked_sub(Duration::from_secs_f64(s.elapsed_seconds.max(0.0)))
+            .unwrap_or_else(Instant::now);
+        self.last_time = s.last_time;
+        self.last_steps = s.last_steps;
+        self.env_steps = s.last_steps;
+        self.final_return = s.final_return;
+        self.best_return = s.best_return;
+        self.to_minus_200 = s.to_minus_200;
+    }
+
     /// An evaluator with its own environment and stream (`eval.env`).
     pub fn new(cfg: &ExperimentConfig) -> Result<Self, EnvError> {
         Ok(Self {
@@ -138,6 +185,85 @@ impl Evaluator {
             policy_sha256: policy_sha256(&sac.actor_params),
             wall_seconds: self.start.elapsed().as_secs_f64(),
             median_seconds_per_env_step: seconds_per_env_step,
+            status: "completed".into(),
         }
     }
+}
+
+/// What `mbpo eval` reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// The run directory.
+    pub run: String,
+    /// Environment id.
+    pub env: String,
+    /// Env steps of the checkpoint whose policy was evaluated.
+    pub checkpoint_env_steps: u64,
+    /// Episodes run.
+    pub episodes: usize,
+    /// Mean return.
+    pub mean_return: f64,
+    /// Standard deviation of the returns (population).
+    pub std_return: f64,
+    /// Each episode's return.
+    pub returns: Vec<f64>,
+}
+
+/// Evaluate the policy of the newest complete checkpoint of `run` (config from its
+/// `config.toml`) over `episodes` deterministic episodes with start states from
+/// stream `eval.cli` of `seed`.
+pub fn evaluate_run(
+    run: &std::path::Path,
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalReport, crate::TrainError> {
+    use crate::TrainError;
+    if episodes == 0 {
+        return Err(TrainError::Config("--episodes must be at least 1".into()));
+    }
+    let cfg = ExperimentConfig::load(&run.join("config.toml")).map_err(|e| {
+        TrainError::Config(format!("{} is not a run directory: {e}", run.display()))
+    })?;
+    let (dir, manifest) = crate::mbpo_trainer::latest_checkpoint(run)?;
+    let params = if manifest.files.iter().any(|f| f == "learner.ckpt") {
+        let learner: crate::roles::LearnerState = crate::checkpoint::read(
+            &dir.join("learner.ckpt"),
+            crate::roles::checkpoint_kind::LEARNER,
+        )?;
+        learner.sac.actor_params
+    } else {
+        crate::sac_trainer::checkpointed_actor_params(&dir)?
+    };
+    let mut env = make(&cfg.env)?;
+    let net = mbpo_sac::TanhGaussianActor::new(
+        env.obs_dim(),
+        env.act_dim(),
+        &cfg.sac.hidden,
+        cfg.sac.log_std_min,
+        cfg.sac.log_std_max,
+    );
+    if params.len() != net.num_params() {
+        return Err(TrainError::Config(format!(
+            "{}: the policy has {} parameters, the config's actor needs {}",
+            dir.display(),
+            params.len(),
+            net.num_params()
+        )));
+    }
+    let mut policy = ActorPolicy::new(net, params, true);
+    let mut rng = stream(seed, "eval.cli", 0);
+    let returns: Vec<f64> = (0..episodes)
+        .map(|_| evaluate(&mut policy, env.as_mut(), 1, &mut rng))
+        .collect();
+    let mean = returns.iter().sum::<f64>() / episodes as f64;
+    let var = returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / episodes as f64;
+    Ok(EvalReport {
+        run: run.display().to_string(),
+        env: cfg.env.clone(),
+        checkpoint_env_steps: manifest.env_steps,
+        episodes,
+        mean_return: mean,
+        std_return: var.sqrt(),
+        returns,
+    })
 }

@@ -8,6 +8,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod actor;
+pub mod checkpoint;
 pub mod config;
 pub mod eval;
 pub mod learning_bench;
@@ -17,6 +18,6 @@ pub mod run_dir;
 pub mod sac_trainer;
 
 pub use config::{Algo, ConfigError, ExperimentConfig};
-pub use mbpo_trainer::{train_mbpo, Mbpo};
+pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo, RunOptions};
 pub use run_dir::{policy_sha256, RunDir, Summary};
-pub use sac_trainer::{train_sac, TrainError};
+pub use sac_trainer::{train_sac, train_sac_with, TrainError};

@@ -20,15 +20,19 @@
 //! exactly the same numbers in the same order.
 
 use crate::actor::Behaviour;
+use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
-use crate::eval::Evaluator;
+use crate::eval::{Evaluator, EvaluatorState};
+use crate::roles::checkpoint_kind as kind;
 use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
-use crate::run_dir::{RunDir, Summary};
+use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::Batch;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
-use std::path::Path;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 /// Every role of one MBPO run in one process, called in Algorithm 2's order.
@@ -145,44 +149,198 @@ impl Mbpo {
     }
 }
 
+/// Role files of a checkpoint of a single-actor MBPO run (sequential, or a pipeline with one
+/// actor): the same files the pipeline's processes write.
+pub const CHECKPOINT_FILES: [&str; 5] = [
+    "actor-0.ckpt",
+    "model-trainer.ckpt",
+    "rollout-generator.ckpt",
+    "learner.ckpt",
+    "evaluator.ckpt",
+];
+
+/// Checkpoint kind of [`RunBook`].
+pub const EVALUATOR_KIND: &str = "mbpo.evaluator";
+
+/// What the run itself keeps besides the roles: the evaluator's stream and bookkeeping, the
+/// per-step timings for the summary, the last model report (for the metrics rows).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunBook {
+    /// The evaluator.
+    pub evaluator: EvaluatorState,
+    /// Wall seconds of each env step after the warm-up.
+    pub step_seconds: Vec<f64>,
+    /// The last model training's report.
+    pub last_model_report: Option<TrainReport>,
+}
+
+impl Mbpo {
+    /// Write every role's state into the checkpoint directory `dir`.
+    pub fn write_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
+        std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let [actor, trainer, rollout, learner, _] = CHECKPOINT_FILES;
+        checkpoint::write(&dir.join(actor), kind::ACTOR, &self.actor.checkpoint())?;
+        checkpoint::write(
+            &dir.join(trainer),
+            kind::MODEL_TRAINER,
+            &self.model_trainer.checkpoint(),
+        )?;
+        checkpoint::write(
+            &dir.join(rollout),
+            kind::ROLLOUT,
+            &self.rollout.checkpoint(),
+        )?;
+        checkpoint::write(
+            &dir.join(learner),
+            kind::LEARNER,
+            &self.learner.checkpoint(),
+        )
+    }
+
+    /// Restore every role from the checkpoint directory `dir`.
+    pub fn restore_checkpoint(&mut self, dir: &Path) -> Result<(), TrainError> {
+        let [actor, trainer, rollout, learner, _] = CHECKPOINT_FILES;
+        self.actor
+            .restore(checkpoint::read(&dir.join(actor), kind::ACTOR)?)?;
+        self.model_trainer
+            .restore(checkpoint::read(&dir.join(trainer), kind::MODEL_TRAINER)?)?;
+        self.rollout
+            .restore(checkpoint::read(&dir.join(rollout), kind::ROLLOUT)?)?;
+        self.learner
+            .restore(checkpoint::read(&dir.join(learner), kind::LEARNER)?)?;
+        Ok(())
+    }
+}
+
+/// How a single-process run starts and when it stops early.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct RunOptions<'a> {
+    /// Continue from the newest complete checkpoint in the run directory.
+    pub resume: bool,
+    /// Checked after every env step: when set, checkpoint and return (status `stopped`).
+    pub stop: Option<&'a AtomicBool>,
+}
+
+impl RunOptions<'_> {
+    fn stop_requested(&self) -> bool {
+        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+}
+
+/// The newest complete checkpoint of `out`, or an error saying there is none.
+pub fn latest_checkpoint(out: &Path) -> Result<(PathBuf, checkpoint::Manifest), TrainError> {
+    checkpoint::latest(out)?.ok_or_else(|| {
+        TrainError::Config(format!(
+            "{} has no complete checkpoint to resume from (looked in {})",
+            out.display(),
+            checkpoint::root(out).display()
+        ))
+    })
+}
+
 /// Run MBPO per `cfg`, writing the run directory `out`; returns the summary.
 pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
-    let mut run = RunDir::create(out, cfg)?;
+    train_mbpo_with(cfg, out, RunOptions::default())
+}
+
+/// [`train_mbpo`] with resume and stop control.
+pub fn train_mbpo_with(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+) -> Result<Summary, TrainError> {
     let mut mbpo = Mbpo::new(cfg)?;
     let mut evaluator = Evaluator::new(cfg)?;
     let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
-    for t in 1..=cfg.steps {
+    let (mut run, done) = if opts.resume {
+        let (dir, manifest) = latest_checkpoint(out)?;
+        mbpo.restore_checkpoint(&dir)?;
+        let book: RunBook = checkpoint::read(&dir.join(CHECKPOINT_FILES[4]), EVALUATOR_KIND)?;
+        evaluator.restore(book.evaluator);
+        step_seconds = book.step_seconds;
+        mbpo.last_model_report = book.last_model_report;
+        tracing::info!(
+            "resuming {} from its checkpoint after {} env steps",
+            out.display(),
+            manifest.env_steps
+        );
+        (
+            RunDir::resume(out, cfg, manifest.env_steps)?,
+            manifest.env_steps,
+        )
+    } else {
+        (RunDir::create(out, cfg)?, 0)
+    };
+    let save = |mbpo: &Mbpo, evaluator: &Evaluator, step_seconds: &[f64], t: u64| {
+        let dir = checkpoint::dir_for(out, t);
+        mbpo.write_checkpoint(&dir)?;
+        let book = RunBook {
+            evaluator: evaluator.checkpoint(),
+            step_seconds: step_seconds.to_vec(),
+            last_model_report: mbpo.last_model_report.clone(),
+        };
+        checkpoint::write(&dir.join(CHECKPOINT_FILES[4]), EVALUATOR_KIND, &book)?;
+        checkpoint::mark_complete(&dir, t, &CHECKPOINT_FILES)?;
+        checkpoint::prune(out, cfg.checkpoint.keep)
+    };
+    let mut status = "completed";
+    for t in done + 1..=cfg.steps {
         let started = Instant::now();
         mbpo.step(t)?;
         if !mbpo.schedule.is_warm_up(t) {
             step_seconds.push(started.elapsed().as_secs_f64());
         }
         if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
-            let learner = &mbpo.learner;
-            let mut row = evaluator.evaluate(
-                t,
-                learner.sac(),
-                &learner.last_stats,
-                mbpo.actor.env_actor(),
-            );
-            if let Some(r) = &mbpo.last_model_report {
-                let elites = &r.elites;
-                let mse: f64 = elites
-                    .iter()
-                    .map(|&e| r.final_holdout_mse[e] as f64)
-                    .sum::<f64>()
-                    / elites.len() as f64;
-                row.model_holdout_mse = Some(mse);
-                row.rollout_length = Some(learner.rollout_length as f64);
-                row.model_buffer = Some(learner.model_buffer_len() as f64);
-            }
+            let row = metrics_row(&mbpo, &mut evaluator, t);
             run.write_metrics(&row)?;
             evaluator.log("mbpo", &row);
         }
+        let stopping = opts.stop_requested() && t < cfg.steps;
+        let every = cfg.checkpoint.every;
+        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+            save(&mbpo, &evaluator, &step_seconds, t)?;
+        }
+        if stopping {
+            tracing::info!(
+                "stopped after {t} env steps; continue with --resume {}",
+                out.display()
+            );
+            status = "stopped";
+            break;
+        }
     }
-    step_seconds.sort_by(f64::total_cmp);
-    let median = step_seconds.get(step_seconds.len() / 2).copied();
-    let summary = evaluator.summary("mbpo", mbpo.learner.sac(), median);
+    let mut sorted = step_seconds.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted.get(sorted.len() / 2).copied();
+    let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median);
+    summary.env_steps = mbpo.env_steps();
+    summary.status = status.into();
     run.write_summary(&summary)?;
     Ok(summary)
+}
+
+/// The metrics row of eval point `t`: evaluation, SAC statistics and the model's.
+fn metrics_row(mbpo: &Mbpo, evaluator: &mut Evaluator, t: u64) -> MetricsRow {
+    let learner = &mbpo.learner;
+    let mut row = evaluator.evaluate(
+        t,
+        learner.sac(),
+        &learner.last_stats,
+        mbpo.actor.env_actor(),
+    );
+    if let Some(r) = &mbpo.last_model_report {
+        let elites = &r.elites;
+        let mse: f64 = elites
+            .iter()
+            .map(|&e| r.final_holdout_mse[e] as f64)
+            .sum::<f64>()
+            / elites.len() as f64;
+        row.model_holdout_mse = Some(mse);
+        row.rollout_length = Some(learner.rollout_length as f64);
+        row.model_buffer = Some(learner.model_buffer_len() as f64);
+    }
+    row
 }

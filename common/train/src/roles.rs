@@ -14,16 +14,97 @@
 //! | [`RolloutRole`] | real transitions, [`ModelSnapshot`], [`PolicySnapshot`] | [`ImaginedBatch`] | `rollout` |
 //! | [`LearnerRole`] | real transitions, [`ImaginedBatch`] | [`PolicySnapshot`] | `sac.init`, `learner.sample`, `learner.update` |
 
-use crate::actor::{Behaviour, EnvActor};
+use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::ExperimentConfig;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
-use mbpo_core::{sample_mixed, Batch, ReplayBuffer, Rng};
+use mbpo_core::{sample_mixed, Batch, ReplayBuffer, ReplaySnapshot, Rng};
 use mbpo_envs::{termination_fn, EnvError, TerminationFn};
 use mbpo_model::{
-    rollout_length, ModelPoolSizing, ModelWeights, ProbabilisticEnsemble, TrainReport,
+    rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
 };
-use mbpo_sac::{ActorPolicy, Sac, SacStats, TanhGaussianActor};
+use mbpo_sac::{ActorPolicy, Sac, SacState, SacStats, TanhGaussianActor};
+use serde::{Deserialize, Serialize};
+
+/// Checkpoint kinds (the `kind` field of a checkpoint file) and file names of the roles.
+pub mod checkpoint_kind {
+    /// [`super::ActorState`].
+    pub const ACTOR: &str = "mbpo.actor";
+    /// [`super::ModelTrainerState`].
+    pub const MODEL_TRAINER: &str = "mbpo.model-trainer";
+    /// [`super::RolloutState`].
+    pub const ROLLOUT: &str = "mbpo.rollout-generator";
+    /// [`super::LearnerState`].
+    pub const LEARNER: &str = "mbpo.learner";
+}
+
+fn restore_err(role: &str, e: impl std::fmt::Display) -> TrainError {
+    TrainError::Config(format!(
+        "cannot restore the {role} from its checkpoint: {e}"
+    ))
+}
+
+/// A checkpointed [`ActorRole`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ActorState {
+    /// The env actor (episode, streams, counters).
+    pub actor: EnvActorState,
+    /// The policy acting and its version.
+    pub policy: Vec<f32>,
+    /// Version of that policy.
+    pub policy_version: u64,
+}
+
+/// A checkpointed [`ModelTrainerRole`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelTrainerState {
+    /// Its copy of D_env.
+    pub d_env: ReplaySnapshot,
+    /// Model weights and optimiser.
+    pub model: ModelState,
+    /// The `model.train` stream.
+    pub rng: Rng,
+    /// Trainings completed.
+    pub version: u64,
+}
+
+/// A checkpointed [`RolloutRole`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RolloutState {
+    /// Its copy of D_env (start states).
+    pub d_env: ReplaySnapshot,
+    /// The model it branches with (`None` before the first training).
+    pub model: Option<ModelWeights>,
+    /// Version of that model.
+    pub model_version: u64,
+    /// The policy it rolls out.
+    pub policy: Vec<f32>,
+    /// Version of that policy.
+    pub policy_version: u64,
+    /// The `rollout` stream.
+    pub rng: Rng,
+}
+
+/// A checkpointed [`LearnerRole`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnerState {
+    /// Networks, optimisers, temperature.
+    pub sac: SacState,
+    /// Its copy of D_env.
+    pub d_env: ReplaySnapshot,
+    /// D_model.
+    pub d_model: ReplaySnapshot,
+    /// The `learner.sample` stream.
+    pub sample_rng: Rng,
+    /// The `learner.update` stream.
+    pub update_rng: Rng,
+    /// Learner steps completed (= policy version).
+    pub steps: u64,
+    /// Statistics of the last update.
+    pub last_stats: SacStats,
+    /// Rollout length of the last imagined batch.
+    pub rollout_length: usize,
+}
 
 /// When the model-based steps happen, as a pure function of the env step `t` (1-based).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -135,6 +216,31 @@ impl ActorRole {
     pub fn env_actor(&self) -> &EnvActor {
         &self.actor
     }
+    /// The role's state (for checkpoints).
+    pub fn checkpoint(&self) -> ActorState {
+        ActorState {
+            actor: self.actor.checkpoint(),
+            policy: self.policy.params.clone(),
+            policy_version: self.policy_version,
+        }
+    }
+    /// Continue from [`ActorRole::checkpoint`].
+    pub fn restore(&mut self, s: ActorState) -> Result<(), TrainError> {
+        if s.policy.len() != self.policy.params.len() {
+            return Err(restore_err(
+                "actor",
+                format!(
+                    "policy has {} parameters, expected {}",
+                    s.policy.len(),
+                    self.policy.params.len()
+                ),
+            ));
+        }
+        self.actor.restore(s.actor)?;
+        self.policy.params = s.policy;
+        self.policy_version = s.policy_version;
+        Ok(())
+    }
     /// One real env step; returns the transition as a one-row batch.
     pub fn act(&mut self, behaviour: Behaviour) -> Batch {
         self.actor
@@ -175,6 +281,38 @@ impl ModelTrainerRole {
     /// Real transitions received.
     pub fn real_received(&self) -> u64 {
         self.d_env.pushed()
+    }
+    /// Trainings completed.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+    /// The role's state (for checkpoints).
+    pub fn checkpoint(&self) -> ModelTrainerState {
+        ModelTrainerState {
+            d_env: self.d_env.snapshot(),
+            model: self.model.checkpoint(),
+            rng: self.rng.clone(),
+            version: self.version,
+        }
+    }
+    /// Continue from [`ModelTrainerRole::checkpoint`].
+    pub fn restore(&mut self, s: ModelTrainerState) -> Result<(), TrainError> {
+        let (o, a) = (self.d_env.obs_dim(), self.d_env.act_dim());
+        self.d_env = ReplayBuffer::from_snapshot(&s.d_env, o, a)
+            .map_err(|e| restore_err("model trainer", e))?;
+        self.model
+            .restore(&s.model)
+            .map_err(|e| restore_err("model trainer", e))?;
+        self.rng = s.rng;
+        self.version = s.version;
+        Ok(())
+    }
+    /// The current model as a snapshot (what a restarted trainer republishes).
+    pub fn snapshot(&self) -> ModelSnapshot {
+        ModelSnapshot {
+            version: self.version,
+            weights: self.model.weights(),
+        }
     }
     /// Train p_θ on all real data by maximum likelihood; returns the new snapshot.
     pub fn train(&mut self) -> Result<(ModelSnapshot, TrainReport), TrainError> {
@@ -258,6 +396,51 @@ impl RolloutRole {
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
         self.policy.params.copy_from_slice(&snapshot.params);
         self.policy_version = snapshot.version;
+    }
+    /// The role's state (for checkpoints).
+    pub fn checkpoint(&self) -> RolloutState {
+        RolloutState {
+            d_env: self.d_env.snapshot(),
+            model: (self.model_version > 0).then(|| self.model.weights()),
+            model_version: self.model_version,
+            policy: self.policy.params.clone(),
+            policy_version: self.policy_version,
+            rng: self.rng.clone(),
+        }
+    }
+    /// Continue from [`RolloutRole::checkpoint`].
+    pub fn restore(&mut self, s: RolloutState) -> Result<(), TrainError> {
+        let (o, a) = (self.d_env.obs_dim(), self.d_env.act_dim());
+        self.d_env = ReplayBuffer::from_snapshot(&s.d_env, o, a)
+            .map_err(|e| restore_err("rollout generator", e))?;
+        if let Some(w) = &s.model {
+            self.model
+                .load_weights(w)
+                .map_err(|e| restore_err("rollout generator", e))?;
+        }
+        if s.policy.len() != self.policy.params.len() {
+            return Err(restore_err(
+                "rollout generator",
+                format!(
+                    "policy has {} parameters, expected {}",
+                    s.policy.len(),
+                    self.policy.params.len()
+                ),
+            ));
+        }
+        self.model_version = s.model_version;
+        self.policy.params = s.policy;
+        self.policy_version = s.policy_version;
+        self.rng = s.rng;
+        Ok(())
+    }
+    /// Version of the model it branches with.
+    pub fn model_version(&self) -> u64 {
+        self.model_version
+    }
+    /// Real transitions received.
+    pub fn real_received(&self) -> u64 {
+        self.d_env.pushed()
     }
     /// k = rollout_length(epoch); M · model_train_freq k-step rollouts of π in p_θ from start
     /// states drawn uniformly from the real data.
@@ -382,5 +565,39 @@ impl LearnerRole {
     /// The SAC agent.
     pub fn sac(&self) -> &Sac {
         &self.sac
+    }
+    /// Learner steps completed (= the version of [`LearnerRole::policy`]).
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+    /// The role's state (for checkpoints).
+    pub fn checkpoint(&self) -> LearnerState {
+        LearnerState {
+            sac: self.sac.checkpoint(),
+            d_env: self.d_env.snapshot(),
+            d_model: self.d_model.snapshot(),
+            sample_rng: self.sample_rng.clone(),
+            update_rng: self.update_rng.clone(),
+            steps: self.steps,
+            last_stats: self.last_stats,
+            rollout_length: self.rollout_length,
+        }
+    }
+    /// Continue from [`LearnerRole::checkpoint`].
+    pub fn restore(&mut self, s: LearnerState) -> Result<(), TrainError> {
+        let (o, a) = (self.d_env.obs_dim(), self.d_env.act_dim());
+        self.d_env =
+            ReplayBuffer::from_snapshot(&s.d_env, o, a).map_err(|e| restore_err("learner", e))?;
+        self.d_model =
+            ReplayBuffer::from_snapshot(&s.d_model, o, a).map_err(|e| restore_err("learner", e))?;
+        self.sac
+            .restore(s.sac)
+            .map_err(|e| restore_err("learner", e))?;
+        self.sample_rng = s.sample_rng;
+        self.update_rng = s.update_rng;
+        self.steps = s.steps;
+        self.last_stats = s.last_stats;
+        self.rollout_length = s.rollout_length;
+        Ok(())
     }
 }

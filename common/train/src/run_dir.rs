@@ -113,6 +113,13 @@ pub struct Summary {
     /// Median wall-clock seconds per env step after the warm-up (MBPO), if measured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub median_seconds_per_env_step: Option<f64>,
+    /// `completed`, or `stopped` (a clean stop before `steps`; resume with `--resume`).
+    #[serde(default = "completed")]
+    pub status: String,
+}
+
+fn completed() -> String {
+    "completed".into()
 }
 
 /// SHA-256 of parameters as little-endian f32 bytes, hex.
@@ -139,6 +146,44 @@ impl RunDir {
         let mut metrics = BufWriter::new(File::create(path.join("metrics.csv"))?);
         writeln!(metrics, "{}", METRIC_COLUMNS.join(","))?;
         metrics.flush()?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            metrics,
+        })
+    }
+
+    /// Reopen the directory of a run resumed from its checkpoint after `env_steps`: rows of
+    /// `metrics.csv` written after that checkpoint are dropped (the resumed run writes them
+    /// again), the resolved config is rewritten (its `steps` may have been extended).
+    pub fn resume(path: &Path, config: &ExperimentConfig, env_steps: u64) -> std::io::Result<Self> {
+        let metrics_path = path.join("metrics.csv");
+        let text = std::fs::read_to_string(&metrics_path)?;
+        let mut lines = text.lines();
+        let header = lines.next().unwrap_or_default();
+        if header != METRIC_COLUMNS.join(",") {
+            return Err(std::io::Error::other(format!(
+                "{}: header is `{header}`, expected `{}` (written by another version?)",
+                metrics_path.display(),
+                METRIC_COLUMNS.join(",")
+            )));
+        }
+        let mut kept = format!("{header}\n");
+        for line in lines {
+            let steps: Option<u64> = line.split(',').next().and_then(|c| c.parse().ok());
+            if steps.is_some_and(|s| s <= env_steps) {
+                kept.push_str(line);
+                kept.push('\n');
+            }
+        }
+        let tmp = path.join("metrics.csv.tmp");
+        std::fs::write(&tmp, kept)?;
+        std::fs::rename(&tmp, &metrics_path)?;
+        std::fs::write(path.join("config.toml"), config.to_toml())?;
+        let metrics = BufWriter::new(
+            std::fs::OpenOptions::new()
+                .append(true)
+                .open(&metrics_path)?,
+        );
         Ok(Self {
             path: path.to_path_buf(),
             metrics,

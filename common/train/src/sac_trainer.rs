@@ -5,13 +5,16 @@
 //! Every random draw comes from a named stream of the run seed, so a seed reproduces a run bit
 //! for bit.
 
-use crate::actor::{Behaviour, EnvActor};
+use crate::actor::{Behaviour, EnvActor, EnvActorState};
+use crate::checkpoint;
 use crate::config::ExperimentConfig;
-use crate::eval::Evaluator;
+use crate::eval::{Evaluator, EvaluatorState};
+use crate::mbpo_trainer::{latest_checkpoint, RunOptions};
 use crate::run_dir::{RunDir, Summary};
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, ReplayBuffer};
-use mbpo_sac::{Sac, SacStats};
+use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
+use mbpo_sac::{Sac, SacState, SacStats};
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Errors of a training run.
@@ -26,17 +29,50 @@ pub enum TrainError {
     /// A component rejected its configuration or input.
     #[error("{0}")]
     Config(String),
+    /// A checkpoint could not be written or read.
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
     /// A results file could not be encoded.
     #[error("results file: {0}")]
     Json(#[from] serde_json::Error),
 }
 
+/// The checkpoint file of a SAC run.
+pub const SAC_CHECKPOINT_FILE: &str = "sac-trainer.ckpt";
+const SAC_CHECKPOINT_KIND: &str = "mbpo.sac-trainer";
+
+/// Everything a SAC run needs to continue exactly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct SacRunState {
+    actor: EnvActorState,
+    sac: SacState,
+    replay: ReplaySnapshot,
+    sample_rng: Rng,
+    update_rng: Rng,
+    stats: SacStats,
+    evaluator: EvaluatorState,
+}
+
+/// The actor parameters stored in a SAC run's checkpoint directory.
+pub fn checkpointed_actor_params(dir: &Path) -> Result<Vec<f32>, TrainError> {
+    let state: SacRunState = checkpoint::read(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND)?;
+    Ok(state.sac.actor_params)
+}
+
 /// Run SAC per `cfg`, writing the run directory `out`; returns the summary.
 pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
+    train_sac_with(cfg, out, RunOptions::default())
+}
+
+/// [`train_sac`] with resume and stop control.
+pub fn train_sac_with(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+) -> Result<Summary, TrainError> {
     let seed = cfg.seed;
     let mut actor = EnvActor::new(&cfg.env, seed, 0)?;
     let (obs_dim, act_dim) = (actor.obs_dim(), actor.act_dim());
-    let mut run = RunDir::create(out, cfg)?;
     let mut sac = Sac::new(
         obs_dim,
         act_dim,
@@ -49,8 +85,27 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
     let mut update_rng = stream(seed, "learner.update", 0);
     let mut evaluator = Evaluator::new(cfg)?;
     let mut stats = SacStats::default();
+    let (mut run, done) = if opts.resume {
+        let (dir, manifest) = latest_checkpoint(out)?;
+        let path = dir.join(SAC_CHECKPOINT_FILE);
+        let state: SacRunState = checkpoint::read(&path, SAC_CHECKPOINT_KIND)?;
+        let bad = |e: String| TrainError::Config(format!("{}: {e}", path.display()));
+        actor.restore(state.actor)?;
+        sac.restore(state.sac).map_err(bad)?;
+        replay = ReplayBuffer::from_snapshot(&state.replay, obs_dim, act_dim)
+            .map_err(|e| bad(e.to_string()))?;
+        (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
+        evaluator.restore(state.evaluator);
+        (
+            RunDir::resume(out, cfg, manifest.env_steps)?,
+            manifest.env_steps,
+        )
+    } else {
+        (RunDir::create(out, cfg)?, 0)
+    };
 
-    for t in 1..=cfg.steps {
+    let mut status = "completed";
+    for t in done + 1..=cfg.steps {
         // Act: uniform over the action box during warm-up, then the stochastic policy.
         let behaviour = if t <= cfg.sac_loop.random_steps {
             Behaviour::Uniform
@@ -73,9 +128,42 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);
         }
+
+        // Checkpoint.
+        let stopping = opts
+            .stop
+            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
+            && t < cfg.steps;
+        let every = cfg.checkpoint.every;
+        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+            let dir = checkpoint::dir_for(out, t);
+            std::fs::create_dir_all(&dir)?;
+            let state = SacRunState {
+                actor: actor.checkpoint(),
+                sac: sac.checkpoint(),
+                replay: replay.snapshot(),
+                sample_rng: sample_rng.clone(),
+                update_rng: update_rng.clone(),
+                stats,
+                evaluator: evaluator.checkpoint(),
+            };
+            checkpoint::write(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND, &state)?;
+            checkpoint::mark_complete(&dir, t, &[SAC_CHECKPOINT_FILE])?;
+            checkpoint::prune(out, cfg.checkpoint.keep)?;
+        }
+        if stopping {
+            tracing::info!(
+                "stopped after {t} env steps; continue with --resume {}",
+                out.display()
+            );
+            status = "stopped";
+            break;
+        }
     }
 
-    let summary = evaluator.summary("sac", &sac, None);
+    let mut summary = evaluator.summary("sac", &sac, None);
+    summary.env_steps = actor.steps;
+    summary.status = status.into();
     run.write_summary(&summary)?;
     Ok(summary)
 }

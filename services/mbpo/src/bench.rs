@@ -91,7 +91,7 @@ fn env(t: &BenchTime) -> anyhow::Result<()> {
 }
 
 fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
-    let mut cfg = mbpo_train::ExperimentConfig::load(&args.config)?;
+    let mut cfg = mbpo_train::ExperimentConfig::resolve(Some(&args.config), &args.overrides)?;
     if let Some(s) = args.steps {
         cfg.steps = s;
     }

@@ -20,11 +20,47 @@ pub enum Command {
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),
+    /// Experiment configs: print the resolved config.
+    #[command(subcommand)]
+    Config(ConfigCommand),
+    /// Evaluate the newest checkpointed policy of a run: mean and std of the return over
+    /// deterministic episodes (one JSON line).
+    Eval(EvalArgs),
     /// Plot learning curves (mean and min..max over seeds, one colour per group) to a PNG.
     Plot(PlotArgs),
     /// Micro-benchmarks that print one JSON object per line.
     #[command(subcommand)]
     Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+pub enum ConfigCommand {
+    /// Print the config a run would use (file, then every --set, validated) as TOML.
+    Show(ConfigSource),
+}
+
+/// Where a config comes from: a file (or the defaults) and `--set` overrides.
+#[derive(Debug, Args, Clone)]
+pub struct ConfigSource {
+    /// Experiment config (TOML); defaults are used for keys it does not set.
+    #[arg(long)]
+    pub config: Option<std::path::PathBuf>,
+    /// Override one key, e.g. `--set sac.gamma=0.98 --set sac.hidden=[64,64]` (TOML values;
+    /// anything else is a string). Applied in order, after the file.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    /// Run directory (with config.toml and checkpoints/).
+    pub run: std::path::PathBuf,
+    /// Deterministic evaluation episodes.
+    #[arg(long, default_value_t = 10)]
+    pub episodes: usize,
+    /// Seed of the start states (stream `eval.cli` of this seed).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 #[derive(Debug, Subcommand)]
@@ -74,9 +110,8 @@ pub struct BenchTime {
 /// The flags every training command shares.
 #[derive(Debug, Args, Clone)]
 pub struct CommonTrainArgs {
-    /// Experiment config (TOML); defaults are used for keys it does not set.
-    #[arg(long)]
-    pub config: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub source: ConfigSource,
     /// Run seed (overrides the config's `seed`).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -100,6 +135,10 @@ pub struct TrainArgs {
     /// multi-process pipeline, `mbpo run`, is tested against).
     #[arg(long, value_parser = ["sequential"], default_value = "sequential")]
     pub mode: String,
+    /// Continue the run in this directory from its newest complete checkpoint, with the
+    /// config it was started with (`--steps` may extend it; no other overrides).
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["algo", "env", "config", "overrides", "seed", "out"])]
+    pub resume: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub common: CommonTrainArgs,
 }
@@ -109,6 +148,9 @@ pub struct LearningArgs {
     /// Experiment config (TOML).
     #[arg(long)]
     pub config: std::path::PathBuf,
+    /// Override one key of the config (see `mbpo config show --help`).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
     /// Number of seeds (0..N).
     #[arg(long, default_value_t = 5)]
     pub seeds: u64,

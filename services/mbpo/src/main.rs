@@ -27,6 +27,17 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         cli::Command::Train(args) => train_cmd::run(&args),
         cli::Command::Run(args) => supervisor::run(&args),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
+        cli::Command::Config(cli::ConfigCommand::Show(source)) => {
+            let cfg =
+                mbpo_train::ExperimentConfig::resolve(source.config.as_deref(), &source.overrides)?;
+            print!("{}", cfg.to_toml());
+            Ok(())
+        }
+        cli::Command::Eval(args) => {
+            let report = mbpo_train::eval::evaluate_run(&args.run, args.episodes, args.seed)?;
+            println!("{}", serde_json::to_string(&report)?);
+            Ok(())
+        }
         cli::Command::Plot(args) => {
             mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;
             println!(

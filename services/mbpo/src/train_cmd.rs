@@ -2,8 +2,9 @@
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
-use mbpo_train::{train_mbpo, train_sac, Algo, ExperimentConfig};
+use mbpo_train::{train_mbpo_with, train_sac_with, Algo, ExperimentConfig, RunOptions};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Resolve the config from the file and the command-line overrides, validated.
 pub fn resolve_config(
@@ -11,10 +12,8 @@ pub fn resolve_config(
     algo: Option<&str>,
     env: Option<&str>,
 ) -> anyhow::Result<ExperimentConfig> {
-    let mut cfg = match &common.config {
-        Some(path) => ExperimentConfig::load(path)?,
-        None => ExperimentConfig::default(),
-    };
+    let mut cfg =
+        ExperimentConfig::resolve(common.source.config.as_deref(), &common.source.overrides)?;
     if let Some(a) = algo {
         cfg.algo = if a == "sac" { Algo::Sac } else { Algo::Mbpo };
     }
@@ -40,12 +39,52 @@ pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
 }
 
 pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
-    let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
-    let out = run_dir(&args.common, &cfg);
-    let summary = match cfg.algo {
-        Algo::Sac => train_sac(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
-        Algo::Mbpo => train_mbpo(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
+    let (cfg, out, resume) = match &args.resume {
+        Some(dir) => {
+            let path = dir.join("config.toml");
+            let mut cfg = ExperimentConfig::load(&path)
+                .with_context(|| format!("resuming {}: its resolved config", dir.display()))?;
+            if let Some(steps) = args.common.steps {
+                cfg.steps = steps;
+                cfg.validate("command line --steps")?;
+            }
+            (cfg, dir.clone(), true)
+        }
+        None => {
+            let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
+            let out = run_dir(&args.common, &cfg);
+            (cfg, out, false)
+        }
     };
+    let stop = stop_on_signals();
+    let opts = RunOptions {
+        resume,
+        stop: Some(stop),
+    };
+    let summary = match cfg.algo {
+        Algo::Sac => train_sac_with(&cfg, &out, opts),
+        Algo::Mbpo => train_mbpo_with(&cfg, &out, opts),
+    }
+    .with_context(|| format!("run {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
+}
+
+static STOP: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn request_stop(_signal: libc::c_int) {
+    // Only an atomic store: async-signal-safe.
+    STOP.store(true, Ordering::Relaxed);
+}
+
+/// SIGINT/SIGTERM set a flag the trainer checks after each env step: it then writes a
+/// checkpoint and the summary (status `stopped`) and returns, so `--resume` continues the run.
+fn stop_on_signals() -> &'static AtomicBool {
+    let handler = request_stop as extern "C" fn(libc::c_int) as libc::sighandler_t;
+    // SAFETY: installs a handler that only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGINT, handler);
+        libc::signal(libc::SIGTERM, handler);
+    }
+    &STOP
 }

@@ -80,8 +80,6 @@ pub struct PipelineSummary {
     /// The same fields as the sequential mode.
     #[serde(flatten)]
     pub summary: Summary,
-    /// `completed`, `failed` or `interrupted`.
-    pub status: String,
     /// `lockstep` or `pipelined`.
     pub mode: String,
     /// Actors.
@@ -379,8 +377,9 @@ impl Collector {
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
                 median_seconds_per_env_step: median,
+                // `completed`, `failed` or `interrupted`.
+                status: status.into(),
             },
-            status: status.into(),
             mode: self.mode.clone(),
             actors: self.actors,
             run_id: self.run_id.clone(),

@@ -1,0 +1,371 @@
+//! Checkpoint files and checkpoint directories.
+//!
+//! A run checkpoints into `<run>/checkpoints/<env steps, 10 digits>/`, one file per role
+//! (`actor-0.ckpt`, `model-trainer.ckpt`, `rollout-generator.ckpt`, `learner.ckpt`,
+//! `evaluator.ckpt`, ...) and, written last, `COMPLETE` (JSON: env steps and the files). Only a
+//! directory with `COMPLETE` is ever resumed from, so a crash while checkpointing falls back to
+//! the previous one. The sequential trainer and the pipeline's processes write the same role
+//! files.
+//!
+//! Each file is
+//!
+//! ```text
+//! "MBPOCKPT" | format version u32 | kind length u16 | kind | payload length u64 | SHA-256(payload) | payload
+//! ```
+//!
+//! (little-endian; the payload is bincode of the role's state), written to a temporary file,
+//! flushed to disk and renamed, so a reader sees the old file or the new one, never half of one.
+//! Reading checks the magic, the version, the kind, the length and the checksum, and says which
+//! failed.
+
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+const MAGIC: &[u8; 8] = b"MBPOCKPT";
+
+/// Version of the file layout and of the role states inside; bump on any change to either.
+pub const FORMAT_VERSION: u32 = 1;
+
+/// Name of the marker that makes a checkpoint directory resumable.
+pub const COMPLETE: &str = "COMPLETE";
+
+/// Why a checkpoint could not be written or read.
+#[derive(Debug, thiserror::Error)]
+pub enum CheckpointError {
+    /// Reading or writing failed.
+    #[error("checkpoint {path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// The file does not start with the checkpoint magic.
+    #[error("checkpoint {path}: not a checkpoint file (no MBPOCKPT header)")]
+    NotACheckpoint {
+        /// The file.
+        path: PathBuf,
+    },
+    /// Written by another format version.
+    #[error("checkpoint {path}: format version {found}, this build reads version {supported}; resume it with the build that wrote it")]
+    Version {
+        /// The file.
+        path: PathBuf,
+        /// Version in the file.
+        found: u32,
+        /// Version this build reads.
+        supported: u32,
+    },
+    /// Holds another role's state.
+    #[error("checkpoint {path}: holds `{found}`, expected `{expected}`")]
+    Kind {
+        /// The file.
+        path: PathBuf,
+        /// Kind in the file.
+        found: String,
+        /// Kind asked for.
+        expected: String,
+    },
+    /// Shorter than its header says.
+    #[error("checkpoint {path}: truncated: {found} bytes, expected {expected}")]
+    Truncated {
+        /// The file.
+        path: PathBuf,
+        /// Bytes the header promises.
+        expected: u64,
+        /// Bytes present.
+        found: u64,
+    },
+    /// The payload's checksum does not match.
+    #[error("checkpoint {path}: corrupted: SHA-256 of the payload does not match its header")]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The payload does not decode into the expected state.
+    #[error("checkpoint {path}: cannot decode `{kind}`: {message}")]
+    Decode {
+        /// The file.
+        path: PathBuf,
+        /// Kind asked for.
+        kind: String,
+        /// bincode's message.
+        message: String,
+    },
+    /// A checkpoint directory that cannot be resumed.
+    #[error("{0}")]
+    Resume(String),
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
+    move |source| CheckpointError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Write `value` as a checkpoint of `kind` to `path`, atomically.
+pub fn write<T: Serialize>(path: &Path, kind: &str, value: &T) -> Result<(), CheckpointError> {
+    let payload =
+        bincode::serde::encode_to_vec(value, bincode::config::standard()).map_err(|e| {
+            CheckpointError::Decode {
+                path: path.to_path_buf(),
+                kind: kind.to_string(),
+                message: e.to_string(),
+            }
+        })?;
+    let mut bytes = Vec::with_capacity(payload.len() + 64 + kind.len());
+    bytes.extend_from_slice(MAGIC);
+    bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    bytes.extend_from_slice(&(kind.len() as u16).to_le_bytes());
+    bytes.extend_from_slice(kind.as_bytes());
+    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&Sha256::digest(&payload));
+    bytes.extend_from_slice(&payload);
+    write_atomically(path, &bytes)
+}
+
+/// Write `bytes` to `path` through a temporary file, synced, then renamed over `path`.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    let mut file = std::fs::File::create(&tmp).map_err(io_err(&tmp))?;
+    file.write_all(bytes).map_err(io_err(&tmp))?;
+    file.sync_all().map_err(io_err(&tmp))?;
+    drop(file);
+    std::fs::rename(&tmp, path).map_err(io_err(path))?;
+    if let Some(dir) = path.parent() {
+        // Make the rename itself durable.
+        if let Ok(d) = std::fs::File::open(dir) {
+            let _ = d.sync_all();
+        }
+    }
+    Ok(())
+}
+
+/// Read a checkpoint of `kind` from `path`, checking every header field and the checksum.
+pub fn read<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<T, CheckpointError> {
+    let bytes = std::fs::read(path).map_err(io_err(path))?;
+    let p = || path.to_path_buf();
+    let truncated = |expected: usize| CheckpointError::Truncated {
+        path: p(),
+        expected: expected as u64,
+        found: bytes.len() as u64,
+    };
+    if bytes.len() < 8 || &bytes[..8] != MAGIC {
+        return Err(if bytes.len() < 8 && MAGIC.starts_with(&bytes) {
+            truncated(8)
+        } else {
+            CheckpointError::NotACheckpoint { path: p() }
+        });
+    }
+    let mut at = 8;
+    let mut take = |n: usize| -> Result<&[u8], CheckpointError> {
+        let s = bytes.get(at..at + n).ok_or_else(|| truncated(at + n))?;
+        at += n;
+        Ok(s)
+    };
+    let version = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));
+    if version != FORMAT_VERSION {
+        return Err(CheckpointError::Version {
+            path: p(),
+            found: version,
+            supported: FORMAT_VERSION,
+        });
+    }
+    let kind_len = u16::from_le_bytes(take(2)?.try_into().expect("2 bytes")) as usize;
+    let found_kind = String::from_utf8_lossy(take(kind_len)?).into_owned();
+    if found_kind != kind {
+        return Err(CheckpointError::Kind {
+            path: p(),
+            found: found_kind,
+            expected: kind.to_string(),
+        });
+    }
+    let len = u64::from_le_bytes(take(8)?.try_into().expect("8 bytes")) as usize;
+    let sum: [u8; 32] = take(32)?.try_into().expect("32 bytes");
+    let payload = take(len)?;
+    if Sha256::digest(payload).as_slice() != sum {
+        return Err(CheckpointError::Corrupt { path: p() });
+    }
+    let (value, _) = bincode::serde::decode_from_slice(payload, bincode::config::standard())
+        .map_err(|e| CheckpointError::Decode {
+            path: p(),
+            kind: kind.to_string(),
+            message: e.to_string(),
+        })?;
+    Ok(value)
+}
+
+/// The `COMPLETE` marker of a checkpoint directory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// Format version of the files.
+    pub format_version: u32,
+    /// Real env steps every role had completed.
+    pub env_steps: u64,
+    /// The role files of this checkpoint.
+    pub files: Vec<String>,
+}
+
+/// `<run>/checkpoints`.
+pub fn root(run: &Path) -> PathBuf {
+    run.join("checkpoints")
+}
+
+/// The directory of the checkpoint taken after `env_steps` steps.
+pub fn dir_for(run: &Path, env_steps: u64) -> PathBuf {
+    root(run).join(format!("{env_steps:010}"))
+}
+
+/// Mark `dir` complete (after every role file in `files` is written).
+pub fn mark_complete(dir: &Path, env_steps: u64, files: &[&str]) -> Result<(), CheckpointError> {
+    for f in files {
+        let path = dir.join(f);
+        if !path.is_file() {
+            return Err(CheckpointError::Resume(format!(
+                "checkpoint {}: role file {f} is missing",
+                dir.display()
+            )));
+        }
+    }
+    let manifest = Manifest {
+        format_version: FORMAT_VERSION,
+        env_steps,
+        files: files.iter().map(|f| f.to_string()).collect(),
+    };
+    let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises") + "\n";
+    write_atomically(&dir.join(COMPLETE), text.as_bytes())
+}
+
+/// The newest complete checkpoint of a run: its directory and manifest. `None` when the run has
+/// none; incomplete directories (a crash while checkpointing) are skipped.
+pub fn latest(run: &Path) -> Result<Option<(PathBuf, Manifest)>, CheckpointError> {
+    let root = root(run);
+    let entries = match std::fs::read_dir(&root) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(io_err(&root)(e)),
+    };
+    let mut dirs: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join(COMPLETE).is_file())
+        .collect();
+    dirs.sort();
+    let Some(dir) = dirs.pop() else {
+        return Ok(None);
+    };
+    let marker = dir.join(COMPLETE);
+    let text = std::fs::read_to_string(&marker).map_err(io_err(&marker))?;
+    let manifest: Manifest = serde_json::from_str(&text)
+        .map_err(|e| CheckpointError::Resume(format!("checkpoint {}: {e}", marker.display())))?;
+    Ok(Some((dir, manifest)))
+}
+
+/// Delete all but the newest `keep` complete checkpoints (and any incomplete older ones).
+pub fn prune(run: &Path, keep: usize) -> Result<(), CheckpointError> {
+    let root = root(run);
+    let Ok(entries) = std::fs::read_dir(&root) else {
+        return Ok(());
+    };
+    let mut dirs: Vec<PathBuf> = entries.filter_map(|e| e.ok().map(|e| e.path())).collect();
+    dirs.sort();
+    let complete: Vec<&PathBuf> = dirs.iter().filter(|d| d.join(COMPLETE).is_file()).collect();
+    let Some(oldest_kept) = complete.len().checked_sub(keep.max(1)).map(|i| complete[i]) else {
+        return Ok(());
+    };
+    for d in dirs.iter().filter(|d| *d < oldest_kept) {
+        std::fs::remove_dir_all(d).map_err(io_err(d))?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("mbpo-ckpt-{}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn round_trip_and_every_damage_is_named() {
+        let dir = tmp("damage");
+        let path = dir.join("x.ckpt");
+        let value = (vec![1.5f32, -2.0], 7u64, Some("s".to_string()));
+        write(&path, "test-state", &value).unwrap();
+        let back: (Vec<f32>, u64, Option<String>) = read(&path, "test-state").unwrap();
+        assert_eq!(back, value);
+        let good = std::fs::read(&path).unwrap();
+
+        let err = read::<u64>(&path, "learner").unwrap_err().to_string();
+        assert!(
+            err.contains("holds `test-state`, expected `learner`"),
+            "{err}"
+        );
+
+        for cut in [3, 20, good.len() - 1] {
+            std::fs::write(&path, &good[..cut]).unwrap();
+            let err = read::<(Vec<f32>, u64, Option<String>)>(&path, "test-state").unwrap_err();
+            assert!(
+                matches!(err, CheckpointError::Truncated { .. }),
+                "cut {cut}: {err}"
+            );
+        }
+        let mut flipped = good.clone();
+        *flipped.last_mut().unwrap() ^= 1;
+        std::fs::write(&path, &flipped).unwrap();
+        let err = read::<(Vec<f32>, u64, Option<String>)>(&path, "test-state").unwrap_err();
+        assert!(err.to_string().contains("corrupted"), "{err}");
+
+        let mut other_version = good.clone();
+        other_version[8] = 99;
+        std::fs::write(&path, &other_version).unwrap();
+        let err = read::<u64>(&path, "test-state").unwrap_err().to_string();
+        assert!(err.contains("format version 99"), "{err}");
+
+        std::fs::write(&path, b"{\"json\": true}").unwrap();
+        let err = read::<u64>(&path, "test-state").unwrap_err().to_string();
+        assert!(err.contains("not a checkpoint"), "{err}");
+
+        // A valid file of another shape: decodes fail cleanly.
+        write(&path, "test-state", &1u8).unwrap();
+        let err = read::<(Vec<f32>, u64, String)>(&path, "test-state").unwrap_err();
+        assert!(matches!(err, CheckpointError::Decode { .. }), "{err}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn latest_skips_incomplete_and_prune_keeps_the_newest() {
+        let run = tmp("latest");
+        assert!(latest(&run).unwrap().is_none());
+        for steps in [100, 200, 300] {
+            let d = dir_for(&run, steps);
+            std::fs::create_dir_all(&d).unwrap();
+            write(&d.join("a.ckpt"), "a", &steps).unwrap();
+            mark_complete(&d, steps, &["a.ckpt"]).unwrap();
+        }
+        // A crash while writing step 400: no COMPLETE marker.
+        let d = dir_for(&run, 400);
+        std::fs::create_dir_all(&d).unwrap();
+        write(&d.join("a.ckpt"), "a", &400u64).unwrap();
+        let (dir, manifest) = latest(&run).unwrap().unwrap();
+        assert_eq!((dir, manifest.env_steps), (dir_for(&run, 300), 300));
+        let err = mark_complete(&d, 400, &["a.ckpt", "b.ckpt"]).unwrap_err();
+        assert!(err.to_string().contains("b.ckpt is missing"), "{err}");
+
+        prune(&run, 2).unwrap();
+        let mut left: Vec<_> = std::fs::read_dir(root(&run))
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["0000000200", "0000000300", "0000000400"]);
+        std::fs::remove_dir_all(run).unwrap();
+    }
+}

@@ -1,0 +1,232 @@
+//! Checkpoints and resume of the single-process trainers: a run that is stopped (or crashes)
+//! and is resumed ends with the very weights and metrics of an uninterrupted run.
+
+use mbpo_train::checkpoint;
+use mbpo_train::{
+    train_mbpo, train_mbpo_with, train_sac, train_sac_with, Algo, ExperimentConfig, RunOptions,
+};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+/// MBPO on Pendulum, small: train points at t = 201, 301, 401; checkpoints every 100 steps.
+fn small_mbpo(steps: u64) -> ExperimentConfig {
+    let mut cfg = ExperimentConfig {
+        algo: Algo::Mbpo,
+        steps,
+        ..Default::default()
+    };
+    cfg.eval.every = 50;
+    cfg.eval.episodes = 1;
+    cfg.sac.hidden = vec![32, 32];
+    cfg.sac.batch_size = 32;
+    cfg.mbpo.init_random_steps = 200;
+    cfg.mbpo.epoch_length = 100;
+    cfg.mbpo.model_train_freq = 100;
+    cfg.mbpo.rollouts_per_step = 10;
+    cfg.mbpo.rollout_schedule = [1, 3, 1, 3];
+    cfg.mbpo.updates_per_step = 2;
+    cfg.model.members = 3;
+    cfg.model.elites = 2;
+    cfg.model.hidden = vec![16, 16];
+    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
+    cfg.model.batch_size = 32;
+    cfg.model.max_epochs = Some(5);
+    cfg.checkpoint.every = 100;
+    cfg.checkpoint.keep = 10;
+    cfg
+}
+
+fn small_sac(steps: u64) -> ExperimentConfig {
+    let mut cfg = ExperimentConfig {
+        steps,
+        ..Default::default()
+    };
+    cfg.eval.every = 50;
+    cfg.eval.episodes = 1;
+    cfg.sac.hidden = vec![32, 32];
+    cfg.sac.batch_size = 32;
+    cfg.sac_loop.random_steps = 100;
+    cfg.checkpoint.every = 100;
+    cfg.checkpoint.keep = 10;
+    cfg
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mbpo-resume-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// metrics.csv without the two timing columns (wall_seconds, env_steps_per_sec).
+fn metrics_without_timings(run: &Path) -> Vec<String> {
+    std::fs::read_to_string(run.join("metrics.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            cells[..13].join(",")
+        })
+        .collect()
+}
+
+/// A crash right after the checkpoint of `at`: later checkpoints and the summary are gone,
+/// metrics rows after `at` were already written (resume must drop them).
+fn simulate_crash_after(run: &Path, at: u64) {
+    for entry in std::fs::read_dir(checkpoint::root(run)).unwrap() {
+        let dir = entry.unwrap().path();
+        let steps: u64 = dir.file_name().unwrap().to_str().unwrap().parse().unwrap();
+        if steps > at {
+            std::fs::remove_dir_all(dir).unwrap();
+        }
+    }
+    std::fs::remove_file(run.join("summary.json")).unwrap();
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+#[test]
+fn mbpo_resumed_after_a_crash_equals_the_uninterrupted_run() {
+    let cfg = small_mbpo(450);
+    let full = temp_dir("mbpo-full");
+    let reference = train_mbpo(&cfg, &full).unwrap();
+    // 300: the next step is a train point; 200: the last warm-up step; 100: mid warm-up.
+    for at in [300, 200, 100] {
+        let crashed = temp_dir(&format!("mbpo-crash-{at}"));
+        copy_dir(&full, &crashed);
+        simulate_crash_after(&crashed, at);
+        let opts = RunOptions {
+            resume: true,
+            ..Default::default()
+        };
+        let resumed = train_mbpo_with(&cfg, &crashed, opts).unwrap();
+        assert_eq!(
+            resumed.policy_sha256, reference.policy_sha256,
+            "crash at {at}"
+        );
+        assert_eq!(resumed.sac_updates, reference.sac_updates);
+        assert_eq!(resumed.env_steps, 450);
+        assert_eq!(
+            metrics_without_timings(&crashed),
+            metrics_without_timings(&full),
+            "crash at {at}"
+        );
+        std::fs::remove_dir_all(crashed).unwrap();
+    }
+    std::fs::remove_dir_all(full).unwrap();
+}
+
+#[test]
+fn mbpo_stopped_cleanly_then_resumed_equals_the_uninterrupted_run() {
+    let cfg = small_mbpo(330);
+    let full = temp_dir("mbpo-stop-full");
+    let reference = train_mbpo(&cfg, &full).unwrap();
+    let run = temp_dir("mbpo-stop");
+    let stop = AtomicBool::new(true); // stop after the first step ...
+    let first = train_mbpo_with(
+        &cfg,
+        &run,
+        RunOptions {
+            stop: Some(&stop),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!((first.status.as_str(), first.env_steps), ("stopped", 1));
+    // ... resume and stop again right away: a stop checkpoints off the periodic schedule ...
+    let again = train_mbpo_with(
+        &cfg,
+        &run,
+        RunOptions {
+            resume: true,
+            stop: Some(&stop),
+        },
+    )
+    .unwrap();
+    assert_eq!((again.status.as_str(), again.env_steps), ("stopped", 2));
+    // ... then run to the end.
+    let last = train_mbpo_with(
+        &cfg,
+        &run,
+        RunOptions {
+            resume: true,
+            stop: None,
+        },
+    )
+    .unwrap();
+    assert_eq!(last.status, "completed");
+    assert_eq!(last.policy_sha256, reference.policy_sha256);
+    assert_eq!(
+        metrics_without_timings(&run),
+        metrics_without_timings(&full)
+    );
+    for dir in [full, run] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
+
+#[test]
+fn sac_resumed_after_a_crash_equals_the_uninterrupted_run() {
+    let cfg = small_sac(350);
+    let full = temp_dir("sac-full");
+    let reference = train_sac(&cfg, &full).unwrap();
+    let crashed = temp_dir("sac-crash");
+    copy_dir(&full, &crashed);
+    simulate_crash_after(&crashed, 200);
+    let opts = RunOptions {
+        resume: true,
+        ..Default::default()
+    };
+    let resumed = train_sac_with(&cfg, &crashed, opts).unwrap();
+    assert_eq!(resumed.policy_sha256, reference.policy_sha256);
+    assert_eq!(
+        metrics_without_timings(&crashed),
+        metrics_without_timings(&full)
+    );
+    for dir in [full, crashed] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
+
+#[test]
+fn damaged_or_missing_checkpoints_are_clear_errors_not_fresh_starts() {
+    let cfg = small_mbpo(210);
+    let run = temp_dir("mbpo-damaged");
+    let opts = RunOptions {
+        resume: true,
+        ..Default::default()
+    };
+    let err = train_mbpo_with(&cfg, &run, opts).unwrap_err().to_string();
+    assert!(err.contains("no complete checkpoint"), "{err}");
+
+    train_mbpo(&cfg, &run).unwrap();
+    let (latest, manifest) = checkpoint::latest(&run).unwrap().unwrap();
+    assert_eq!(manifest.env_steps, 210);
+    let learner = latest.join("learner.ckpt");
+    let bytes = std::fs::read(&learner).unwrap();
+    std::fs::write(&learner, &bytes[..bytes.len() / 2]).unwrap();
+    let err = train_mbpo_with(&cfg, &run, opts).unwrap_err().to_string();
+    assert!(
+        err.contains("truncated") && err.contains("learner.ckpt"),
+        "{err}"
+    );
+    let mut flipped = bytes.clone();
+    let mid = flipped.len() / 2;
+    flipped[mid] ^= 0x40;
+    std::fs::write(&learner, &flipped).unwrap();
+    let err = train_mbpo_with(&cfg, &run, opts).unwrap_err().to_string();
+    assert!(err.contains("corrupted"), "{err}");
+    // The damaged run's files are untouched by the failed resumes.
+    assert!(run.join("summary.json").is_file());
+    std::fs::remove_dir_all(run).unwrap();
+}
