@@ -13,9 +13,16 @@
 //! let step = env.step(&[1.0], &mut obs);
 //! assert!(!step.terminated && !step.truncated);
 //! ```
+//!
+//! With the cargo feature `mujoco`, [`make`] also builds the Gymnasium v5 MuJoCo tasks
+//! ([`MUJOCO_ENV_IDS`]; module [`mujoco`]). Without it those ids give
+//! [`EnvError::MujocoNotBuilt`], so the default build needs no MuJoCo library.
 #![warn(missing_docs)]
 
 mod mountain_car;
+#[cfg(feature = "mujoco")]
+pub mod mujoco;
+pub mod numpy_sum;
 mod pendulum;
 mod space;
 mod termination;
@@ -56,6 +63,20 @@ pub enum EnvError {
     /// The environment id is not known.
     #[error("unknown environment '{0}'; known: {known}", known = ENV_IDS.join(", "))]
     UnknownEnv(String),
+    /// A MuJoCo task in a build without the `mujoco` feature.
+    #[error(
+        "{0} is a MuJoCo task and this build has no MuJoCo: run `bash deploy/setup_mujoco.sh`, \
+         then build with `--features mujoco`"
+    )]
+    MujocoNotBuilt(String),
+    /// A MuJoCo model could not be loaded.
+    #[error("{env}: cannot load the MuJoCo model: {message}")]
+    Model {
+        /// Environment id.
+        env: &'static str,
+        /// What went wrong, with the file.
+        message: String,
+    },
 }
 
 /// A single-agent environment with continuous actions.
@@ -93,16 +114,52 @@ pub trait Env: Send {
     fn act_dim(&self) -> usize {
         self.action_space().dim()
     }
+    /// The last observation in f64, for environments that compute it in f64 (Gymnasium's MuJoCo
+    /// tasks return float64 observations, which [`Env::step`] rounds to f32); `None` otherwise.
+    fn observation_f64(&self) -> Option<&[f64]> {
+        None
+    }
 }
 
+/// Ids of the Gymnasium v5 MuJoCo tasks (built only with the `mujoco` feature). Ant-v5 has MBPO's
+/// truncated observation (`include_cfrc_ext_in_observation=False`: 27 values, no contact forces).
+pub const MUJOCO_ENV_IDS: &[&str] = &[
+    "InvertedPendulum-v5",
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "Ant-v5",
+];
+
 /// Ids of every environment [`make`] knows.
+#[cfg(not(feature = "mujoco"))]
 pub const ENV_IDS: &[&str] = &["Pendulum-v1", "MountainCarContinuous-v0"];
+
+/// Ids of every environment [`make`] knows.
+#[cfg(feature = "mujoco")]
+pub const ENV_IDS: &[&str] = &[
+    "Pendulum-v1",
+    "MountainCarContinuous-v0",
+    "InvertedPendulum-v5",
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "Ant-v5",
+];
 
 /// Build an environment by its Gymnasium id.
 pub fn make(id: &str) -> Result<Box<dyn Env>, EnvError> {
     match id {
         "Pendulum-v1" => Ok(Box::new(Pendulum::new())),
         "MountainCarContinuous-v0" => Ok(Box::new(MountainCarContinuous::new())),
+        #[cfg(feature = "mujoco")]
+        other if MUJOCO_ENV_IDS.contains(&other) => {
+            let task = mujoco::Task::from_id(other).expect("every MuJoCo id has a task");
+            Ok(Box::new(mujoco::MujocoEnv::new(task)?))
+        }
+        other if MUJOCO_ENV_IDS.contains(&other) => {
+            Err(EnvError::MujocoNotBuilt(other.to_string()))
+        }
         other => Err(EnvError::UnknownEnv(other.to_string())),
     }
 }

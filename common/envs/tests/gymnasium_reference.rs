@@ -245,9 +245,12 @@ fn random_reset_restarts_the_step_count() {
     }
 }
 
+/// The classic-control environments (the MuJoCo tasks have their own tests, `gymnasium_mujoco.rs`).
+const CLASSIC_IDS: [&str; 2] = ["Pendulum-v1", "MountainCarContinuous-v0"];
+
 #[test]
 fn reset_to_rejects_a_wrong_state_length() {
-    for id in ENV_IDS {
+    for id in CLASSIC_IDS {
         let mut env = make(id).unwrap();
         let mut obs = vec![0.0f32; env.obs_dim()];
         for bad in [&[][..], &[0.1][..], &[0.1, 0.2, 0.3][..]] {
@@ -378,18 +381,36 @@ fn make_builds_every_known_id_and_rejects_others() {
     assert_eq!((obs.low, obs.high), (vec![-1.2, -0.07], vec![0.6, 0.07]));
     assert_eq!((act.low, act.high), (vec![-1.0], vec![1.0]));
 
-    for bad in ["CartPole-v1", "Pendulum-v0", "pendulum-v1", ""] {
+    for bad in ["CartPole-v1", "Pendulum-v0", "pendulum-v1", "Hopper-v4", ""] {
         match make(bad) {
             Ok(_) => panic!("make({bad:?}) should fail"),
             Err(err) => {
                 assert_eq!(err, EnvError::UnknownEnv(bad.to_string()));
                 assert_eq!(
                     err.to_string(),
-                    format!(
-                        "unknown environment '{bad}'; known: Pendulum-v1, MountainCarContinuous-v0"
-                    )
+                    format!("unknown environment '{bad}'; known: {}", ENV_IDS.join(", "))
                 );
+                assert!(err
+                    .to_string()
+                    .contains("Pendulum-v1, MountainCarContinuous-v0"));
             }
         }
+    }
+}
+
+/// Without the `mujoco` feature the MuJoCo ids are known but not built: the error says how to
+/// get them, instead of calling them unknown.
+#[cfg(not(feature = "mujoco"))]
+#[test]
+fn mujoco_ids_without_the_feature_say_how_to_enable_it() {
+    for id in mbpo_envs::MUJOCO_ENV_IDS {
+        assert!(!ENV_IDS.contains(id));
+        let err = make(id).err().expect("no MuJoCo in this build");
+        assert_eq!(err, EnvError::MujocoNotBuilt(id.to_string()));
+        let msg = err.to_string();
+        assert!(
+            msg.contains("deploy/setup_mujoco.sh") && msg.contains("--features mujoco"),
+            "{msg}"
+        );
     }
 }
