@@ -281,6 +281,16 @@ impl ExperimentConfig {
             expected: expected.to_string(),
             found,
         };
+        if mbpo_envs::MUJOCO_ENV_IDS.contains(&self.env.as_str())
+            && !mbpo_envs::ENV_IDS.contains(&self.env.as_str())
+        {
+            return Err(bad(
+                "env",
+                "an environment of this build (MuJoCo tasks need `bash deploy/setup_mujoco.sh` \
+                 and a build with `--features mujoco`)",
+                format!("{:?}", self.env),
+            ));
+        }
         if !mbpo_envs::ENV_IDS.contains(&self.env.as_str()) {
             return Err(bad(
                 "env",
@@ -338,7 +348,8 @@ impl ExperimentConfig {
         }
         if self.algo == Algo::Mbpo {
             // The model crate checks its own ranges (dims, elites <= members, decay lengths).
-            let env = mbpo_envs::make(&self.env).expect("env id checked above");
+            let env = mbpo_envs::make(&self.env)
+                .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
             self.model
                 .validate(env.obs_dim(), env.act_dim())
                 .map_err(|e| bad("model", "a valid model config", e.to_string()))?;
@@ -422,11 +433,24 @@ mod tests {
         for entry in std::fs::read_dir(dir).unwrap() {
             let path = entry.unwrap().path();
             if path.extension().is_some_and(|e| e == "toml") {
-                ExperimentConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                match ExperimentConfig::load(&path) {
+                    Ok(_) => {}
+                    // Without the `mujoco` feature a MuJoCo config must fail, saying how to fix it.
+                    Err(e) if !cfg!(feature = "mujoco") && is_mujoco_config(&path) => {
+                        assert!(e.to_string().contains("--features mujoco"), "{e}");
+                    }
+                    Err(e) => panic!("{e}"),
+                }
                 n += 1;
             }
         }
         assert!(n > 0);
+    }
+
+    fn is_mujoco_config(path: &Path) -> bool {
+        let text = std::fs::read_to_string(path).unwrap();
+        let cfg: ExperimentConfig = toml::from_str(&text).unwrap();
+        mbpo_envs::MUJOCO_ENV_IDS.contains(&cfg.env.as_str())
     }
 
     #[test]

@@ -4,9 +4,13 @@
 //! every seed's evaluation curve, final return and env steps to reach −200, so sample
 //! efficiency is compared in one place. Seeds run in parallel threads (each run is
 //! single-threaded and deterministic, so parallelism does not change any result).
+//!
+//! Fixed env-step budgets (e.g. the MBPO paper's "return at 20k and 50k steps") are read off
+//! the curves: at each budget, the last evaluation at or before it and the wall-clock seconds
+//! the run had spent by then ([`BudgetPoint`], [`BudgetSummary`]).
 
 use crate::config::{Algo, ExperimentConfig};
-use crate::run_dir::{read_eval_curve, Summary};
+use crate::run_dir::{read_eval_curve, read_metric_curve, Summary};
 use crate::sac_trainer::TrainError;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -25,8 +29,98 @@ pub struct SeedResult {
     pub env_steps_to_minus_200: Option<u64>,
     /// Wall-clock seconds of the run.
     pub wall_seconds: f64,
+    /// Eval return and wall-clock at each requested env-step budget.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub at_budgets: Vec<BudgetPoint>,
     /// The run directory.
     pub run_dir: PathBuf,
+}
+
+/// One seed at one env-step budget.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct BudgetPoint {
+    /// The budget (real env steps).
+    pub env_steps: u64,
+    /// Return of the last evaluation at or before the budget (`None`: the run never got there).
+    pub eval_return: Option<f64>,
+    /// Env steps of that evaluation.
+    pub evaluated_at: Option<u64>,
+    /// Wall-clock seconds of the run at that evaluation.
+    pub wall_seconds: Option<f64>,
+}
+
+/// All seeds at one env-step budget.
+#[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
+pub struct BudgetSummary {
+    /// The budget (real env steps).
+    pub env_steps: u64,
+    /// Seeds whose run reached an evaluation at the budget.
+    pub seeds_reached: usize,
+    /// Median over those seeds of the eval return (`None` if none did).
+    pub median_eval_return: Option<f64>,
+    /// Mean over those seeds of the eval return.
+    pub mean_eval_return: Option<f64>,
+    /// Median over those seeds of the wall-clock seconds to get there.
+    pub median_wall_seconds: Option<f64>,
+}
+
+/// The last row with env steps ≤ `budget` of a curve sorted by env steps.
+fn at_or_before(curve: &[(u64, f64)], budget: u64) -> Option<(u64, f64)> {
+    curve.iter().rev().find(|(s, _)| *s <= budget).copied()
+}
+
+/// Each budget's eval return and wall-clock, from a run's eval and wall-clock curves. A budget
+/// counts as reached only if the run evaluated at the budget itself or later (so a run that
+/// stopped early does not report its last return for a budget it never spent).
+pub fn budget_points(
+    eval: &[(u64, f64)],
+    wall: &[(u64, f64)],
+    budgets: &[u64],
+) -> Vec<BudgetPoint> {
+    let last = eval.last().map_or(0, |(s, _)| *s);
+    budgets
+        .iter()
+        .map(|&b| {
+            let hit = (last >= b).then(|| at_or_before(eval, b)).flatten();
+            BudgetPoint {
+                env_steps: b,
+                eval_return: hit.map(|(_, r)| r),
+                evaluated_at: hit.map(|(s, _)| s),
+                wall_seconds: hit.and_then(|(s, _)| at_or_before(wall, s).map(|(_, w)| w)),
+            }
+        })
+        .collect()
+}
+
+/// Median of a non-empty list (the lower middle for even lengths, as elsewhere in this file).
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[(v.len() - 1) / 2]
+}
+
+/// Summaries over seeds, one per budget.
+pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSummary> {
+    budgets
+        .iter()
+        .enumerate()
+        .map(|(i, &b)| {
+            let points: Vec<&BudgetPoint> = seeds
+                .iter()
+                .filter_map(|s| s.at_budgets.get(i))
+                .filter(|p| p.eval_return.is_some())
+                .collect();
+            let returns: Vec<f64> = points.iter().filter_map(|p| p.eval_return).collect();
+            let walls: Vec<f64> = points.iter().filter_map(|p| p.wall_seconds).collect();
+            BudgetSummary {
+                env_steps: b,
+                seeds_reached: returns.len(),
+                median_eval_return: (!returns.is_empty()).then(|| median(returns.clone())),
+                mean_eval_return: (!returns.is_empty())
+                    .then(|| returns.iter().sum::<f64>() / returns.len() as f64),
+                median_wall_seconds: (!walls.is_empty()).then(|| median(walls)),
+            }
+        })
+        .collect()
 }
 
 /// One algorithm's results over seeds.
@@ -41,6 +135,9 @@ pub struct AlgoResult {
     /// Median over seeds of env steps to reach −200 (a seed that never did counts as +∞;
     /// `None` when more than half never did).
     pub median_env_steps_to_minus_200: Option<u64>,
+    /// Eval return and wall-clock at the requested env-step budgets, over seeds.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub budgets: Vec<BudgetSummary>,
     /// Per-seed results.
     pub seeds: Vec<SeedResult>,
 }
@@ -63,6 +160,19 @@ pub fn learning_benchmark(
     out: &Path,
     train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
 ) -> Result<AlgoResult, TrainError> {
+    learning_benchmark_at(cfg, config_name, seeds, threads, out, train, &[])
+}
+
+/// [`learning_benchmark`] that also reports eval return and wall-clock at env-step `budgets`.
+pub fn learning_benchmark_at(
+    cfg: &ExperimentConfig,
+    config_name: &str,
+    seeds: &[u64],
+    threads: usize,
+    out: &Path,
+    train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
+    budgets: &[u64],
+) -> Result<AlgoResult, TrainError> {
     let algo = match cfg.algo {
         Algo::Sac => "sac",
         Algo::Mbpo => "mbpo",
@@ -79,9 +189,13 @@ pub fn learning_benchmark(
                 c.seed = seed;
                 let dir = out.join("runs").join(format!("{algo}-{}-s{seed}", cfg.env));
                 let r = train(&c, &dir).and_then(|summary| {
+                    let metrics = dir.join("metrics.csv");
+                    let curve = read_eval_curve(&metrics)?;
+                    let wall = read_metric_curve(&metrics, "wall_seconds")?;
                     Ok(SeedResult {
                         seed,
-                        curve: read_eval_curve(&dir.join("metrics.csv"))?,
+                        at_budgets: budget_points(&curve, &wall, budgets),
+                        curve,
                         final_return: summary.final_eval_return,
                         env_steps_to_minus_200: summary.env_steps_to_minus_200,
                         wall_seconds: summary.wall_seconds,
@@ -110,6 +224,7 @@ pub fn learning_benchmark(
                 .map(|r| r.env_steps_to_minus_200)
                 .collect::<Vec<_>>(),
         ),
+        budgets: summarize_budgets(&per_seed, budgets),
         seeds: per_seed,
     };
     let file = out.join(format!("learning-{}.json", cfg.env));
@@ -126,6 +241,58 @@ pub fn learning_benchmark(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn budgets_take_the_last_evaluation_at_or_before_and_its_wall_clock() {
+        let eval = [(250, 10.0), (500, 20.0), (750, 30.0), (1000, 40.0)];
+        let wall = [(250, 1.0), (500, 2.5), (750, 4.0), (1000, 6.0)];
+        let p = budget_points(&eval, &wall, &[500, 600, 1000, 2000]);
+        let got: Vec<_> = p
+            .iter()
+            .map(|b| (b.env_steps, b.eval_return, b.evaluated_at, b.wall_seconds))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                (500, Some(20.0), Some(500), Some(2.5)),
+                (600, Some(20.0), Some(500), Some(2.5)),
+                (1000, Some(40.0), Some(1000), Some(6.0)),
+                // The run stopped at 1000: no return is reported for 2000.
+                (2000, None, None, None),
+            ]
+        );
+    }
+
+    #[test]
+    fn budget_summaries_count_only_seeds_that_got_there() {
+        let seed = |s: u64, r: Option<f64>, w: Option<f64>| SeedResult {
+            seed: s,
+            curve: vec![],
+            final_return: 0.0,
+            env_steps_to_minus_200: None,
+            wall_seconds: 0.0,
+            at_budgets: vec![BudgetPoint {
+                env_steps: 5000,
+                eval_return: r,
+                evaluated_at: r.map(|_| 5000),
+                wall_seconds: w,
+            }],
+            run_dir: PathBuf::new(),
+        };
+        let seeds = [
+            seed(0, Some(1000.0), Some(60.0)),
+            seed(1, Some(200.0), Some(80.0)),
+            seed(2, None, None),
+            seed(3, Some(900.0), Some(70.0)),
+        ];
+        let s = &summarize_budgets(&seeds, &[5000])[0];
+        assert_eq!(s.seeds_reached, 3);
+        assert_eq!(s.median_eval_return, Some(900.0));
+        assert_eq!(s.mean_eval_return, Some(700.0));
+        assert_eq!(s.median_wall_seconds, Some(70.0));
+        let none = &summarize_budgets(&seeds[2..3], &[5000])[0];
+        assert_eq!((none.seeds_reached, none.median_eval_return), (0, None));
+    }
 
     #[test]
     fn median_treats_never_as_infinity() {

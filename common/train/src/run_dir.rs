@@ -209,6 +209,27 @@ impl RunDir {
     }
 }
 
+/// Read one column of a `metrics.csv` back as (env_steps, value) pairs (rows where it is empty
+/// are skipped).
+pub fn read_metric_curve(path: &Path, column: &str) -> std::io::Result<Vec<(u64, f64)>> {
+    let text = std::fs::read_to_string(path)?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name);
+    let (Some(s), Some(c)) = (col("env_steps"), col(column)) else {
+        return Err(std::io::Error::other(format!(
+            "{}: no env_steps/{column} columns",
+            path.display()
+        )));
+    };
+    Ok(lines
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            Some((cells.get(s)?.parse().ok()?, cells.get(c)?.parse().ok()?))
+        })
+        .collect())
+}
+
 /// Read a `metrics.csv` back as (env_steps, eval_return) pairs.
 pub fn read_eval_curve(path: &Path) -> std::io::Result<Vec<(u64, f64)>> {
     let text = std::fs::read_to_string(path)?;

@@ -83,7 +83,7 @@ fn env(t: &BenchTime) -> anyhow::Result<()> {
         let secs = start.elapsed().as_secs_f64();
         println!(
             "{}",
-            json!({"bench": "env", "env": id, "steps_per_sec": (steps as f64 / secs).round(),
+            json!({"bench": "env", "impl": "rust", "env": id, "steps_per_sec": (steps as f64 / secs).round(),
                    "episodes": episodes, "threads": 1})
         );
     }
@@ -101,13 +101,20 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
     };
     let seeds: Vec<u64> = (0..args.seeds).collect();
     let name = args.config.display().to_string();
-    let r = mbpo_train::learning_bench::learning_benchmark(
+    if let Some(&b) = args.budgets.iter().find(|&&b| b > cfg.steps) {
+        anyhow::bail!(
+            "--budgets: {b} is beyond the run length of {} env steps (set --steps)",
+            cfg.steps
+        );
+    }
+    let r = mbpo_train::learning_bench::learning_benchmark_at(
         &cfg,
         &name,
         &seeds,
         args.threads,
         &args.out,
         train,
+        &args.budgets,
     )?;
     println!(
         "{}",
@@ -116,6 +123,8 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
                "median_env_steps_to_minus_200": r.median_env_steps_to_minus_200,
                "final_returns": r.seeds.iter().map(|s| s.final_return).collect::<Vec<_>>(),
                "env_steps_to_minus_200": r.seeds.iter().map(|s| s.env_steps_to_minus_200).collect::<Vec<_>>(),
+               "budgets": r.budgets,
+               "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                "results": args.out.join(format!("learning-{}.json", cfg.env))})
     );
     Ok(())

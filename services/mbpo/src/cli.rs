@@ -76,7 +76,8 @@ pub struct ReplayArgs {
     /// Environment id, e.g. Pendulum-v1 (see `mbpo env list`).
     #[arg(long)]
     pub env: String,
-    /// Start state, comma-separated (Pendulum: theta,thetadot; MountainCar: position,velocity).
+    /// Start state, comma-separated (Pendulum: theta,thetadot; MountainCar: position,velocity;
+    /// MuJoCo tasks: qpos then qvel, see `mbpo env list`).
     #[arg(long, allow_hyphen_values = true)]
     pub state: String,
     /// Actions, comma-separated, act_dim values per step.
@@ -163,6 +164,10 @@ pub struct LearningArgs {
     /// Results directory.
     #[arg(long, default_value = "results")]
     pub out: std::path::PathBuf,
+    /// Env-step budgets, comma-separated (e.g. 20000,50000): report each seed's eval return at
+    /// the last evaluation at or before each budget, and the wall-clock seconds to get there.
+    #[arg(long, value_delimiter = ',')]
+    pub budgets: Vec<u64>,
 }
 
 #[derive(Debug, Args)]

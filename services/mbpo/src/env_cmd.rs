@@ -50,16 +50,24 @@ where
         .collect()
 }
 
-/// One replayed step, fields in the documented order. Observations are printed as the f64 value
-/// of each f32 (what Python's `obs.tolist()` gives), so the output diffs cleanly with Gymnasium.
+/// One replayed step, fields in the documented order. Observations are printed as Python's
+/// `obs.tolist()` gives them, so the output diffs cleanly with Gymnasium: the f64 value of each
+/// f32 for float32 environments, the float64 observation itself for the MuJoCo tasks.
 #[derive(serde::Serialize)]
 struct StepLine<'a> {
     t: usize,
-    #[serde(serialize_with = "f32s_as_f64")]
-    obs: &'a [f32],
+    obs: Obs<'a>,
     reward: f64,
     terminated: bool,
     truncated: bool,
+}
+
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+enum Obs<'a> {
+    #[serde(serialize_with = "f32s_as_f64")]
+    F32(&'a [f32]),
+    F64(&'a [f64]),
 }
 
 fn f32s_as_f64<S: serde::Serializer>(v: &&[f32], s: S) -> Result<S::Ok, S::Error> {
@@ -87,7 +95,7 @@ fn replay(args: &ReplayArgs) -> anyhow::Result<()> {
         let step = env.step(action, &mut obs);
         let line = StepLine {
             t,
-            obs: &obs,
+            obs: env.observation_f64().map_or(Obs::F32(&obs), Obs::F64),
             reward: step.reward,
             terminated: step.terminated,
             truncated: step.truncated,
