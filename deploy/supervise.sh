@@ -10,11 +10,21 @@
 # Every flag is passed to `mbpo run` (see `mbpo run --help`); --config defaults to
 # deploy/configs/pendulum.toml. Logs of each process: <run-dir>/logs/<process>.log.
 # Ctrl-C (SIGINT) or SIGTERM stops every process within seconds and removes the run's shared memory.
+# A config of a MuJoCo task (e.g. deploy/configs/halfcheetah.toml) first runs deploy/setup_mujoco.sh
+# and builds with the `mujoco` feature.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --locked -p mbpo -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator -p mbpo-sac-learner
 args=("$@")
 if [[ " ${args[*]-} " != *" --config "* ]]; then
   args=(--config deploy/configs/pendulum.toml "${args[@]}")
 fi
+features=()
+for ((i = 0; i + 1 < ${#args[@]}; i++)); do
+  if [[ ${args[i]} == --config ]] \
+    && grep -qE '^[[:space:]]*env[[:space:]]*=[[:space:]]*"(InvertedPendulum|HalfCheetah|Hopper|Walker2d|Ant)-v5"' "${args[i + 1]}"; then
+    bash deploy/setup_mujoco.sh
+    features=(--features mujoco)
+  fi
+done
+cargo build --release --locked -p mbpo -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator -p mbpo-sac-learner "${features[@]}"
 exec ./target/release/mbpo run "${args[@]}"
