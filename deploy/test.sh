@@ -3,9 +3,12 @@
 # The default build needs only the Rust toolchain (Gymnasium fixtures are committed; see
 # tools/gym_reference.py). The MuJoCo tasks (cargo feature `mujoco`) need libmujoco 3.17.0:
 # deploy/setup_mujoco.sh installs it from PyPI into the project venv (idempotent, about a
-# second when already done), then their replays against Gymnasium and the config checks run.
+# second when already done), then their replays against Gymnasium and the config checks run
+# (mbpo-envs, mbpo-train's unit tests and a tiny MBPO run per MuJoCo config family, to keep CI
+# short).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
-cargo test --locked -p mbpo-envs -p mbpo-train --features mujoco "$@"
+cargo test --locked -p mbpo-envs --features mujoco "$@"
+cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks "$@"
