@@ -189,6 +189,17 @@ impl Env for MujocoEnv {
         Ok(())
     }
 
+    fn elapsed_steps(&self) -> usize {
+        self.steps
+    }
+
+    /// Restores only the step count: a checkpoint's `reset_to(qpos ++ qvel)` starts from a fresh
+    /// `mjData`, so MuJoCo's solver warm start differs from the uninterrupted episode and the
+    /// continuation is close to, not bit-identical with, the original.
+    fn set_elapsed_steps(&mut self, steps: usize) {
+        self.steps = steps;
+    }
+
     fn state(&self) -> Vec<f64> {
         let mut s = self.data.qpos().to_vec();
         s.extend_from_slice(self.data.qvel());
