@@ -22,6 +22,7 @@
 use crate::actor::Behaviour;
 use crate::config::ExperimentConfig;
 use crate::eval::Evaluator;
+use crate::progress::{Display, Progress};
 use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
 use crate::run_dir::{RunDir, Summary};
 use crate::sac_trainer::TrainError;
@@ -151,6 +152,8 @@ pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainEr
     let mut mbpo = Mbpo::new(cfg)?;
     let mut evaluator = Evaluator::new(cfg)?;
     let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
+    let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
+    let mut progress = Progress::new(label, cfg.steps, Display::auto());
     for t in 1..=cfg.steps {
         let started = Instant::now();
         mbpo.step(t)?;
@@ -178,8 +181,11 @@ pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainEr
             }
             run.write_metrics(&row)?;
             evaluator.log("mbpo", &row);
+            progress.set_eval(row.eval_return);
         }
+        progress.update(t, mbpo.sac().updates());
     }
+    progress.finish();
     step_seconds.sort_by(f64::total_cmp);
     let median = step_seconds.get(step_seconds.len() / 2).copied();
     let summary = evaluator.summary("mbpo", mbpo.learner.sac(), median);

@@ -8,6 +8,7 @@
 use crate::actor::{Behaviour, EnvActor};
 use crate::config::ExperimentConfig;
 use crate::eval::Evaluator;
+use crate::progress::{Display, Progress};
 use crate::run_dir::{RunDir, Summary};
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, ReplayBuffer};
@@ -49,6 +50,8 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
     let mut update_rng = stream(seed, "learner.update", 0);
     let mut evaluator = Evaluator::new(cfg)?;
     let mut stats = SacStats::default();
+    let label = format!("sac {} s{seed}", cfg.env);
+    let mut progress = Progress::new(label, cfg.steps, Display::auto());
 
     for t in 1..=cfg.steps {
         // Act: uniform over the action box during warm-up, then the stochastic policy.
@@ -72,8 +75,11 @@ pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
             let row = evaluator.evaluate(t, &sac, &stats, &actor);
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);
+            progress.set_eval(row.eval_return);
         }
+        progress.update(t, sac.updates());
     }
+    progress.finish();
 
     let summary = evaluator.summary("sac", &sac, None);
     run.write_summary(&summary)?;

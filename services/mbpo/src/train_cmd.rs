@@ -42,6 +42,7 @@ pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
 pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
     let out = run_dir(&args.common, &cfg);
+    crate::logging::also_to_file(&out.join("logs").join("train.log"))?;
     let summary = match cfg.algo {
         Algo::Sac => train_sac(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
         Algo::Mbpo => train_mbpo(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
