@@ -41,7 +41,8 @@ pub fn suspend<R>(f: impl FnOnce() -> R) -> R {
 /// How a [`Progress`] shows itself.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Display {
-    /// A live bar on stderr.
+    /// A live bar on stderr; where indicatif would not draw one (stderr not a terminal, `TERM`
+    /// unset or `dumb`), plain lines every [`LINE_INTERVAL`] instead, never nothing.
     Bar,
     /// A `tracing::info!` line every `every`.
     Lines {
@@ -57,6 +58,14 @@ impl Display {
             Display::Bar
         } else {
             Display::lines()
+        }
+    }
+
+    /// What `self` comes to in this process: a `Bar` only if indicatif would draw it.
+    fn resolve(self) -> Self {
+        match self {
+            Display::Bar if BARS.is_hidden() => Display::lines(),
+            d => d,
         }
     }
 
@@ -95,7 +104,7 @@ impl Progress {
     }
 
     fn new_at(label: String, total: u64, display: Display, now: Instant) -> Self {
-        let (bar, every) = match display {
+        let (bar, every) = match display.resolve() {
             Display::Bar => {
                 let bar = BARS.add(ProgressBar::new(total));
                 bar.set_style(
@@ -312,16 +321,22 @@ mod tests {
 
     #[test]
     fn bars_register_and_unregister_for_suspend() {
-        // The only unit test of this crate that draws bars, so the count is exact.
+        // The only unit test of this crate that makes bars, so the count is exact. Under CI
+        // stderr is no terminal: then no bar is drawn and the progress falls back to lines.
+        let drawn = usize::from(!BARS.is_hidden());
         let before = ACTIVE.load(Ordering::Acquire);
         let mut a = Progress::new("a", 10, Display::Bar);
+        assert_eq!(a.bar.is_some(), drawn == 1);
+        if drawn == 0 {
+            assert_eq!(a.every, LINE_INTERVAL, "a hidden bar becomes plain lines");
+        }
         {
             let _b = Progress::new("b", 10, Display::Bar);
-            assert_eq!(ACTIVE.load(Ordering::Acquire), before + 2);
+            assert_eq!(ACTIVE.load(Ordering::Acquire), before + 2 * drawn);
         }
         assert_eq!(
             ACTIVE.load(Ordering::Acquire),
-            before + 1,
+            before + drawn,
             "drop removes a bar"
         );
         a.update(5, 1);

@@ -181,6 +181,26 @@ pub fn policy_sha256(params: &[f32]) -> String {
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// Remove the TensorBoard event files in `dir` (nothing else; a missing `dir` is fine).
+fn remove_event_files(dir: &Path) -> std::io::Result<()> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        if entry
+            .file_name()
+            .to_string_lossy()
+            .starts_with("events.out.tfevents.")
+        {
+            std::fs::remove_file(entry.path())?;
+        }
+    }
+    Ok(())
+}
+
 /// An open run directory.
 #[derive(Debug)]
 pub struct RunDir {
@@ -190,18 +210,26 @@ pub struct RunDir {
 }
 
 impl RunDir {
-    /// Create `path` (and parents), write the resolved config and the metrics header, and
-    /// start a TensorBoard event file in `path/tb/`.
+    /// Create `path` (and parents) for a fresh run: write the resolved config and the metrics
+    /// header, remove the event files of an earlier run in the same directory (as
+    /// `metrics.csv` is overwritten, so TensorBoard does not mix two runs), and start a new
+    /// event file in `path/tb/` that begins with a session start.
     pub fn create(path: &Path, config: &ExperimentConfig) -> std::io::Result<Self> {
         std::fs::create_dir_all(path)?;
         std::fs::write(path.join("config.toml"), config.to_toml())?;
         let mut metrics = BufWriter::new(File::create(path.join("metrics.csv"))?);
         writeln!(metrics, "{}", METRIC_COLUMNS.join(","))?;
         metrics.flush()?;
+        let tb = path.join(TENSORBOARD_DIR);
+        remove_event_files(&tb)?;
+        let mut tensorboard = EventWriter::create(&tb)?;
+        // TensorBoard's server takes a run's first START as its beginning and purges on later
+        // ones; without this one, the START of a resume would be taken as the first.
+        tensorboard.session_start(0)?;
         Ok(Self {
             path: path.to_path_buf(),
             metrics,
-            tensorboard: EventWriter::create(&path.join(TENSORBOARD_DIR))?,
+            tensorboard,
         })
     }
 
@@ -413,6 +441,8 @@ mod tests {
         // Resume after step 200 (the row of 300 is dropped, the new 300 appended).
         std::thread::sleep(std::time::Duration::from_millis(5));
         let mut run = RunDir::reopen(&dir, 200).unwrap();
+        // Both files start with a session start: the first marks the run's beginning (the
+        // TensorBoard server ignores a run's first), the second the restart after step 200.
         run.write_metrics(&row(300, 3.0)).unwrap();
         run.write_metrics(&row(400, 4.0)).unwrap();
         let curve = read_eval_curve(&dir.join("metrics.csv")).unwrap();
@@ -425,9 +455,26 @@ mod tests {
             .unwrap()
             .count();
         assert_eq!(files, 2, "a resumed run writes a new event file");
-        let start = all.iter().position(|s| s.1 == "START").unwrap();
-        assert_eq!(all[start].0, 201);
-        assert!(all[start + 1..].iter().all(|s| s.0 >= 300));
+        let starts: Vec<usize> = (0..all.len()).filter(|&i| all[i].1 == "START").collect();
+        assert_eq!(starts.len(), 2, "{all:?}");
+        assert_eq!((starts[0], all[starts[0]].0), (0, 0));
+        assert_eq!(all[starts[1]].0, 201);
+        assert!(all[starts[1] + 1..].iter().all(|s| s.0 >= 300));
+        drop(run);
+
+        // A fresh run in the same directory replaces the old event files, as it does metrics.csv.
+        let mut run = RunDir::create(&dir, &ExperimentConfig::default()).unwrap();
+        run.write_metrics(&row(100, 7.0)).unwrap();
+        let files = std::fs::read_dir(dir.join(TENSORBOARD_DIR))
+            .unwrap()
+            .count();
+        assert_eq!(files, 1);
+        let ret: Vec<(i64, f32)> = tb_scalars(&dir)
+            .into_iter()
+            .filter(|s| s.1 == "eval/return")
+            .map(|s| (s.0, s.2))
+            .collect();
+        assert_eq!(ret, vec![(100, 7.0)]);
         std::fs::remove_dir_all(dir).unwrap();
     }
 

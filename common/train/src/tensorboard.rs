@@ -9,14 +9,17 @@
 //! * **A protobuf `Event`** (`tensorflow/core/util/event.proto`), of which we encode
 //!   `wall_time = 1` (double), `step = 2` (int64), `file_version = 3` (string),
 //!   `summary = 5` (`Summary { value = 1 repeated Value { tag = 1 string, simple_value = 2
-//!   float } }`) and `session_log = 6` (`SessionLog { status = 1 enum, START = 1 }`).
+//!   float } }`) and `session_log = 7` (`SessionLog { status = 1 enum, START = 1 }`; field 6
+//!   is the deprecated `log_message`).
 //!
 //! A file is `<dir>/events.out.tfevents.<unix secs>.<hostname>.<pid>` and starts with a
 //! `file_version = "brain.Event:2"` event. Every [`EventWriter::add_scalars`] call is one event
 //! and is flushed, so a running TensorBoard shows the run as it goes. A writer never opens an
-//! existing file: a resumed run writes a new file that starts with a `SessionLog START` at the
-//! resume step, which tells TensorBoard to drop the points the first run wrote at or after
-//! that step (they belong to the abandoned future of the checkpoint).
+//! existing file: a resumed run writes a new file with a `SessionLog START` at the resume step,
+//! which tells TensorBoard to drop the points earlier files have at or after that step (they
+//! belong to the abandoned future of the checkpoint). TensorBoard's server
+//! (`plugin_event_accumulator`) takes the *first* START of a run as its beginning and purges
+//! only on later ones, so a fresh run starts with a START at step 0 too (`RunDir` does both).
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -130,7 +133,7 @@ pub fn encode_scalars(out: &mut Vec<u8>, wall_time: f64, step: i64, values: &[(&
 /// Encode `Event { wall_time, step, session_log { status: START } }`.
 pub fn encode_session_start(out: &mut Vec<u8>, wall_time: f64, step: i64) {
     put_event_header(out, wall_time, step);
-    put_key(out, 6, LEN);
+    put_key(out, 7, LEN);
     put_varint(out, 2);
     put_key(out, 1, VARINT);
     put_varint(out, SESSION_START);
@@ -381,7 +384,7 @@ pub mod read {
                         e.scalars.push((tag, val));
                     }
                 }
-                (6, Field::Bytes(log)) => {
+                (7, Field::Bytes(log)) => {
                     let mut l = Fields(log);
                     while let Some((n, fv)) = l.next()? {
                         if let (1, Field::Varint(s)) = (n, fv) {
@@ -441,6 +444,17 @@ mod tests {
         want.extend_from_slice(&[0x10, 0xac, 0x02]); // step 300 as a varint
         want.extend_from_slice(&[0x2a, 12, 0x0a, 10, 0x0a, 3, b'a', b'/', b'b', 0x15]);
         want.extend_from_slice(&2.0f32.to_le_bytes());
+        assert_eq!(out, want);
+    }
+
+    #[test]
+    fn session_start_event_has_the_exact_protobuf_bytes() {
+        // Event{wall_time=2.0, step=201, session_log{status=START}}: session_log is field 7.
+        let mut out = Vec::new();
+        encode_session_start(&mut out, 2.0, 201);
+        let mut want = vec![0x09];
+        want.extend_from_slice(&2.0f64.to_le_bytes());
+        want.extend_from_slice(&[0x10, 0xc9, 0x01, 0x3a, 2, 0x08, 1]);
         assert_eq!(out, want);
     }
 
