@@ -266,6 +266,86 @@ fn sig(v: f64) -> String {
     }
 }
 
+/// Tick positions (bold, light) for the y range `lo..hi` in plot space: round 1-2-5 steps on a
+/// linear axis; 1-2-5 (or decades, or 1..9) times powers of ten on a log10 axis, whose plot
+/// space is log10 of the value. Bold ticks carry labels, light ticks only grid lines.
+pub fn y_ticks(lo: f64, hi: f64, log: bool) -> (Vec<f64>, Vec<f64>) {
+    if log {
+        let in_range = |mults: &[f64]| -> Vec<f64> {
+            let mut v = Vec::new();
+            for k in lo.floor() as i32..=hi.ceil() as i32 {
+                for m in mults {
+                    let p = m.log10() + f64::from(k);
+                    if (lo..=hi).contains(&p) {
+                        v.push(p);
+                    }
+                }
+            }
+            v
+        };
+        let all: Vec<f64> = (1..10).map(f64::from).collect();
+        for mults in [&[1.0][..], &[1.0, 2.0, 5.0][..], &all[..]] {
+            let mut bold = in_range(mults);
+            if bold.len() >= 3 {
+                // Very wide ranges: every n-th decade, at most ~10 labels.
+                let every = bold.len().div_ceil(10);
+                bold = bold.into_iter().step_by(every).collect();
+                let light = if mults.len() < 9 {
+                    in_range(&all)
+                } else {
+                    vec![]
+                };
+                return (bold, light);
+            }
+        }
+        // Less than a few 1..9 multiples in range: round steps in log space.
+    }
+    // The smallest 1-2-5 step that gives at most 10 intervals.
+    let raw = ((hi - lo) / 10.0).max(f64::MIN_POSITIVE);
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let ticks = |step: f64| -> Vec<f64> {
+        let first = (lo / step).ceil() as i64;
+        let last = (hi / step).floor() as i64;
+        (first..=last).map(|i| i as f64 * step).collect()
+    };
+    (ticks(step), ticks(step / 5.0))
+}
+
+/// A linear f64 axis whose tick marks are given ([`y_ticks`]) instead of chosen by plotters.
+struct TickedAxis {
+    lo: f64,
+    hi: f64,
+    bold: Vec<f64>,
+    light: Vec<f64>,
+}
+
+impl Ranged for TickedAxis {
+    type FormatOption = plotters::coord::ranged1d::DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, v: &f64, limit: (i32, i32)) -> i32 {
+        let f = (v - self.lo) / (self.hi - self.lo).max(f64::MIN_POSITIVE);
+        limit.0 + (f * f64::from(limit.1 - limit.0)).round() as i32
+    }
+
+    fn key_points<H: plotters::coord::ranged1d::KeyPointHint>(&self, hint: H) -> Vec<f64> {
+        if hint.weight().allow_light_points() {
+            self.light.clone()
+        } else {
+            self.bold.clone()
+        }
+    }
+
+    fn range(&self) -> std::ops::Range<f64> {
+        self.lo..self.hi
+    }
+}
+
 /// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot.
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
@@ -316,12 +396,22 @@ fn draw_panel(
     } else {
         y_desc.to_string()
     };
+    let (lo, hi) = (y0 - pad, y1 + pad);
+    let (bold, light) = y_ticks(lo, hi, log);
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 22))
         .margin(14)
         .x_label_area_size(44)
         .y_label_area_size(76)
-        .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
+        .build_cartesian_2d(
+            x0..x1.max(x0 + 1.0),
+            TickedAxis {
+                lo,
+                hi,
+                bold,
+                light,
+            },
+        )
         .map_err(e)?;
     let y_fmt = |y: &f64| if log { sig(10f64.powf(*y)) } else { sig(*y) };
     chart
@@ -643,6 +733,38 @@ mod tests {
         ));
         assert!(!out.exists(), "no file is written when the plot fails");
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn y_ticks_are_round_numbers() {
+        let near = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9)
+        };
+        // Linear: -1850..10 in steps of 200 (raw step 186 -> 200), light ticks every 40.
+        let (bold, light) = y_ticks(-1850.0, 10.0, false);
+        let want: Vec<f64> = (-9..=0).map(|i| f64::from(i) * 200.0).collect();
+        assert!(near(&bold, &want), "{bold:?}");
+        assert_eq!(light.len(), 47); // -1840, -1800, ..., 0
+        let (bold, _) = y_ticks(-3.0, 252.0, false);
+        assert!(
+            near(&bold, &[0.0, 50.0, 100.0, 150.0, 200.0, 250.0]),
+            "{bold:?}"
+        );
+        // Log over 0.08..40 (plot space log10): 1-2-5 values, labelled as such.
+        let (bold, light) = y_ticks(0.08f64.log10(), 40f64.log10(), true);
+        let labels: Vec<String> = bold.iter().map(|v| sig(10f64.powf(*v))).collect();
+        assert_eq!(labels, ["0.1", "1", "10"]);
+        assert!(light.len() > 20, "1..9 sub-ticks: {light:?}");
+        // Within one decade: 1-2-5 multiples.
+        let (bold, _) = y_ticks(0.15f64.log10(), 1.1f64.log10(), true);
+        let labels: Vec<String> = bold.iter().map(|v| sig(10f64.powf(*v))).collect();
+        assert_eq!(labels, ["0.2", "0.5", "1"]);
+        // Twenty decades: at most ten labels.
+        let (bold, _) = y_ticks(-10.0, 10.0, true);
+        assert!(bold.len() <= 11 && bold.len() >= 5, "{bold:?}");
+        // A sliver of a decade falls back to round steps in log space.
+        let (bold, _) = y_ticks(0.031f64.log10(), 0.034f64.log10(), true);
+        assert!(bold.len() >= 3, "{bold:?}");
     }
 
     #[test]
