@@ -126,14 +126,28 @@ pub fn summary(dir: &Path) -> serde_json::Value {
     serde_json::from_str(&text).unwrap()
 }
 
-/// The `metrics.csv` rows without the two timing columns (`wall_seconds`, `env_steps_per_sec`).
+/// The timing columns of `metrics.csv`: they differ between any two runs.
+pub const TIMING_COLUMNS: &[&str] = &["wall_seconds", "env_steps_per_sec", "updates_per_sec"];
+
+/// The `metrics.csv` rows (header included) without the [`TIMING_COLUMNS`].
 pub fn metrics_without_timing(dir: &Path) -> Vec<String> {
-    std::fs::read_to_string(dir.join("metrics.csv"))
-        .unwrap()
-        .lines()
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+    let header: Vec<&str> = text.lines().next().unwrap_or_default().split(',').collect();
+    for c in TIMING_COLUMNS {
+        assert!(
+            header.contains(c),
+            "metrics.csv has no column {c}: {header:?}"
+        );
+    }
+    let keep: Vec<bool> = header.iter().map(|h| !TIMING_COLUMNS.contains(h)).collect();
+    text.lines()
         .map(|l| {
-            let cells: Vec<&str> = l.split(',').collect();
-            cells[..cells.len() - 2].join(",")
+            l.split(',')
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(c, _)| c)
+                .collect::<Vec<_>>()
+                .join(",")
         })
         .collect()
 }

@@ -1,8 +1,13 @@
-//! Learning-curve plots from run directories.
+//! Learning-curve and loss plots from run directories.
 //!
 //! Runs are grouped by their directory name without the seed suffix (`mbpo-Pendulum-v1-s3` ->
-//! `mbpo-Pendulum-v1`). For each group the plot shows the mean over seeds at each evaluation
-//! point as a line and the min..max band as a shaded area, one colour per group.
+//! `mbpo-Pendulum-v1`). For each group a panel shows the mean over seeds at each evaluation
+//! point as a line and the min..max band as a shaded area. A group's colour is its index in
+//! the sorted list of all groups, so it is the same in every panel and every file of one call.
+//!
+//! * [`plot_runs`]: one column (default `eval_return`) against env steps.
+//! * [`plot_losses`]: the training diagnostics ([`LOSS_PANELS`]: critic loss, actor loss, α,
+//!   model holdout MSE), one panel each, one shared legend.
 #![warn(missing_docs)]
 
 use plotters::prelude::*;
@@ -49,7 +54,13 @@ pub fn read_curve(run: &Path, column: &str) -> Result<Curve, PlotError> {
         path: path.clone(),
         message,
     };
-    let text = std::fs::read_to_string(&path).map_err(|e| err(e.to_string()))?;
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        err(if e.kind() == std::io::ErrorKind::NotFound {
+            "no such file: every run directory given must contain the metrics.csv a training run writes".into()
+        } else {
+            e.to_string()
+        })
+    })?;
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
     let find = |name: &str| {
@@ -109,6 +120,109 @@ pub fn aggregate(curves: &[Curve]) -> Vec<BandPoint> {
         .collect()
 }
 
+/// One group's aggregated curve of one column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroupCurve {
+    /// The group name ([`group_name`]).
+    pub name: String,
+    /// Runs (seeds) in the group.
+    pub seeds: usize,
+    /// Mean, min and max at every step all of the group's runs have a value for (empty if the
+    /// column has no values, e.g. the model's MSE of a SAC run).
+    pub points: Vec<BandPoint>,
+}
+
+/// The runs of each group, in group-name order.
+fn group_runs(runs: &[PathBuf]) -> BTreeMap<String, Vec<PathBuf>> {
+    let mut groups: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
+    for run in runs {
+        groups.entry(group_name(run)).or_default().push(run.clone());
+    }
+    groups
+}
+
+/// `column` of every group of `runs`, in group-name order (the colour order).
+pub fn group_curves(runs: &[PathBuf], column: &str) -> Result<Vec<GroupCurve>, PlotError> {
+    group_runs(runs)
+        .into_iter()
+        .map(|(name, dirs)| {
+            let curves = dirs
+                .iter()
+                .map(|d| read_curve(d, column))
+                .collect::<Result<Vec<_>, _>>()?;
+            Ok(GroupCurve {
+                name,
+                seeds: curves.len(),
+                points: aggregate(&curves),
+            })
+        })
+        .collect()
+}
+
+/// What a plot contains.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PlotReport {
+    /// The file written.
+    pub out: PathBuf,
+    /// (group, seeds) in colour order.
+    pub groups: Vec<(String, usize)>,
+    /// Panels that had at least one point, by column.
+    pub panels_with_data: Vec<String>,
+}
+
+/// How a panel's y axis is scaled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scale {
+    /// Linear.
+    Linear,
+    /// log10 when every value is positive (losses and α span decades), else linear.
+    Log,
+}
+
+/// One panel: a `metrics.csv` column, its title and scale.
+#[derive(Debug, Clone, Copy)]
+pub struct Panel {
+    /// The column.
+    pub column: &'static str,
+    /// Panel title.
+    pub title: &'static str,
+    /// Y scale.
+    pub scale: Scale,
+}
+
+/// The loss panels of [`plot_losses`], in reading order (2 x 2).
+pub const LOSS_PANELS: [Panel; 4] = [
+    Panel {
+        column: "critic_loss",
+        title: "critic loss (last update)",
+        scale: Scale::Log,
+    },
+    Panel {
+        column: "actor_loss",
+        title: "actor loss (last update)",
+        scale: Scale::Linear,
+    },
+    Panel {
+        column: "alpha",
+        title: "temperature alpha",
+        scale: Scale::Log,
+    },
+    Panel {
+        column: "model_holdout_mse",
+        title: "model holdout MSE (elites)",
+        scale: Scale::Log,
+    },
+];
+
+/// `<dir>/<stem>-<suffix>.png` next to `out` (e.g. `curves.png` -> `curves-losses.png`).
+pub fn companion_path(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "plot".into());
+    out.with_file_name(format!("{stem}-{suffix}.png"))
+}
+
 fn register_font() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
@@ -121,89 +235,329 @@ fn register_font() {
     });
 }
 
-/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`], to a PNG.
-pub fn plot_runs(runs: &[PathBuf], column: &str, title: &str, out: &Path) -> Result<(), PlotError> {
-    let mut groups: BTreeMap<String, Vec<Curve>> = BTreeMap::new();
-    for run in runs {
-        groups
-            .entry(group_name(run))
-            .or_default()
-            .push(read_curve(run, column)?);
+fn color(i: usize) -> RGBAColor {
+    Palette99::pick(i).to_rgba()
+}
+
+/// A number for an axis label with about 3 significant digits (`1.5k`, `0.0123`, `2e-5`).
+fn sig(v: f64) -> String {
+    let a = v.abs();
+    if a == 0.0 {
+        "0".into()
+    } else if a >= 1e4 {
+        let k = v / 1e3;
+        if k.fract().abs() < 1e-9 {
+            format!("{k:.0}k")
+        } else {
+            format!("{k:.1}k")
+        }
+    } else if a >= 100.0 {
+        format!("{v:.0}")
+    } else if a >= 1e-3 {
+        let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.0e}")
     }
-    let series: Vec<(String, usize, Vec<BandPoint>)> = groups
-        .into_iter()
-        .map(|(g, curves)| (g, curves.len(), aggregate(&curves)))
-        .filter(|(_, _, pts)| !pts.is_empty())
+}
+
+/// Tick positions (bold, light) for the y range `lo..hi` in plot space: round 1-2-5 steps on a
+/// linear axis; 1-2-5 (or decades, or 1..9) times powers of ten on a log10 axis, whose plot
+/// space is log10 of the value. Bold ticks carry labels, light ticks only grid lines.
+pub fn y_ticks(lo: f64, hi: f64, log: bool) -> (Vec<f64>, Vec<f64>) {
+    if log {
+        let in_range = |mults: &[f64]| -> Vec<f64> {
+            let mut v = Vec::new();
+            for k in lo.floor() as i32..=hi.ceil() as i32 {
+                for m in mults {
+                    let p = m.log10() + f64::from(k);
+                    if (lo..=hi).contains(&p) {
+                        v.push(p);
+                    }
+                }
+            }
+            v
+        };
+        let all: Vec<f64> = (1..10).map(f64::from).collect();
+        for mults in [&[1.0][..], &[1.0, 2.0, 5.0][..], &all[..]] {
+            let mut bold = in_range(mults);
+            if bold.len() >= 3 {
+                // Very wide ranges: every n-th decade, at most ~10 labels.
+                let every = bold.len().div_ceil(10);
+                bold = bold.into_iter().step_by(every).collect();
+                let light = if mults.len() < 9 {
+                    in_range(&all)
+                } else {
+                    vec![]
+                };
+                return (bold, light);
+            }
+        }
+        // Less than a few 1..9 multiples in range: round steps in log space.
+    }
+    // The smallest 1-2-5 step that gives at most 10 intervals.
+    let raw = ((hi - lo) / 10.0).max(f64::MIN_POSITIVE);
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|s| *s >= raw)
+        .unwrap_or(10.0 * mag);
+    let ticks = |step: f64| -> Vec<f64> {
+        let first = (lo / step).ceil() as i64;
+        let last = (hi / step).floor() as i64;
+        (first..=last).map(|i| i as f64 * step).collect()
+    };
+    (ticks(step), ticks(step / 5.0))
+}
+
+/// A linear f64 axis whose tick marks are given ([`y_ticks`]) instead of chosen by plotters.
+struct TickedAxis {
+    lo: f64,
+    hi: f64,
+    bold: Vec<f64>,
+    light: Vec<f64>,
+}
+
+impl Ranged for TickedAxis {
+    type FormatOption = plotters::coord::ranged1d::DefaultFormatting;
+    type ValueType = f64;
+
+    fn map(&self, v: &f64, limit: (i32, i32)) -> i32 {
+        let f = (v - self.lo) / (self.hi - self.lo).max(f64::MIN_POSITIVE);
+        limit.0 + (f * f64::from(limit.1 - limit.0)).round() as i32
+    }
+
+    fn key_points<H: plotters::coord::ranged1d::KeyPointHint>(&self, hint: H) -> Vec<f64> {
+        if hint.weight().allow_light_points() {
+            self.light.clone()
+        } else {
+            self.bold.clone()
+        }
+    }
+
+    fn range(&self) -> std::ops::Range<f64> {
+        self.lo..self.hi
+    }
+}
+
+/// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot.
+fn draw_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    curves: &[GroupCurve],
+    title: &str,
+    y_desc: &str,
+    scale: Scale,
+    legend_inside: bool,
+) -> Result<(), String> {
+    let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
+    let series: Vec<(usize, &GroupCurve)> = curves
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| !c.points.is_empty())
         .collect();
     if series.is_empty() {
-        return Err(PlotError::Empty);
+        let (w, h) = area.dim_in_pixel();
+        area.draw(&Text::new(
+            title.to_string(),
+            (w as i32 / 2 - 120, 12),
+            ("sans-serif", 20).into_font(),
+        ))
+        .map_err(e)?;
+        area.draw(&Text::new(
+            "no data in any run".to_string(),
+            (w as i32 / 2 - 80, h as i32 / 2),
+            ("sans-serif", 16)
+                .into_font()
+                .color(&RGBColor(110, 110, 110)),
+        ))
+        .map_err(e)?;
+        return Ok(());
     }
-    register_font();
-    let draw_err = |e: String| PlotError::Draw {
-        path: out.to_path_buf(),
-        message: e,
-    };
-    let all = series.iter().flat_map(|(_, _, p)| p.iter());
+    let log = scale == Scale::Log
+        && series
+            .iter()
+            .all(|(_, c)| c.points.iter().all(|p| p.2 > 0.0 && p.1 > 0.0));
+    let tf = |y: f64| if log { y.log10() } else { y };
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for &(x, _, lo, hi) in all {
-        (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(lo), y1.max(hi));
+    for (_, c) in &series {
+        for &(x, _, lo, hi) in &c.points {
+            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(tf(lo)), y1.max(tf(hi)));
+        }
     }
-    let pad = ((y1 - y0) * 0.05).max(1e-6);
-    let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| draw_err(e.to_string()))?;
-    let mut chart = ChartBuilder::on(&root)
-        .caption(title, ("sans-serif", 24))
-        .margin(16)
-        .x_label_area_size(48)
-        .y_label_area_size(72)
-        .build_cartesian_2d(x0..x1.max(x0 + 1.0), (y0 - pad)..(y1 + pad))
-        .map_err(|e| draw_err(e.to_string()))?;
+    let pad = ((y1 - y0) * 0.05).max(if log { 0.05 } else { 1e-6 });
+    let y_desc = if log {
+        format!("{y_desc} (log scale)")
+    } else {
+        y_desc.to_string()
+    };
+    let (lo, hi) = (y0 - pad, y1 + pad);
+    let (bold, light) = y_ticks(lo, hi, log);
+    let mut chart = ChartBuilder::on(area)
+        .caption(title, ("sans-serif", 22))
+        .margin(14)
+        .x_label_area_size(44)
+        .y_label_area_size(76)
+        .build_cartesian_2d(
+            x0..x1.max(x0 + 1.0),
+            TickedAxis {
+                lo,
+                hi,
+                bold,
+                light,
+            },
+        )
+        .map_err(e)?;
+    let y_fmt = |y: &f64| if log { sig(10f64.powf(*y)) } else { sig(*y) };
     chart
         .configure_mesh()
         .x_desc("env steps")
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .y_label_formatter(&|y| format!("{y:.0}"))
-        .y_desc(column)
+        .x_label_formatter(&|x| sig(*x))
+        .y_label_formatter(&y_fmt)
+        .y_desc(y_desc)
         .label_style(("sans-serif", 15))
+        .axis_desc_style(("sans-serif", 16))
         .draw()
-        .map_err(|e| draw_err(e.to_string()))?;
-    for (i, (name, n, pts)) in series.iter().enumerate() {
-        let color = Palette99::pick(i).to_rgba();
-        let band: Vec<(f64, f64)> = pts
+        .map_err(e)?;
+    for &(i, c) in &series {
+        let col = color(i);
+        let band: Vec<(f64, f64)> = c
+            .points
             .iter()
-            .map(|p| (p.0, p.3))
-            .chain(pts.iter().rev().map(|p| (p.0, p.2)))
+            .map(|p| (p.0, tf(p.3)))
+            .chain(c.points.iter().rev().map(|p| (p.0, tf(p.2))))
             .collect();
         chart
-            .draw_series(std::iter::once(Polygon::new(
-                band,
-                color.mix(0.18).filled(),
-            )))
-            .map_err(|e| draw_err(e.to_string()))?;
-        chart
+            .draw_series(std::iter::once(Polygon::new(band, col.mix(0.18).filled())))
+            .map_err(e)?;
+        let line = chart
             .draw_series(LineSeries::new(
-                pts.iter().map(|p| (p.0, p.1)),
-                color.stroke_width(3),
+                c.points.iter().map(|p| (p.0, tf(p.1))),
+                col.stroke_width(3),
             ))
-            .map_err(|e| draw_err(e.to_string()))?
-            .label(format!(
-                "{name} (mean, min..max over {n} seed{})",
-                if *n == 1 { "" } else { "s" }
-            ))
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(3))
+            .map_err(e)?;
+        if legend_inside {
+            line.label(legend_text(c)).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(3))
             });
+        }
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 15))
-        .position(SeriesLabelPosition::LowerRight)
-        .draw()
-        .map_err(|e| draw_err(e.to_string()))?;
-    root.present().map_err(|e| draw_err(e.to_string()))?;
+    if legend_inside {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 15))
+            .position(SeriesLabelPosition::LowerRight)
+            .draw()
+            .map_err(e)?;
+    }
     Ok(())
+}
+
+fn legend_text(c: &GroupCurve) -> String {
+    format!(
+        "{} (mean, min..max over {} seed{})",
+        c.name,
+        c.seeds,
+        if c.seeds == 1 { "" } else { "s" }
+    )
+}
+
+fn report(out: &Path, curves: &[GroupCurve], panels: &[(&str, &[GroupCurve])]) -> PlotReport {
+    PlotReport {
+        out: out.to_path_buf(),
+        groups: curves.iter().map(|c| (c.name.clone(), c.seeds)).collect(),
+        panels_with_data: panels
+            .iter()
+            .filter(|(_, cs)| cs.iter().any(|c| !c.points.is_empty()))
+            .map(|(col, _)| col.to_string())
+            .collect(),
+    }
+}
+
+/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`], to a PNG.
+pub fn plot_runs(
+    runs: &[PathBuf],
+    column: &str,
+    title: &str,
+    out: &Path,
+) -> Result<PlotReport, PlotError> {
+    let curves = group_curves(runs, column)?;
+    if curves.iter().all(|c| c.points.is_empty()) {
+        return Err(PlotError::Empty);
+    }
+    register_font();
+    let draw_err = |message: String| PlotError::Draw {
+        path: out.to_path_buf(),
+        message,
+    };
+    let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| draw_err(e.to_string()))?;
+    draw_panel(&root, &curves, title, column, Scale::Linear, true).map_err(draw_err)?;
+    root.present().map_err(|e| draw_err(e.to_string()))?;
+    Ok(report(out, &curves, &[(column, &curves)]))
+}
+
+/// Plot the [`LOSS_PANELS`] of `runs` (2 x 2 panels, one legend on top) to a PNG. A panel no
+/// run has values for (the model's MSE of SAC runs) says so instead of failing.
+pub fn plot_losses(runs: &[PathBuf], title: &str, out: &Path) -> Result<PlotReport, PlotError> {
+    let panels = LOSS_PANELS
+        .iter()
+        .map(|p| Ok((p, group_curves(runs, p.column)?)))
+        .collect::<Result<Vec<_>, PlotError>>()?;
+    if panels
+        .iter()
+        .all(|(_, cs)| cs.iter().all(|c| c.points.is_empty()))
+    {
+        return Err(PlotError::Empty);
+    }
+    let groups = &panels[0].1;
+    register_font();
+    let draw_err = |message: String| PlotError::Draw {
+        path: out.to_path_buf(),
+        message,
+    };
+    let de = |e: plotters::drawing::DrawingAreaErrorKind<_>| draw_err(e.to_string());
+    let legend_rows = groups.len().div_ceil(2) as u32;
+    let root = BitMapBackend::new(out, (1400, 980 + 26 * legend_rows)).into_drawing_area();
+    root.fill(&WHITE).map_err(de)?;
+    let (top, grid) = root.split_vertically(44 + 26 * legend_rows);
+    top.draw(&Text::new(
+        title.to_string(),
+        (16, 8),
+        ("sans-serif", 26).into_font(),
+    ))
+    .map_err(de)?;
+    for (i, c) in groups.iter().enumerate() {
+        let (x, y) = (24 + 690 * (i as i32 % 2), 46 + 26 * (i as i32 / 2));
+        top.draw(&PathElement::new(
+            vec![(x, y), (x + 28, y)],
+            color(i).stroke_width(4),
+        ))
+        .map_err(de)?;
+        top.draw(&Text::new(
+            legend_text(c),
+            (x + 38, y - 9),
+            ("sans-serif", 17).into_font(),
+        ))
+        .map_err(de)?;
+    }
+    for (area, (panel, curves)) in grid.split_evenly((2, 2)).iter().zip(&panels) {
+        draw_panel(area, curves, panel.title, panel.column, panel.scale, false)
+            .map_err(draw_err)?;
+    }
+    root.present().map_err(de)?;
+    let with_data: Vec<(&str, &[GroupCurve])> = panels
+        .iter()
+        .map(|(p, cs)| (p.column, cs.as_slice()))
+        .collect();
+    Ok(report(out, groups, &with_data))
 }
 
 #[cfg(test)]
@@ -253,7 +607,11 @@ mod tests {
             write_run(&dir, "mbpo-P-s0", &[-1500.0, -150.0, -140.0]),
         ];
         let out = dir.join("curves.png");
-        plot_runs(&runs, "eval_return", "test", &out).unwrap();
+        let r = plot_runs(&runs, "eval_return", "test", &out).unwrap();
+        assert_eq!(
+            r.groups,
+            vec![("mbpo-P".to_string(), 1), ("sac-P".to_string(), 2)]
+        );
         let bytes = std::fs::read(&out).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         assert!(bytes.len() > 5000, "a real picture, not an empty canvas");
@@ -265,5 +623,166 @@ mod tests {
             "{err}"
         );
         std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A run with every loss column; `mse` empty like a SAC run's when `None`.
+    fn write_loss_run(dir: &Path, name: &str, scale: f64, mse: Option<f64>) -> PathBuf {
+        let run = dir.join(name);
+        std::fs::create_dir_all(&run).unwrap();
+        let mut text =
+            String::from("env_steps,eval_return,critic_loss,actor_loss,alpha,model_holdout_mse\n");
+        // The first row is before any update: losses empty, as the trainers write it.
+        text += "100,-1500,,,1,\n";
+        for i in 2..=20u32 {
+            let t = f64::from(i);
+            let m = mse.map(|m| format!("{}", m / t)).unwrap_or_default();
+            text += &format!(
+                "{},{},{},{},{},{m}\n",
+                i * 100,
+                -1500.0 + 60.0 * t,
+                scale * 50.0 / t,
+                -scale * 3.0 * t,
+                0.9f64.powf(t * 3.0)
+            );
+        }
+        std::fs::write(run.join("metrics.csv"), text).unwrap();
+        run
+    }
+
+    #[test]
+    fn loss_panels_share_groups_and_tolerate_a_column_without_values() {
+        let dir = std::env::temp_dir().join(format!("mbpo-plot-loss-{}", std::process::id()));
+        let runs = vec![
+            write_loss_run(&dir, "sac-P-s0", 1.0, None),
+            write_loss_run(&dir, "sac-P-s1", 1.3, None),
+            write_loss_run(&dir, "mbpo-P-s0", 2.0, Some(0.5)),
+            write_loss_run(&dir, "mbpo-P-s1", 2.5, Some(0.4)),
+            write_loss_run(&dir, "mbpo-P-s2", 3.0, Some(0.3)),
+        ];
+        let out = companion_path(&dir.join("curves.png"), "losses");
+        assert_eq!(out, dir.join("curves-losses.png"));
+        let r = plot_losses(&runs, "losses", &out).unwrap();
+        assert_eq!(
+            r.groups,
+            vec![("mbpo-P".to_string(), 3), ("sac-P".to_string(), 2)]
+        );
+        assert_eq!(
+            r.panels_with_data,
+            vec!["critic_loss", "actor_loss", "alpha", "model_holdout_mse"]
+        );
+        let bytes = std::fs::read(&out).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG");
+        assert!(
+            bytes.len() > 20_000,
+            "four drawn panels, not a blank canvas"
+        );
+
+        // SAC alone: the model panel has no data and says so; the rest is drawn.
+        let sac_only = dir.join("sac-losses.png");
+        let r = plot_losses(&runs[..2], "losses", &sac_only).unwrap();
+        assert_eq!(r.groups, vec![("sac-P".to_string(), 2)]);
+        assert_eq!(
+            r.panels_with_data,
+            vec!["critic_loss", "actor_loss", "alpha"]
+        );
+        assert!(sac_only.exists());
+
+        // The band is the spread over seeds: critic loss at step 200 is 50/2 * {2, 2.5, 3}.
+        let mbpo = &group_curves(&runs, "critic_loss").unwrap()[0];
+        assert_eq!(mbpo.points[0], (200.0, 25.0 * 2.5, 50.0, 75.0));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn plot_errors_name_the_run_and_the_problem() {
+        let dir = std::env::temp_dir().join(format!("mbpo-plot-err-{}", std::process::id()));
+        let good = write_loss_run(&dir, "sac-P-s0", 1.0, None);
+        let empty = dir.join("not-a-run");
+        std::fs::create_dir_all(&empty).unwrap();
+        let out = dir.join("x.png");
+        for err in [
+            plot_runs(&[good.clone(), empty.clone()], "eval_return", "t", &out).unwrap_err(),
+            plot_losses(&[good.clone(), empty.clone()], "t", &out).unwrap_err(),
+        ] {
+            let msg = err.to_string();
+            assert!(
+                msg.contains("not-a-run/metrics.csv") && msg.contains("no such file"),
+                "{msg}"
+            );
+        }
+        // An old metrics.csv without a loss column.
+        let old = dir.join("old-s0");
+        std::fs::create_dir_all(&old).unwrap();
+        std::fs::write(old.join("metrics.csv"), "env_steps,eval_return\n100,-1\n").unwrap();
+        let msg = plot_losses(std::slice::from_ref(&old), "t", &out)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains("old-s0/metrics.csv") && msg.contains("no column `critic_loss`"),
+            "{msg}"
+        );
+        // Columns present but never filled: nothing to plot.
+        std::fs::write(
+            old.join("metrics.csv"),
+            "env_steps,critic_loss,actor_loss,alpha,model_holdout_mse\n100,,,,\n",
+        )
+        .unwrap();
+        assert!(matches!(
+            plot_losses(&[old], "t", &out).unwrap_err(),
+            PlotError::Empty
+        ));
+        assert!(!out.exists(), "no file is written when the plot fails");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn y_ticks_are_round_numbers() {
+        let near = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9)
+        };
+        // Linear: -1850..10 in steps of 200 (raw step 186 -> 200), light ticks every 40.
+        let (bold, light) = y_ticks(-1850.0, 10.0, false);
+        let want: Vec<f64> = (-9..=0).map(|i| f64::from(i) * 200.0).collect();
+        assert!(near(&bold, &want), "{bold:?}");
+        assert_eq!(light.len(), 47); // -1840, -1800, ..., 0
+        let (bold, _) = y_ticks(-3.0, 252.0, false);
+        assert!(
+            near(&bold, &[0.0, 50.0, 100.0, 150.0, 200.0, 250.0]),
+            "{bold:?}"
+        );
+        // Log over 0.08..40 (plot space log10): 1-2-5 values, labelled as such.
+        let (bold, light) = y_ticks(0.08f64.log10(), 40f64.log10(), true);
+        let labels: Vec<String> = bold.iter().map(|v| sig(10f64.powf(*v))).collect();
+        assert_eq!(labels, ["0.1", "1", "10"]);
+        assert!(light.len() > 20, "1..9 sub-ticks: {light:?}");
+        // Within one decade: 1-2-5 multiples.
+        let (bold, _) = y_ticks(0.15f64.log10(), 1.1f64.log10(), true);
+        let labels: Vec<String> = bold.iter().map(|v| sig(10f64.powf(*v))).collect();
+        assert_eq!(labels, ["0.2", "0.5", "1"]);
+        // Twenty decades: at most ten labels.
+        let (bold, _) = y_ticks(-10.0, 10.0, true);
+        assert!(bold.len() <= 11 && bold.len() >= 5, "{bold:?}");
+        // A sliver of a decade falls back to round steps in log space.
+        let (bold, _) = y_ticks(0.031f64.log10(), 0.034f64.log10(), true);
+        assert!(bold.len() >= 3, "{bold:?}");
+    }
+
+    #[test]
+    fn axis_labels_keep_three_significant_digits() {
+        let cases = [
+            (0.0, "0"),
+            (20000.0, "20k"),
+            (12500.0, "12.5k"),
+            (1500.0, "1500"),
+            (-150.0, "-150"),
+            (12.34, "12.3"),
+            (1.0, "1"),
+            (0.25, "0.25"),
+            (0.012345, "0.0123"),
+            (0.00002, "2e-5"),
+        ];
+        for (v, want) in cases {
+            assert_eq!(sig(v), want, "{v}");
+        }
     }
 }

@@ -48,6 +48,7 @@ pub struct Evaluator {
     start: Instant,
     last_time: f64,
     last_steps: u64,
+    last_updates: u64,
     env_steps: u64,
     final_return: f64,
     best_return: f64,
@@ -112,6 +113,7 @@ impl Evaluator {
             start: Instant::now(),
             last_time: 0.0,
             last_steps: 0,
+            last_updates: 0,
             env_steps: 0,
             final_return: f64::NAN,
             best_return: f64::NEG_INFINITY,
@@ -136,8 +138,11 @@ impl Evaluator {
             self.to_minus_200 = Some(env_steps);
         }
         let now = self.start.elapsed().as_secs_f64();
-        let sps = (env_steps - self.last_steps) as f64 / (now - self.last_time).max(1e-9);
+        let dt = (now - self.last_time).max(1e-9);
+        let sps = (env_steps - self.last_steps) as f64 / dt;
+        let ups = (sac.updates() - self.last_updates) as f64 / dt;
         (self.last_time, self.last_steps, self.env_steps) = (now, env_steps, env_steps);
+        self.last_updates = sac.updates();
         let updated = sac.updates() > 0;
         let some = |v: f32| updated.then_some(v as f64);
         MetricsRow {
@@ -153,6 +158,7 @@ impl Evaluator {
             q_mean: some(stats.q_mean),
             wall_seconds: now,
             env_steps_per_sec: sps,
+            updates_per_sec: ups,
             ..Default::default()
         }
     }

@@ -4,6 +4,8 @@
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
+//! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
+//! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
@@ -13,9 +15,11 @@ pub mod config;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
+pub mod progress;
 pub mod roles;
 pub mod run_dir;
 pub mod sac_trainer;
+pub mod tensorboard;
 
 pub use config::{Algo, ConfigError, ExperimentConfig};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo, RunOptions};

@@ -23,6 +23,7 @@ use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
 use crate::eval::{Evaluator, EvaluatorState};
+use crate::progress::{Display, Progress};
 use crate::roles::checkpoint_kind as kind;
 use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
 use crate::run_dir::{MetricsRow, RunDir, Summary};
@@ -268,7 +269,7 @@ pub fn train_mbpo_with(
             manifest.env_steps
         );
         (
-            RunDir::resume(out, cfg, manifest.env_steps)?,
+            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
             manifest.env_steps,
         )
     } else {
@@ -287,6 +288,8 @@ pub fn train_mbpo_with(
         checkpoint::prune(out, cfg.checkpoint.keep)
     };
     let mut status = "completed";
+    let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
+    let mut progress = Progress::new(label, cfg.steps, Display::auto());
     for t in done + 1..=cfg.steps {
         let started = Instant::now();
         mbpo.step(t)?;
@@ -297,7 +300,9 @@ pub fn train_mbpo_with(
             let row = metrics_row(&mbpo, &mut evaluator, t);
             run.write_metrics(&row)?;
             evaluator.log("mbpo", &row);
+            progress.set_eval(row.eval_return);
         }
+        progress.update(t, mbpo.sac().updates());
         let stopping = opts.stop_requested() && t < cfg.steps;
         let every = cfg.checkpoint.every;
         if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
@@ -312,6 +317,7 @@ pub fn train_mbpo_with(
             break;
         }
     }
+    progress.finish();
     let mut sorted = step_seconds.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted.get(sorted.len() / 2).copied();

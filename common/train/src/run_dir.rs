@@ -1,9 +1,13 @@
-//! The run directory: `config.toml` (resolved), `metrics.csv`, `summary.json`.
+//! The run directory: `config.toml` (resolved), `metrics.csv`, `tb/` (TensorBoard event
+//! files), `summary.json`.
 //!
 //! `metrics.csv` has one row per evaluation with a fixed set of columns (empty where a column
 //! does not apply to the algorithm), so every run can be plotted and compared the same way.
+//! Every row is also written as TensorBoard scalars (tags in [`TENSORBOARD_TAGS`], step =
+//! env steps), flushed at once, so `tensorboard --logdir runs` shows a run while it trains.
 
 use crate::config::ExperimentConfig;
+use crate::tensorboard::EventWriter;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::fs::File;
@@ -27,7 +31,30 @@ pub const METRIC_COLUMNS: &[&str] = &[
     "model_buffer",
     "wall_seconds",
     "env_steps_per_sec",
+    "updates_per_sec",
 ];
+
+/// The TensorBoard tag of each `metrics.csv` column (`env_steps` is the step of every scalar).
+pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
+    ("episodes", "train/episodes"),
+    ("eval_return", "eval/return"),
+    ("train_return", "train/return"),
+    ("sac_updates", "sac/updates"),
+    ("critic_loss", "sac/critic_loss"),
+    ("actor_loss", "sac/actor_loss"),
+    ("alpha", "sac/alpha"),
+    ("entropy", "sac/entropy"),
+    ("q_mean", "sac/q_mean"),
+    ("model_holdout_mse", "model/holdout_mse"),
+    ("rollout_length", "model/rollout_length"),
+    ("model_buffer", "model/buffer"),
+    ("wall_seconds", "speed/wall_seconds"),
+    ("env_steps_per_sec", "speed/env_steps_per_sec"),
+    ("updates_per_sec", "speed/updates_per_sec"),
+];
+
+/// Sub-directory of the run directory that holds the TensorBoard event files.
+pub const TENSORBOARD_DIR: &str = "tb";
 
 /// One row of `metrics.csv`; `None` prints as an empty cell.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -62,6 +89,8 @@ pub struct MetricsRow {
     pub wall_seconds: f64,
     /// Env steps per second since the last row.
     pub env_steps_per_sec: f64,
+    /// SAC updates per second since the last row.
+    pub updates_per_sec: f64,
 }
 
 impl MetricsRow {
@@ -83,7 +112,35 @@ impl MetricsRow {
             opt(self.model_buffer),
             format!("{:.3}", self.wall_seconds),
             format!("{:.1}", self.env_steps_per_sec),
+            format!("{:.1}", self.updates_per_sec),
         ]
+    }
+
+    /// Every column but `env_steps` as (TensorBoard tag, value), in column order; empty cells
+    /// are left out.
+    fn scalars(&self) -> Vec<(&'static str, f32)> {
+        let values = [
+            Some(self.episodes as f64),
+            Some(self.eval_return),
+            self.train_return,
+            Some(self.sac_updates as f64),
+            self.critic_loss,
+            self.actor_loss,
+            self.alpha,
+            self.entropy,
+            self.q_mean,
+            self.model_holdout_mse,
+            self.rollout_length,
+            self.model_buffer,
+            Some(self.wall_seconds),
+            Some(self.env_steps_per_sec),
+            Some(self.updates_per_sec),
+        ];
+        TENSORBOARD_TAGS
+            .iter()
+            .zip(values)
+            .filter_map(|(&(_, tag), v)| Some((tag, v? as f32)))
+            .collect()
     }
 }
 
@@ -131,63 +188,110 @@ pub fn policy_sha256(params: &[f32]) -> String {
     h.finalize().iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// Remove the TensorBoard event files in `dir` (nothing else; a missing `dir` is fine).
+fn remove_event_files(dir: &Path) -> std::io::Result<()> {
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(e),
+    };
+    for entry in entries {
+        let entry = entry?;
+        if entry
+            .file_name()
+            .to_string_lossy()
+            .starts_with("events.out.tfevents.")
+        {
+            std::fs::remove_file(entry.path())?;
+        }
+    }
+    Ok(())
+}
+
 /// An open run directory.
 #[derive(Debug)]
 pub struct RunDir {
     path: PathBuf,
     metrics: BufWriter<File>,
+    tensorboard: EventWriter,
 }
 
 impl RunDir {
-    /// Create `path` (and parents), write the resolved config and the metrics header.
+    /// Create `path` (and parents) for a fresh run: write the resolved config and the metrics
+    /// header, remove the event files of an earlier run in the same directory (as
+    /// `metrics.csv` is overwritten, so TensorBoard does not mix two runs), and start a new
+    /// event file in `path/tb/` that begins with a session start.
     pub fn create(path: &Path, config: &ExperimentConfig) -> std::io::Result<Self> {
         std::fs::create_dir_all(path)?;
         std::fs::write(path.join("config.toml"), config.to_toml())?;
         let mut metrics = BufWriter::new(File::create(path.join("metrics.csv"))?);
         writeln!(metrics, "{}", METRIC_COLUMNS.join(","))?;
         metrics.flush()?;
+        let tb = path.join(TENSORBOARD_DIR);
+        remove_event_files(&tb)?;
+        let mut tensorboard = EventWriter::create(&tb)?;
+        // TensorBoard's server takes a run's first START as its beginning and purges on later
+        // ones; without this one, the START of a resume would be taken as the first.
+        tensorboard.session_start(0)?;
         Ok(Self {
             path: path.to_path_buf(),
             metrics,
+            tensorboard,
         })
     }
 
-    /// Reopen the directory of a run resumed from its checkpoint after `env_steps`: rows of
-    /// `metrics.csv` written after that checkpoint are dropped (the resumed run writes them
-    /// again), the resolved config is rewritten (its `steps` may have been extended).
-    pub fn resume(path: &Path, config: &ExperimentConfig, env_steps: u64) -> std::io::Result<Self> {
-        let metrics_path = path.join("metrics.csv");
-        let text = std::fs::read_to_string(&metrics_path)?;
+    /// Reopen the run directory of a run resumed after env step `resume_step`: keep the
+    /// `metrics.csv` rows up to that step (later rows belong to the abandoned continuation of
+    /// the checkpoint), append after them, and start a new TensorBoard file that begins with a
+    /// restart marker at `resume_step + 1`, so TensorBoard drops the old files' later points.
+    /// `config.toml` is left alone.
+    pub fn reopen(path: &Path, resume_step: u64) -> std::io::Result<Self> {
+        let csv = path.join("metrics.csv");
+        let text = std::fs::read_to_string(&csv)
+            .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", csv.display())))?;
         let mut lines = text.lines();
         let header = lines.next().unwrap_or_default();
-        if header != METRIC_COLUMNS.join(",") {
-            return Err(std::io::Error::other(format!(
-                "{}: header is `{header}`, expected `{}` (written by another version?)",
-                metrics_path.display(),
-                METRIC_COLUMNS.join(",")
-            )));
+        let want = METRIC_COLUMNS.join(",");
+        if header != want {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "{}: header does not match this version's columns; expected `{want}`, found `{header}`",
+                    csv.display()
+                ),
+            ));
         }
-        let mut kept = format!("{header}\n");
+        let mut kept = format!("{want}\n");
         for line in lines {
-            let steps: Option<u64> = line.split(',').next().and_then(|c| c.parse().ok());
-            if steps.is_some_and(|s| s <= env_steps) {
-                kept.push_str(line);
+            let step = line.split(',').next().and_then(|c| c.parse::<u64>().ok());
+            if step.is_some_and(|s| s <= resume_step) {
+                kept += line;
                 kept.push('\n');
             }
         }
         let tmp = path.join("metrics.csv.tmp");
         std::fs::write(&tmp, kept)?;
-        std::fs::rename(&tmp, &metrics_path)?;
-        std::fs::write(path.join("config.toml"), config.to_toml())?;
-        let metrics = BufWriter::new(
-            std::fs::OpenOptions::new()
-                .append(true)
-                .open(&metrics_path)?,
-        );
+        std::fs::rename(&tmp, &csv)?;
+        let metrics = BufWriter::new(File::options().append(true).open(&csv)?);
+        let mut tensorboard = EventWriter::create(&path.join(TENSORBOARD_DIR))?;
+        tensorboard.session_start(resume_step as i64 + 1)?;
         Ok(Self {
             path: path.to_path_buf(),
             metrics,
+            tensorboard,
         })
+    }
+
+    /// Reopen the directory of a run resumed from its checkpoint after `env_steps`
+    /// ([`RunDir::reopen`]) and rewrite its resolved config (`steps` may have been extended).
+    pub fn reopen_with_config(
+        path: &Path,
+        config: &ExperimentConfig,
+        env_steps: u64,
+    ) -> std::io::Result<Self> {
+        let run = Self::reopen(path, env_steps)?;
+        std::fs::write(path.join("config.toml"), config.to_toml())?;
+        Ok(run)
     }
 
     /// The directory.
@@ -195,10 +299,18 @@ impl RunDir {
         &self.path
     }
 
-    /// Append one metrics row (flushed, so a crash loses nothing written).
+    /// The TensorBoard event file this run writes.
+    pub fn tensorboard_file(&self) -> &Path {
+        self.tensorboard.path()
+    }
+
+    /// Append one metrics row to `metrics.csv` and as scalars to the TensorBoard file (both
+    /// flushed, so a crash loses nothing written and a live TensorBoard sees the row).
     pub fn write_metrics(&mut self, row: &MetricsRow) -> std::io::Result<()> {
         writeln!(self.metrics, "{}", row.cells().join(","))?;
-        self.metrics.flush()
+        self.metrics.flush()?;
+        self.tensorboard
+            .add_scalars(row.env_steps as i64, &row.scalars())
     }
 
     /// Write `summary.json` atomically (temporary file, then rename).
@@ -281,6 +393,147 @@ mod tests {
         }
         let curve = read_eval_curve(&dir.join("metrics.csv")).unwrap();
         assert_eq!(curve, vec![(100, -10.5), (200, -21.0), (300, -31.5)]);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn every_column_but_the_step_has_a_tensorboard_tag_in_column_order() {
+        let columns: Vec<&str> = TENSORBOARD_TAGS.iter().map(|t| t.0).collect();
+        assert_eq!(columns, METRIC_COLUMNS[1..]);
+        let tags: std::collections::BTreeSet<&str> = TENSORBOARD_TAGS.iter().map(|t| t.1).collect();
+        assert_eq!(tags.len(), TENSORBOARD_TAGS.len(), "tags must be unique");
+        // A row with every value distinct lands under the right tag.
+        let row = MetricsRow {
+            env_steps: 1,
+            episodes: 2,
+            eval_return: 3.0,
+            train_return: Some(4.0),
+            sac_updates: 5,
+            critic_loss: Some(6.0),
+            actor_loss: Some(7.0),
+            alpha: Some(8.0),
+            entropy: Some(9.0),
+            q_mean: Some(10.0),
+            model_holdout_mse: Some(11.0),
+            rollout_length: Some(12.0),
+            model_buffer: Some(13.0),
+            wall_seconds: 14.0,
+            env_steps_per_sec: 15.0,
+            updates_per_sec: 16.0,
+        };
+        let cells = row.cells();
+        assert_eq!(cells.len(), METRIC_COLUMNS.len());
+        for ((tag, v), (column, cell)) in row
+            .scalars()
+            .iter()
+            .zip(METRIC_COLUMNS.iter().zip(&cells).skip(1))
+        {
+            assert_eq!(*v as f64, cell.parse::<f64>().unwrap(), "{column} -> {tag}");
+        }
+        assert_eq!(row.scalars().len(), TENSORBOARD_TAGS.len());
+    }
+
+    fn tb_scalars(dir: &Path) -> Vec<(i64, String, f32)> {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir.join(TENSORBOARD_DIR))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        files.sort();
+        let mut out = Vec::new();
+        for f in files {
+            for e in crate::tensorboard::read::file(&f).unwrap() {
+                if e.session_status.is_some() {
+                    out.push((e.step, "START".into(), f32::NAN));
+                }
+                out.extend(e.scalars.into_iter().map(|(t, v)| (e.step, t, v)));
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn metrics_rows_land_in_tensorboard_and_a_reopened_run_appends() {
+        let dir = std::env::temp_dir().join(format!("mbpo-rundir-tb-{}", std::process::id()));
+        let row = |t: u64, ret: f64| MetricsRow {
+            env_steps: t,
+            eval_return: ret,
+            critic_loss: (t > 100).then_some(0.5),
+            ..Default::default()
+        };
+        {
+            let mut run = RunDir::create(&dir, &ExperimentConfig::default()).unwrap();
+            for t in [100, 200, 300] {
+                run.write_metrics(&row(t, -(t as f64))).unwrap();
+            }
+            // Flushed per row: readable while the run is still open.
+            let ret: Vec<(i64, f32)> = tb_scalars(&dir)
+                .into_iter()
+                .filter(|s| s.1 == "eval/return")
+                .map(|s| (s.0, s.2))
+                .collect();
+            assert_eq!(ret, vec![(100, -100.0), (200, -200.0), (300, -300.0)]);
+            let losses = tb_scalars(&dir)
+                .into_iter()
+                .filter(|s| s.1 == "sac/critic_loss")
+                .count();
+            assert_eq!(losses, 2, "empty cells are not written as scalars");
+        }
+        // Resume after step 200 (the row of 300 is dropped, the new 300 appended).
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        let mut run = RunDir::reopen(&dir, 200).unwrap();
+        // Both files start with a session start: the first marks the run's beginning (the
+        // TensorBoard server ignores a run's first), the second the restart after step 200.
+        run.write_metrics(&row(300, 3.0)).unwrap();
+        run.write_metrics(&row(400, 4.0)).unwrap();
+        let curve = read_eval_curve(&dir.join("metrics.csv")).unwrap();
+        assert_eq!(
+            curve,
+            vec![(100, -100.0), (200, -200.0), (300, 3.0), (400, 4.0)]
+        );
+        let all = tb_scalars(&dir);
+        let files = std::fs::read_dir(dir.join(TENSORBOARD_DIR))
+            .unwrap()
+            .count();
+        assert_eq!(files, 2, "a resumed run writes a new event file");
+        let starts: Vec<usize> = (0..all.len()).filter(|&i| all[i].1 == "START").collect();
+        assert_eq!(starts.len(), 2, "{all:?}");
+        assert_eq!((starts[0], all[starts[0]].0), (0, 0));
+        assert_eq!(all[starts[1]].0, 201);
+        assert!(all[starts[1] + 1..].iter().all(|s| s.0 >= 300));
+        drop(run);
+
+        // A fresh run in the same directory replaces the old event files, as it does metrics.csv.
+        let mut run = RunDir::create(&dir, &ExperimentConfig::default()).unwrap();
+        run.write_metrics(&row(100, 7.0)).unwrap();
+        let files = std::fs::read_dir(dir.join(TENSORBOARD_DIR))
+            .unwrap()
+            .count();
+        assert_eq!(files, 1);
+        let ret: Vec<(i64, f32)> = tb_scalars(&dir)
+            .into_iter()
+            .filter(|s| s.1 == "eval/return")
+            .map(|s| (s.0, s.2))
+            .collect();
+        assert_eq!(ret, vec![(100, 7.0)]);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn reopen_names_a_foreign_header() {
+        let dir = std::env::temp_dir().join(format!("mbpo-rundir-old-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("metrics.csv"), "env_steps,eval_return\n100,-5\n").unwrap();
+        let err = RunDir::reopen(&dir, 100).unwrap_err().to_string();
+        assert!(
+            err.contains("metrics.csv")
+                && err.contains("expected")
+                && err.contains("found `env_steps,eval_return`"),
+            "{err}"
+        );
+        let err = RunDir::reopen(&dir.join("missing"), 100)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("missing/metrics.csv"), "{err}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

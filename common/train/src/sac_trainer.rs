@@ -10,6 +10,7 @@ use crate::checkpoint;
 use crate::config::ExperimentConfig;
 use crate::eval::{Evaluator, EvaluatorState};
 use crate::mbpo_trainer::{latest_checkpoint, RunOptions};
+use crate::progress::{Display, Progress};
 use crate::run_dir::{RunDir, Summary};
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
@@ -97,12 +98,14 @@ pub fn train_sac_with(
         (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
         evaluator.restore(state.evaluator);
         (
-            RunDir::resume(out, cfg, manifest.env_steps)?,
+            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
             manifest.env_steps,
         )
     } else {
         (RunDir::create(out, cfg)?, 0)
     };
+    let label = format!("sac {} s{seed}", cfg.env);
+    let mut progress = Progress::new(label, cfg.steps, Display::auto());
 
     let mut status = "completed";
     for t in done + 1..=cfg.steps {
@@ -127,7 +130,9 @@ pub fn train_sac_with(
             let row = evaluator.evaluate(t, &sac, &stats, &actor);
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);
+            progress.set_eval(row.eval_return);
         }
+        progress.update(t, sac.updates());
 
         // Checkpoint.
         let stopping = opts
@@ -160,6 +165,7 @@ pub fn train_sac_with(
             break;
         }
     }
+    progress.finish();
 
     let mut summary = evaluator.summary("sac", &sac, None);
     summary.env_steps = actor.steps;

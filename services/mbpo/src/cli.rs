@@ -26,7 +26,8 @@ pub enum Command {
     /// Evaluate the newest checkpointed policy of a run: mean and std of the return over
     /// deterministic episodes (one JSON line).
     Eval(EvalArgs),
-    /// Plot learning curves (mean and min..max over seeds, one colour per group) to a PNG.
+    /// Plot learning curves (mean and min..max over seeds, one colour per group) to a PNG, and
+    /// the training losses (critic, actor, alpha, model holdout MSE) to `<out stem>-losses.png`.
     Plot(PlotArgs),
     /// Micro-benchmarks that print one JSON object per line.
     #[command(subcommand)]
@@ -178,7 +179,7 @@ pub struct PlotArgs {
     /// metrics.csv column to plot against env_steps.
     #[arg(long, default_value = "eval_return")]
     pub column: String,
-    /// Output PNG.
+    /// Output PNG (the loss panels go to `<stem>-losses.png` next to it).
     #[arg(long, default_value = "curves.png")]
     pub out: std::path::PathBuf,
     /// Plot title.
@@ -223,7 +224,7 @@ pub struct RunArgs {
     /// Pin process i to CPU i mod ncpu (sched_setaffinity).
     #[arg(long)]
     pub pin_cpus: bool,
-    /// Do not draw the live progress line.
+    /// No live progress bar: log a plain progress line every 10 s instead.
     #[arg(long)]
     pub quiet: bool,
 }

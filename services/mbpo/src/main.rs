@@ -4,6 +4,7 @@
 mod bench;
 mod cli;
 mod env_cmd;
+mod logging;
 mod supervisor;
 mod train_cmd;
 
@@ -12,7 +13,7 @@ use std::process::ExitCode;
 
 fn main() -> ExitCode {
     let cli = cli::Cli::parse();
-    init_logging();
+    logging::init();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
@@ -39,24 +40,22 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Plot(args) => {
-            mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;
+            let curves = mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;
+            let losses = mbpo_report::companion_path(&args.out, "losses");
+            let title = format!("{}: training losses", args.title);
+            let losses = mbpo_report::plot_losses(&args.runs, &title, &losses)?;
             println!(
                 "{}",
-                serde_json::json!({"plot": args.out, "runs": args.runs.len()})
+                serde_json::json!({
+                    "plot": curves.out,
+                    "losses": losses.out,
+                    "runs": args.runs.len(),
+                    "groups": curves.groups,
+                    "loss_panels_with_data": losses.panels_with_data,
+                })
             );
             Ok(())
         }
         cli::Command::Bench(cmd) => bench::run(cmd),
     }
-}
-
-/// Logs go to stderr (stdout carries machine-readable output); `RUST_LOG` overrides the level.
-fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .init();
 }

@@ -56,6 +56,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
             (cfg, out, false)
         }
     };
+    crate::logging::also_to_file(&out.join("logs").join("train.log"))?;
     let stop = stop_on_signals();
     let opts = RunOptions {
         resume,

@@ -1,5 +1,4 @@
-//! Turning the services' stats records into `metrics.csv` rows, the progress line and the
-//! summary.
+//! Turning the services' stats records into `metrics.csv` rows, progress and the summary.
 //!
 //! The row of eval point t is written once the evaluator's `Eval` record and the learner's
 //! `Learner` record for t are in. Everything else the row needs was sent *before* the learner's
@@ -8,10 +7,10 @@
 //! equals the sequential one.
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::time::Instant;
 
 use mbpo_service_kit::stats::{Done, LearnerRow};
+use mbpo_train::progress::Progress;
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
@@ -115,8 +114,8 @@ pub struct Collector {
     models: BTreeMap<u64, f64>,
     done: BTreeMap<ProducerId, Done>,
     progress: (u64, u64, u64),
-    rate: (Instant, u64, u64, f64, f64),
     last_row: (f64, u64),
+    last_row_updates: u64,
     final_return: f64,
     best_return: f64,
     to_minus_200: Option<u64>,
@@ -144,8 +143,8 @@ impl Collector {
             models: BTreeMap::new(),
             done: BTreeMap::new(),
             progress: (0, 0, 0),
-            rate: (Instant::now(), 0, 0, 0.0, 0.0),
             last_row: (0.0, 0),
+            last_row_updates: 0,
             final_return: f64::NAN,
             best_return: f64::NEG_INFINITY,
             to_minus_200: None,
@@ -208,8 +207,11 @@ impl Collector {
                 .then(|| self.models.get(&lr.model_version).copied())
                 .flatten();
             let now = started.elapsed().as_secs_f64();
-            let sps = (t - self.last_row.1) as f64 / (now - self.last_row.0).max(1e-9);
+            let dt = (now - self.last_row.0).max(1e-9);
+            let sps = (t - self.last_row.1) as f64 / dt;
+            let ups = lr.sac_updates.saturating_sub(self.last_row_updates) as f64 / dt;
             self.last_row = (now, t);
+            self.last_row_updates = lr.sac_updates;
             let row = MetricsRow {
                 env_steps: t,
                 episodes: done.len() as u64,
@@ -226,6 +228,7 @@ impl Collector {
                 model_buffer: model.map(|_| lr.model_buffer as f64),
                 wall_seconds: now,
                 env_steps_per_sec: sps,
+                updates_per_sec: ups,
             };
             run.write_metrics(&row)?;
             tracing::info!(
@@ -244,36 +247,14 @@ impl Collector {
         Ok(())
     }
 
-    /// The live progress line (on a terminal: redrawn in place; otherwise logged every 10 s).
-    pub fn progress_line(&mut self, started: Instant, tty: bool) {
+    /// Hand the learner's progress and the last evaluation to the progress bar / lines.
+    pub fn show_progress(&self, progress: &mut Progress) {
         let (steps, updates, model) = self.progress;
-        let (t0, s0, u0, sps, ups) = self.rate;
-        let dt = t0.elapsed().as_secs_f64();
-        let (mut sps, mut ups) = (sps, ups);
-        if dt >= 1.0 {
-            sps = (steps - s0) as f64 / dt;
-            ups = (updates - u0) as f64 / dt;
-            self.rate = (Instant::now(), steps, updates, sps, ups);
+        progress.set_model_version(model);
+        if let Some(r) = self.last_eval {
+            progress.set_eval(r);
         }
-        let left = self.cfg.steps.saturating_sub(steps);
-        let eta = if sps > 0.0 {
-            format!("{:.0} s", left as f64 / sps)
-        } else {
-            "?".into()
-        };
-        let eval = self.last_eval.map_or("-".into(), |r| format!("{r:.1}"));
-        let line = format!(
-            "[{:>6.1} s] step {steps}/{} | {sps:.1} env steps/s | {ups:.0} updates/s | model v{model} | eval {eval} | ETA {eta}",
-            started.elapsed().as_secs_f64(),
-            self.cfg.steps
-        );
-        if tty {
-            let mut e = std::io::stderr();
-            let _ = write!(e, "\r\x1b[2K{line}");
-            let _ = e.flush();
-        } else if dt >= 10.0 || (steps > 0 && steps == self.cfg.steps) {
-            tracing::info!("{line}");
-        }
+        progress.update(steps, updates);
     }
 
     /// The summary.

@@ -9,18 +9,18 @@
 //!
 //! Child processes, signals and timers are handled with plain `std::process` + `libc`: the
 //! supervisor sleeps in the same [`Waiter`] as the services (stats and policy channels, 250 ms
-//! timeout for reaping and the progress line), so it needs no async runtime.
+//! timeout for reaping and the progress bar), so it needs no async runtime.
 
 mod collect;
 
 use std::fs::File;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
 use mbpo_service_kit::{configure_run, policy_wire_version, Mode};
+use mbpo_train::progress::{Display, Progress};
 use mbpo_train::{policy_sha256, Algo, RunDir};
 use mbpo_wire::{
     ipc, ControlCommand, ControlMsg, ControlPublisher, Role, RunIpc, StatsSubscriber, WaitOutcome,
@@ -163,6 +163,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let out = out.canonicalize()?;
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs)?;
+    crate::logging::also_to_file(&logs.join("supervisor.log"))?;
     let bin_dir = std::env::current_exe()?
         .parent()
         .map(Path::to_path_buf)
@@ -305,8 +306,13 @@ fn supervise(
     let mut final_params: Option<Vec<f32>> = None;
     let mut waiter = Waiter::new()?;
     waiter.attach(&stats).attach(&policy);
-    let tty = std::io::stderr().is_terminal() && !args.quiet;
-    let mut last_line = Instant::now();
+    let display = if args.quiet {
+        Display::lines()
+    } else {
+        Display::auto()
+    };
+    let label = format!("mbpo run {} s{}", cfg.env, cfg.seed);
+    let mut progress = Progress::new(label, cfg.steps, display);
     let mut failure: Option<anyhow::Error> = None;
     let mut interrupted = false;
     loop {
@@ -327,10 +333,7 @@ fn supervise(
             Err(e) => tracing::warn!("policy: {e}"),
         }
         col.write_rows(run_dir, started)?;
-        if last_line.elapsed() >= Duration::from_millis(500) {
-            last_line = Instant::now();
-            col.progress_line(started, tty);
-        }
+        col.show_progress(&mut progress);
         for p in procs.iter_mut() {
             let Some(status) = p.poll()? else { continue };
             let tail = p.log_tail(8);
@@ -365,9 +368,7 @@ fn supervise(
             break;
         }
     }
-    if tty {
-        eprintln!();
-    }
+    progress.finish();
     // Stop everyone: a Stop message (services wait for it after their work), SIGTERM after 3 s,
     // SIGKILL after 10 s.
     let _ = control.wait_for_subscribers(
