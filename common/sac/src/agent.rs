@@ -1,18 +1,22 @@
 //! The SAC agent and its update.
 //!
 //! One update is four steps, each a method below, in the paper's order: critic step, actor
-//! step, temperature step, Polyak targets. The per-row work of the two gradient steps runs on
-//! row shards ([`crate::shard`]), one per thread of a small [`WorkerPool`] (`sac.threads`);
-//! the agent draws all random noise itself in stream order, adds the shards' partial gradients
-//! in shard order and takes the optimiser steps, so an update is a deterministic function of
-//! the parameters, the batch and the random stream for a given thread count.
+//! step, temperature step, Polyak targets (done right after the critic's Adam step, in the same
+//! pass over memory: it reads only the new critic parameters, which the actor step does not
+//! change, and nothing reads the targets in between). The per-row work of the two gradient
+//! steps runs on row shards ([`crate::shard`]), one per thread of a small [`WorkerPool`]
+//! (`sac.threads`); each optimiser step is cut into parameter ranges, one per thread, which add
+//! the shards' partial gradients in shard order and apply Adam. The agent draws all random
+//! noise itself in stream order, so an update is a deterministic function of the parameters,
+//! the batch and the random stream for a given thread count.
 
 use crate::actor::{ActorCache, TanhGaussianActor};
 use crate::config::SacConfig;
 use crate::critic::TwinCritic;
-use crate::shard::{Nets, Shard};
+use crate::shard::{Grads, Nets, Shard};
 use mbpo_core::rng::normal_f32;
 use mbpo_core::{Batch, Rng};
+use mbpo_nn::adam::{part_len, AdamPart};
 use mbpo_nn::ops::polyak;
 use mbpo_nn::{Adam, AdamConfig, WorkerPool};
 
@@ -181,11 +185,6 @@ impl Sac {
         let critic_loss = self.update_critics(batch, alpha);
         let (actor_loss, mean_log_prob, q_mean) = self.update_actor(batch, alpha);
         let alpha_loss = self.update_temperature(mean_log_prob);
-        polyak(
-            &mut self.target_params,
-            &self.critic_params,
-            self.config.tau,
-        );
         self.updates += 1;
         SacStats {
             critic_loss,
@@ -216,22 +215,35 @@ impl Sac {
 
     /// Critic step: y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) with a' ~ π(·|s'),
     /// then descend ½·MSE(Q₁, y) + ½·MSE(Q₂, y). Bootstrapping stops only at termination.
+    /// Then the Polyak step θ̄_Q ← (1 − τ)·θ̄_Q + τ·θ_Q.
     fn update_critics(&mut self, batch: &Batch, alpha: f32) -> f32 {
         let loss = self.critic_gradient(batch, alpha);
-        self.critic_opt
-            .step(&mut self.critic_params, &self.buf.shards[0].critic_grads);
+        let Sac {
+            buf,
+            critic_opt,
+            critic_params,
+            target_params,
+            config,
+            ..
+        } = self;
+        optimizer_step(
+            buf,
+            critic_opt,
+            critic_params,
+            Grads::Critic,
+            Some((target_params, config.tau)),
+        );
         loss
     }
 
-    /// The critic loss ½·MSE(Q₁, y) + ½·MSE(Q₂, y) and its gradient (summed into the first
-    /// shard's buffer), with the noise of a' already in `buf.noise_next`.
+    /// The critic loss ½·MSE(Q₁, y) + ½·MSE(Q₂, y) and the shards' partial gradients, with
+    /// the noise of a' already in `buf.noise_next`.
     fn critic_gradient(&mut self, batch: &Batch, alpha: f32) -> f32 {
         let noise_next = std::mem::take(&mut self.buf.noise_next);
         self.run_shards(alpha, |nets, shard| {
             shard.critic_gradient(nets, batch, &noise_next)
         });
         self.buf.noise_next = noise_next;
-        sum_shards(&mut self.buf.shards, |s| &mut s.critic_grads);
         self.buf.shards.iter().map(|s| s.sums.critic_loss).sum()
     }
 
@@ -256,13 +268,18 @@ impl Sac {
     /// reparameterised. Returns (loss, mean log π, mean Q₁).
     fn update_actor(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
         let out = self.actor_gradient(batch, alpha);
-        self.actor_opt
-            .step(&mut self.actor_params, &self.buf.shards[0].actor_grads);
+        let Sac {
+            buf,
+            actor_opt,
+            actor_params,
+            ..
+        } = self;
+        optimizer_step(buf, actor_opt, actor_params, Grads::Actor, None);
         out
     }
 
-    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and its gradient (summed into the
-    /// first shard's buffer), with the noise already in `buf.noise`.
+    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and the shards' partial gradients,
+    /// with the noise already in `buf.noise`.
     /// Returns (loss, mean log π, mean Q₁).
     fn actor_gradient(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
         let noise = std::mem::take(&mut self.buf.noise);
@@ -276,7 +293,6 @@ impl Sac {
             log_prob += s.sums.log_prob;
             q1 += s.sums.q1;
         }
-        sum_shards(&mut self.buf.shards, |s| &mut s.actor_grads);
         (loss, log_prob, q1)
     }
 
@@ -298,17 +314,59 @@ fn fill_normal(out: &mut [f32], rng: &mut Rng) {
     out.iter_mut().for_each(|v| *v = normal_f32(rng));
 }
 
-/// Add every shard's partial gradient into the first shard's, in shard order; returns the sum.
-fn sum_shards(shards: &mut [Shard], grads: fn(&mut Shard) -> &mut Vec<f32>) -> &[f32] {
-    let (first, rest) = shards.split_at_mut(1);
-    let total = grads(&mut first[0]);
-    for s in rest {
-        total
-            .iter_mut()
-            .zip(grads(s).iter())
-            .for_each(|(t, &g)| *t += g);
+/// An optimiser step is cut into at most this many parameter ranges (one per thread).
+const MAX_PARTS: usize = 16;
+
+/// One thread's range of an optimiser step: the Adam piece, the first shard's partial gradient
+/// of the range (which becomes the sum), and the target parameters of the range if any.
+struct StepPart<'a> {
+    adam: AdamPart<'a>,
+    grads: &'a mut [f32],
+    target: Option<&'a mut [f32]>,
+}
+
+/// Adam on `params` with the sum of the shards' `kind` gradients, cut into one parameter range
+/// per thread; each range adds the shards' partial gradients in shard order, takes its Adam
+/// step and, given `(θ̄, τ)`, its Polyak step θ̄ ← θ̄ + τ(θ − θ̄).
+fn optimizer_step(
+    buf: &mut Scratch,
+    opt: &mut Adam,
+    params: &mut [f32],
+    kind: Grads,
+    target: Option<(&mut Vec<f32>, f32)>,
+) {
+    let parts = buf.pool.threads().min(MAX_PARTS);
+    let len = part_len(params.len(), parts);
+    let (first, rest) = buf.shards.split_at_mut(1);
+    let tau = target.as_ref().map_or(0.0, |t| t.1);
+    let mut targets = target.map(|(t, _)| t.chunks_mut(len));
+    let mut items: [Option<StepPart>; MAX_PARTS] = Default::default();
+    let pieces = opt
+        .step_parts(params, parts)
+        .zip(first[0].grads_mut(kind).chunks_mut(len));
+    for (slot, (adam, grads)) in items.iter_mut().zip(pieces) {
+        let target = targets.as_mut().and_then(|t| t.next());
+        *slot = Some(StepPart {
+            adam,
+            grads,
+            target,
+        });
     }
-    total
+    let rest: &[Shard] = rest;
+    buf.pool.for_each_mut(&mut items[..parts], |_, item| {
+        let Some(part) = item.take() else { return };
+        let range = part.adam.range();
+        for shard in rest {
+            part.grads
+                .iter_mut()
+                .zip(&shard.grads(kind)[range.clone()])
+                .for_each(|(g, &s)| *g += s);
+        }
+        let new = part.adam.apply(part.grads);
+        if let Some(t) = part.target {
+            polyak(t, new, tau);
+        }
+    });
 }
 
 #[cfg(test)]
@@ -328,6 +386,17 @@ mod tests {
             ..SacConfig::default()
         };
         Sac::new(3, 2, config, &mut stream(seed, "test.init", 0))
+    }
+
+    /// The shards' partial gradients added up.
+    fn total(sac: &Sac, kind: Grads) -> Vec<f32> {
+        let mut sum = vec![0.0f32; sac.buf.shards[0].grads(kind).len()];
+        for s in &sac.buf.shards {
+            sum.iter_mut()
+                .zip(s.grads(kind))
+                .for_each(|(t, &g)| *t += g);
+        }
+        sum
     }
 
     /// The actor loss and gradient with the noise of `rng` (a pure function of θ_π for a seed).
@@ -390,7 +459,7 @@ mod tests {
             // Same ε draws in every evaluation: the loss is a deterministic function of θ_π.
             let loss = |s: &mut Sac| actor_loss(s, &batch, alpha, &mut stream(0, "eps", 0));
             assert!(loss(&mut sac).is_finite());
-            let analytic = sac.buf.shards[0].actor_grads.clone();
+            let analytic = total(&sac, Grads::Actor);
             check_gradient(&sac, &analytic, |s| &mut s.actor_params, &loss);
         }
     }
@@ -402,7 +471,7 @@ mod tests {
             let batch = random_batch(6, 3);
             let loss = |s: &mut Sac| critic_loss(s, &batch, 0.2, &mut stream(0, "eps", 1));
             assert!(loss(&mut sac) > 0.0);
-            let analytic = sac.buf.shards[0].critic_grads.clone();
+            let analytic = total(&sac, Grads::Critic);
             check_gradient(&sac, &analytic, |s| &mut s.critic_params, &loss);
         }
     }
@@ -437,11 +506,8 @@ mod tests {
         ] {
             assert!(close(x, y), "{x} vs {y}");
         }
-        let (g1, g2) = (&one.buf.shards[0], &two.buf.shards[0]);
-        for (a, b) in [
-            (&g1.critic_grads, &g2.critic_grads),
-            (&g1.actor_grads, &g2.actor_grads),
-        ] {
+        for kind in [Grads::Critic, Grads::Actor] {
+            let (a, b) = (total(&one, kind), total(&two, kind));
             let scale = a.iter().fold(0.0f32, |m, g| m.max(g.abs()));
             for (x, y) in a.iter().zip(b.iter()) {
                 assert!((x - y).abs() <= 1e-5 * scale, "{x} vs {y}");

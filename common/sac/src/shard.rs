@@ -40,6 +40,13 @@ pub(crate) struct ShardSums {
     pub q1: f32,
 }
 
+/// Which network's gradient.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Grads {
+    Critic,
+    Actor,
+}
+
 /// Activations, targets and partial gradients for rows `rows` of the minibatch.
 #[derive(Debug, Clone)]
 pub(crate) struct Shard {
@@ -83,6 +90,22 @@ impl Shard {
             actor_grads: vec![0.0; actor.num_params()],
             sums: ShardSums::default(),
             rows,
+        }
+    }
+
+    /// The shard's partial gradient of `kind`.
+    pub fn grads(&self, kind: Grads) -> &[f32] {
+        match kind {
+            Grads::Critic => &self.critic_grads,
+            Grads::Actor => &self.actor_grads,
+        }
+    }
+
+    /// [`Shard::grads`], writable.
+    pub fn grads_mut(&mut self, kind: Grads) -> &mut [f32] {
+        match kind {
+            Grads::Critic => &mut self.critic_grads,
+            Grads::Actor => &mut self.actor_grads,
         }
     }
 
