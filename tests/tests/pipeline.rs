@@ -25,7 +25,10 @@ fn assert_no_loss(s: &serde_json::Value, steps: u64) {
 /// config go concurrently on one iceoryx2 base directory: they must not see each other.
 #[test]
 fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
-    let cfg = tiny_config(500);
+    let mut cfg = tiny_config(500);
+    // Two SAC threads: the learner's sharded update must be as deterministic across processes
+    // as the single-threaded one (one thread is the same code with one shard).
+    cfg.sac.threads = 2;
     let dir = scratch("lockstep");
     let input = write_config(&cfg, &dir);
     let root = ipc_root("lockstep");

@@ -133,46 +133,113 @@ impl Adam {
 
     /// One update of `params` with `grads`.
     pub fn step(&mut self, params: &mut [f32], grads: &[f32]) {
-        assert_eq!(params.len(), self.state.m.len());
         assert_eq!(grads.len(), params.len());
+        for part in self.step_parts(params, 1) {
+            let range = part.range();
+            part.apply(&grads[range]);
+        }
+    }
+
+    /// One update cut into pieces that can run on different threads: advances the step count
+    /// and returns disjoint pieces of `params` (consecutive ranges of
+    /// [`part_len`]`(len, parts)` parameters, the last one shorter), each to be finished with
+    /// [`AdamPart::apply`] on its range of the gradient. The result does not depend on the cut.
+    pub fn step_parts<'a>(
+        &'a mut self,
+        params: &'a mut [f32],
+        parts: usize,
+    ) -> impl Iterator<Item = AdamPart<'a>> + 'a {
+        assert_eq!(params.len(), self.state.m.len());
         self.state.t += 1;
         let c = self.config;
         let t = self.state.t as i32;
-        let bc1 = 1.0 - c.beta1.powi(t);
-        let bc2_sqrt = (1.0 - c.beta2.powi(t)).sqrt();
-        let step_size = c.lr / bc1;
-        let mut start = 0;
-        let decay = std::mem::take(&mut self.decay);
-        for (range, wd) in decay.iter().cloned().chain(std::iter::once((
-            params.len()..params.len(),
-            WeightDecay::None,
-        ))) {
-            self.update(
+        let step = StepConstants {
+            c,
+            step_size: c.lr / (1.0 - c.beta1.powi(t)),
+            bc2_sqrt: (1.0 - c.beta2.powi(t)).sqrt(),
+        };
+        let len = part_len(params.len(), parts);
+        let decay = &self.decay;
+        params
+            .chunks_mut(len)
+            .zip(self.state.m.chunks_mut(len))
+            .zip(self.state.v.chunks_mut(len))
+            .enumerate()
+            .map(move |(i, ((params, m), v))| AdamPart {
+                offset: i * len,
                 params,
-                grads,
-                start..range.start,
-                WeightDecay::None,
-                step_size,
-                bc2_sqrt,
-            );
-            self.update(params, grads, range.clone(), wd, step_size, bc2_sqrt);
-            start = range.end;
-        }
-        self.decay = decay;
+                m,
+                v,
+                decay,
+                step,
+            })
+    }
+}
+
+/// Length of each piece when `len` items are cut into `parts` consecutive pieces (all but the
+/// last have this length). Everything cut alongside an [`Adam::step_parts`] uses it.
+pub fn part_len(len: usize, parts: usize) -> usize {
+    len.div_ceil(parts.max(1)).max(1)
+}
+
+/// The constants of one Adam step.
+#[derive(Debug, Clone, Copy)]
+struct StepConstants {
+    c: AdamConfig,
+    /// lr / (1 − β1^t).
+    step_size: f32,
+    /// √(1 − β2^t).
+    bc2_sqrt: f32,
+}
+
+/// One piece of an Adam step ([`Adam::step_parts`]): the parameters and moments of
+/// `range()`, updated by [`AdamPart::apply`].
+#[derive(Debug)]
+pub struct AdamPart<'a> {
+    offset: usize,
+    params: &'a mut [f32],
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+    decay: &'a [(Range<usize>, WeightDecay)],
+    step: StepConstants,
+}
+
+impl<'a> AdamPart<'a> {
+    /// The piece's range in the whole parameter vector.
+    pub fn range(&self) -> Range<usize> {
+        self.offset..self.offset + self.params.len()
     }
 
-    fn update(
-        &mut self,
-        params: &mut [f32],
-        grads: &[f32],
-        r: Range<usize>,
-        wd: WeightDecay,
-        step_size: f32,
-        bc2_sqrt: f32,
-    ) {
-        let c = self.config;
-        let (p, g) = (&mut params[r.clone()], &grads[r.clone()]);
-        let (m, v) = (&mut self.state.m[r.clone()], &mut self.state.v[r]);
+    /// Update the piece with `grads`, the gradient of its range; returns the new parameters.
+    pub fn apply(mut self, grads: &[f32]) -> &'a mut [f32] {
+        assert_eq!(grads.len(), self.params.len());
+        let (lo, hi) = (self.offset, self.offset + self.params.len());
+        // Walk the decay ranges that meet [lo, hi), with no decay in the gaps between them.
+        let mut at = lo;
+        let decays = self
+            .decay
+            .iter()
+            .filter(|(r, _)| r.end > lo && r.start < hi)
+            .map(|(r, wd)| (r.start.max(lo)..r.end.min(hi), *wd))
+            .chain(std::iter::once((hi..hi, WeightDecay::None)));
+        for (r, wd) in decays {
+            self.update(at..r.start, WeightDecay::None, grads);
+            self.update(r.clone(), wd, grads);
+            at = r.end;
+        }
+        self.params
+    }
+
+    /// Adam on the absolute range `r` (inside the piece) with decay `wd`.
+    fn update(&mut self, r: Range<usize>, wd: WeightDecay, grads: &[f32]) {
+        if r.is_empty() {
+            return;
+        }
+        let local = r.start - self.offset..r.end - self.offset;
+        let p = &mut self.params[local.clone()];
+        let m = &mut self.m[local.clone()];
+        let v = &mut self.v[local.clone()];
+        let c = self.step.c;
         let (l2, decoupled) = match wd {
             WeightDecay::None => (0.0, 1.0),
             WeightDecay::L2(l) => (l, 1.0),
@@ -182,10 +249,10 @@ impl Adam {
             c,
             l2,
             decoupled,
-            step_size,
-            bc2_sqrt,
+            step_size: self.step.step_size,
+            bc2_sqrt: self.step.bc2_sqrt,
         };
-        crate::simd::dispatch!(adam_kernel(&k, p, g, m, v));
+        crate::simd::dispatch!(adam_kernel(&k, p, &grads[local], m, v));
     }
 }
 
@@ -279,5 +346,34 @@ mod tests {
             p[1]
         );
         assert!((p[2] - 0.995f32.powi(3)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn a_step_cut_into_parts_equals_the_whole_step_bit_for_bit() {
+        let n = 23;
+        let make = || {
+            let mut adam = Adam::new(n, AdamConfig::with_lr(0.01));
+            // Decay ranges that straddle the cuts.
+            adam.set_decay(3..9, WeightDecay::L2(0.3));
+            adam.set_decay(14..20, WeightDecay::Decoupled(0.2));
+            adam
+        };
+        let (mut whole, mut cut) = (make(), make());
+        let mut p1: Vec<f32> = (0..n).map(|i| (i as f32 * 0.3).sin()).collect();
+        let mut p2 = p1.clone();
+        for step in 0..4 {
+            let g: Vec<f32> = (0..n).map(|i| ((i + step) as f32 * 0.7).cos()).collect();
+            whole.step(&mut p1, &g);
+            let mut seen = 0;
+            for part in cut.step_parts(&mut p2, 3) {
+                let r = part.range();
+                assert_eq!(r.start, seen);
+                seen = r.end;
+                part.apply(&g[r]);
+            }
+            assert_eq!(seen, n);
+            assert_eq!(p1, p2, "step {step}");
+        }
+        assert_eq!(whole.state(), cut.state());
     }
 }

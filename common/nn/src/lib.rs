@@ -4,7 +4,8 @@
 //! numbers. Its parameters live in one contiguous `&[f32]` described by a [`ParamLayout`], which
 //! is exactly what crosses shared memory, what Adam updates, and what a checkpoint stores.
 //! Activations live in a cache ([`MlpCache`]) sized once for a batch, so forward and backward
-//! allocate nothing per call. Every GEMM is one call into faer ([`gemm`]), single-threaded.
+//! allocate nothing per call. Every GEMM is one call into faer ([`gemm`]), single-threaded; a
+//! caller that wants more cores splits its batch over a [`WorkerPool`].
 //!
 //! ```
 //! use mbpo_nn::{Activation, Init, Mlp, MlpCache};
@@ -24,9 +25,11 @@ pub mod ensemble;
 pub mod gemm;
 pub mod init;
 pub mod layout;
+pub mod math;
 pub mod mlp;
 pub mod ops;
-mod simd;
+pub mod pool;
+pub mod simd;
 
 pub use activation::Activation;
 pub use adam::{Adam, AdamConfig, AdamState, WeightDecay};
@@ -34,3 +37,4 @@ pub use ensemble::{EnsembleCache, EnsembleMlp};
 pub use init::Init;
 pub use layout::{ParamFile, ParamLayout, ParamLoadError};
 pub use mlp::{Mlp, MlpCache};
+pub use pool::WorkerPool;

@@ -210,37 +210,35 @@ impl Mlp {
             } else {
                 &read[..batch * n_out]
             };
-            // ∂L/∂z_l.
-            let dz: &[f32] = if act == Activation::Identity {
-                g
-            } else {
-                let layer = &cache.layers[l];
-                act.backward(&layer.z, &layer.a, g, &mut dz_buf[..batch * n_out]);
-                &dz_buf[..batch * n_out]
-            };
             let input = if l == 0 {
                 &x[..batch * n_in]
             } else {
                 cache.layers[l - 1].output(self.activation(l - 1), batch * n_in)
             };
-            if let Some(grads) = grads.as_deref_mut() {
-                let (gw, gb) = grads.split_at_mut(self.biases[l].start);
-                gemm(
-                    &mut gw[self.weights[l].clone()],
-                    input,
-                    Op::T,
-                    dz,
-                    Op::N,
-                    n_in,
-                    batch,
-                    n_out,
-                    false,
-                );
-                let gb = &mut gb[..n_out];
-                gb.fill(0.0);
-                for row in dz.chunks_exact(n_out) {
-                    gb.iter_mut().zip(row).for_each(|(s, &v)| *s += v);
+            // ∂L/∂z_l, fused with the bias gradient Σ_rows ∂L/∂z_l when parameters are wanted.
+            let mut grads_l = grads.as_deref_mut().map(|g| {
+                let (gw, gb) = g.split_at_mut(self.biases[l].start);
+                (&mut gw[self.weights[l].clone()], &mut gb[..n_out])
+            });
+            let dz: &[f32] = if act == Activation::Identity {
+                if let Some((_, gb)) = grads_l.as_mut() {
+                    gb.fill(0.0);
+                    for row in g.chunks_exact(n_out) {
+                        gb.iter_mut().zip(row).for_each(|(s, &v)| *s += v);
+                    }
                 }
+                g
+            } else {
+                let (z, a) = cache.layers[l].kept(act);
+                let dz = &mut dz_buf[..batch * n_out];
+                match grads_l.as_mut() {
+                    Some((_, gb)) => act.backward_bias_grad(z, a, g, dz, gb),
+                    None => act.backward(z, a, g, dz),
+                }
+                &dz_buf[..batch * n_out]
+            };
+            if let Some((gw, _)) = grads_l {
+                gemm(gw, input, Op::T, dz, Op::N, n_in, batch, n_out, false);
             }
             let w = &params[self.weights[l].clone()];
             if l > 0 {
@@ -263,6 +261,90 @@ impl Mlp {
         cache.grad = gbuf;
         cache.dz = dz_buf;
     }
+
+    /// Input gradient of the last [`Mlp::forward`] for a subset of its rows and input columns:
+    /// row i of `d_input` (`rows.len() x cols.len()`) is `∂L/∂x[rows[i], cols]` for
+    /// `d_out` = ∂L/∂y of those rows (`rows.len() x out`). No parameter gradients.
+    ///
+    /// Rows outside `rows` are treated as having zero output gradient, so they are skipped
+    /// rather than multiplied through: SAC's actor loss differentiates min(Q₁, Q₂), which sends
+    /// each row's gradient through one critic only, and this halves that backward pass. Only
+    /// the weight rows of `cols` enter the last product (SAC needs ∂Q/∂a, not ∂Q/∂s).
+    pub fn input_grad_rows(
+        &self,
+        params: &[f32],
+        cache: &mut MlpCache,
+        rows: &[usize],
+        d_out: &[f32],
+        cols: Range<usize>,
+        d_input: &mut [f32],
+    ) {
+        let (m, n_layers) = (rows.len(), self.num_layers());
+        assert!(
+            rows.iter().all(|&r| r < cache.batch),
+            "row outside the batch"
+        );
+        assert!(cols.end <= self.in_dim() && d_input.len() >= m * cols.len());
+        assert!(d_out.len() >= m * self.out_dim());
+        let mut gbuf = [
+            std::mem::take(&mut cache.grad[0]),
+            std::mem::take(&mut cache.grad[1]),
+        ];
+        let mut dz_buf = std::mem::take(&mut cache.dz);
+        for l in (0..n_layers).rev() {
+            let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
+            let act = self.activation(l);
+            let (b0, b1) = gbuf.split_at_mut(1);
+            let (read, write) = if (n_layers - 1 - l).is_multiple_of(2) {
+                (&b1[0], &mut b0[0])
+            } else {
+                (&b0[0], &mut b1[0])
+            };
+            let g: &[f32] = if l + 1 == n_layers {
+                &d_out[..m * n_out]
+            } else {
+                &read[..m * n_out]
+            };
+            let dz: &[f32] = if act == Activation::Identity {
+                g
+            } else {
+                let (z, a) = cache.layers[l].kept(act);
+                act.backward_rows(z, a, n_out, rows, g, &mut dz_buf[..m * n_out]);
+                &dz_buf[..m * n_out]
+            };
+            let w = &params[self.weights[l].clone()];
+            if l > 0 {
+                gemm(
+                    &mut write[..m * n_in],
+                    dz,
+                    Op::N,
+                    w,
+                    Op::T,
+                    m,
+                    n_out,
+                    n_in,
+                    false,
+                );
+            } else {
+                // W's rows `cols` (a contiguous `cols.len() x n_out` block, row-major).
+                let block = &w[cols.start * n_out..cols.end * n_out];
+                let k = cols.len();
+                gemm(
+                    &mut d_input[..m * k],
+                    dz,
+                    Op::N,
+                    block,
+                    Op::T,
+                    m,
+                    n_out,
+                    k,
+                    false,
+                );
+            }
+        }
+        cache.grad = gbuf;
+        cache.dz = dz_buf;
+    }
 }
 
 /// One layer's forward values.
@@ -273,11 +355,21 @@ struct LayerCache {
 }
 
 impl LayerCache {
+    /// a = f(z): in z's buffer for in-place activations, else in its own.
     fn output(&self, act: Activation, len: usize) -> &[f32] {
-        if act == Activation::Identity {
+        if act.in_place() {
             &self.z[..len]
         } else {
             &self.a[..len]
+        }
+    }
+
+    /// What the activation's derivative reads, as (z, a); an in-place layer kept only a.
+    fn kept(&self, act: Activation) -> (&[f32], &[f32]) {
+        if act.in_place() {
+            (&self.z, &self.z)
+        } else {
+            (&self.z, &self.a)
         }
     }
 }
@@ -323,11 +415,7 @@ impl MlpCache {
         self.layers = (0..mlp.num_layers())
             .map(|l| {
                 let n = cap * mlp.dims()[l + 1];
-                let a = if mlp.activation(l) == Activation::Identity {
-                    0
-                } else {
-                    n
-                };
+                let a = if mlp.activation(l).in_place() { 0 } else { n };
                 LayerCache {
                     z: vec![0.0; n],
                     a: vec![0.0; a],

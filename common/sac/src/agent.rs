@@ -1,11 +1,24 @@
 //! The SAC agent and its update.
+//!
+//! One update is four steps, each a method below, in the paper's order: critic step, actor
+//! step, temperature step, Polyak targets (done right after the critic's Adam step, in the same
+//! pass over memory: it reads only the new critic parameters, which the actor step does not
+//! change, and nothing reads the targets in between). The per-row work of the two gradient
+//! steps runs on row shards ([`crate::shard`]), one per thread of a small [`WorkerPool`]
+//! (`sac.threads`); each optimiser step is cut into parameter ranges, one per thread, which add
+//! the shards' partial gradients in shard order and apply Adam. The agent draws all random
+//! noise itself in stream order, so an update is a deterministic function of the parameters,
+//! the batch and the random stream for a given thread count.
 
 use crate::actor::{ActorCache, TanhGaussianActor};
 use crate::config::SacConfig;
-use crate::critic::{CriticCache, TwinCritic};
+use crate::critic::TwinCritic;
+use crate::shard::{Grads, Nets, Shard};
+use mbpo_core::rng::normal_f32;
 use mbpo_core::{Batch, Rng};
+use mbpo_nn::adam::{part_len, AdamPart};
 use mbpo_nn::ops::polyak;
-use mbpo_nn::{Adam, AdamConfig, AdamState};
+use mbpo_nn::{Adam, AdamConfig, AdamState, WorkerPool};
 use serde::{Deserialize, Serialize};
 
 /// What one update measured (means over the batch).
@@ -92,20 +105,19 @@ impl mbpo_core::BatchPolicy for SacPolicy<'_> {
     }
 }
 
-/// Buffers reused by every update so the update allocates nothing.
+/// Buffers and threads reused by every update so the update allocates nothing. Holds no
+/// learning state (a checkpoint does not need it).
 #[derive(Debug, Clone)]
 struct Scratch {
-    next_pi: ActorCache,
-    pi: ActorCache,
-    act_cache: ActorCache,
-    q: CriticCache,
-    q_target: CriticCache,
+    pool: WorkerPool,
+    /// Row shards, one per thread.
+    shards: Vec<Shard>,
+    /// ε for a' ~ π(·|s') and for a ~ π(·|s) (`B x A` each), drawn in this order.
+    noise_next: Vec<f32>,
+    noise: Vec<f32>,
+    /// TD targets gathered from the shards ([`Sac::td_targets`]).
     y: Vec<f32>,
-    d_q: [Vec<f32>; 2],
-    d_act: Vec<f32>,
-    d_log_prob: Vec<f32>,
-    actor_grads: Vec<f32>,
-    critic_grads: Vec<f32>,
+    act_cache: ActorCache,
 }
 
 impl Sac {
@@ -124,18 +136,18 @@ impl Sac {
         let mut critic_params = vec![0.0; critic.num_params()];
         critic.init(&mut critic_params, rng);
         let b = config.batch_size;
+        // Shard i holds rows [i·B/T, (i+1)·B/T).
+        let threads = config.threads.clamp(1, b.max(1));
+        let shards = (0..threads)
+            .map(|i| Shard::new(&actor, &critic, i * b / threads..(i + 1) * b / threads))
+            .collect();
         let buf = Scratch {
-            next_pi: actor.cache(b),
-            pi: actor.cache(b),
-            act_cache: actor.cache(1),
-            q: critic.cache(b),
-            q_target: critic.cache(b),
+            pool: WorkerPool::new(threads),
+            shards,
+            noise_next: vec![0.0; b * act_dim],
+            noise: vec![0.0; b * act_dim],
             y: vec![0.0; b],
-            d_q: [vec![0.0; b], vec![0.0; b]],
-            d_act: vec![0.0; b * act_dim],
-            d_log_prob: vec![0.0; b],
-            actor_grads: vec![0.0; actor.num_params()],
-            critic_grads: vec![0.0; critic.num_params()],
+            act_cache: actor.cache(1),
         };
         Self {
             target_entropy: config.target_entropy.unwrap_or(-(act_dim as f32)),
@@ -208,6 +220,11 @@ impl Sac {
         self.updates
     }
 
+    /// Threads an update runs on (`sac.threads`, at most the batch size).
+    pub fn threads(&self) -> usize {
+        self.buf.pool.threads()
+    }
+
     /// Current temperature α.
     pub fn alpha(&self) -> f32 {
         self.log_alpha.exp()
@@ -233,14 +250,13 @@ impl Sac {
             "batch size differs from the config"
         );
         let alpha = self.alpha();
-        let critic_loss = self.update_critics(batch, alpha, rng);
-        let (actor_loss, mean_log_prob, q_mean) = self.update_actor(batch, alpha, rng);
+        // The noise of a' ~ π(·|s') and then of a ~ π(·|s): the stream order of drawing them
+        // where they are used, one after the other.
+        fill_normal(&mut self.buf.noise_next, rng);
+        fill_normal(&mut self.buf.noise, rng);
+        let critic_loss = self.update_critics(batch, alpha);
+        let (actor_loss, mean_log_prob, q_mean) = self.update_actor(batch, alpha);
         let alpha_loss = self.update_temperature(mean_log_prob);
-        polyak(
-            &mut self.target_params,
-            &self.critic_params,
-            self.config.tau,
-        );
         self.updates += 1;
         SacStats {
             critic_loss,
@@ -252,117 +268,104 @@ impl Sac {
         }
     }
 
+    /// Run `phase` on every shard at once, each on its own thread, with what the shards read
+    /// (architectures, current parameters, constants).
+    fn run_shards(&mut self, alpha: f32, phase: impl Fn(&Nets, &mut Shard) + Sync) {
+        let nets = Nets {
+            actor: &self.actor,
+            critic: &self.critic,
+            actor_params: &self.actor_params,
+            critic_params: &self.critic_params,
+            target_params: &self.target_params,
+            gamma: self.config.gamma,
+            alpha,
+            batch_size: self.config.batch_size,
+        };
+        let Scratch { pool, shards, .. } = &mut self.buf;
+        pool.for_each_mut(shards, |_, shard| phase(&nets, shard));
+    }
+
     /// Critic step: y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) with a' ~ π(·|s'),
     /// then descend ½·MSE(Q₁, y) + ½·MSE(Q₂, y). Bootstrapping stops only at termination.
-    fn update_critics(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
-        let b = batch.len;
-        self.td_targets(batch, alpha, rng);
-        let buf = &mut self.buf;
-        self.critic
-            .forward(&self.critic_params, &batch.obs, &batch.act, b, &mut buf.q);
-        let mut loss = 0.0f32;
-        for e in 0..2 {
-            let q = self.critic.q(&buf.q, e);
-            for r in 0..b {
-                let err = q[r] - buf.y[r];
-                loss += 0.5 * err * err / b as f32;
-                buf.d_q[e][r] = err / b as f32;
-            }
-        }
-        self.critic.backward_params(
-            &self.critic_params,
-            &mut buf.q,
-            [&buf.d_q[0], &buf.d_q[1]],
-            &mut buf.critic_grads,
+    /// Then the Polyak step θ̄_Q ← (1 − τ)·θ̄_Q + τ·θ_Q.
+    fn update_critics(&mut self, batch: &Batch, alpha: f32) -> f32 {
+        let loss = self.critic_gradient(batch, alpha);
+        let Sac {
+            buf,
+            critic_opt,
+            critic_params,
+            target_params,
+            config,
+            ..
+        } = self;
+        optimizer_step(
+            buf,
+            critic_opt,
+            critic_params,
+            Grads::Critic,
+            Some((target_params, config.tau)),
         );
-        self.critic_opt
-            .step(&mut self.critic_params, &buf.critic_grads);
         loss
+    }
+
+    /// The critic loss ½·MSE(Q₁, y) + ½·MSE(Q₂, y) and the shards' partial gradients, with
+    /// the noise of a' already in `buf.noise_next`.
+    fn critic_gradient(&mut self, batch: &Batch, alpha: f32) -> f32 {
+        let noise_next = std::mem::take(&mut self.buf.noise_next);
+        self.run_shards(alpha, |nets, shard| {
+            shard.critic_gradient(nets, batch, &noise_next)
+        });
+        self.buf.noise_next = noise_next;
+        self.buf.shards.iter().map(|s| s.sums.critic_loss).sum()
     }
 
     /// Soft TD targets y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')), a' ~ π(·|s'),
     /// for every row of `batch`. `d` is `terminated`: a time-limit truncation is not terminal,
     /// so such rows bootstrap.
     pub fn td_targets(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> &[f32] {
-        let (b, gamma) = (batch.len, self.config.gamma);
+        fill_normal(&mut self.buf.noise_next, rng);
+        let noise_next = std::mem::take(&mut self.buf.noise_next);
+        self.run_shards(alpha, |nets, shard| {
+            shard.td_targets(nets, batch, &noise_next)
+        });
+        self.buf.noise_next = noise_next;
         let buf = &mut self.buf;
-        self.actor.sample(
-            &self.actor_params,
-            &batch.next_obs,
-            b,
-            &mut buf.next_pi,
-            Some(rng),
-        );
-        self.critic.forward(
-            &self.target_params,
-            &batch.next_obs,
-            &buf.next_pi.action,
-            b,
-            &mut buf.q_target,
-        );
-        let (q1t, q2t) = (
-            self.critic.q(&buf.q_target, 0),
-            self.critic.q(&buf.q_target, 1),
-        );
-        for r in 0..b {
-            let soft_v = q1t[r].min(q2t[r]) - alpha * buf.next_pi.log_prob[r];
-            buf.y[r] = batch.reward[r] + gamma * (1.0 - batch.terminated[r]) * soft_v;
+        for s in &buf.shards {
+            buf.y[s.rows.clone()].copy_from_slice(&s.y[..s.rows.len()]);
         }
-        &buf.y[..b]
+        &buf.y[..batch.len]
     }
 
     /// Actor step: descend mean(α log π(a|s) − min_e Q_e(s, a)) with a ~ π(·|s)
     /// reparameterised. Returns (loss, mean log π, mean Q₁).
-    fn update_actor(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> (f32, f32, f32) {
-        let out = self.actor_gradient(batch, alpha, rng);
-        self.actor_opt
-            .step(&mut self.actor_params, &self.buf.actor_grads);
+    fn update_actor(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
+        let out = self.actor_gradient(batch, alpha);
+        let Sac {
+            buf,
+            actor_opt,
+            actor_params,
+            ..
+        } = self;
+        optimizer_step(buf, actor_opt, actor_params, Grads::Actor, None);
         out
     }
 
-    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and its gradient (left in the
-    /// scratch buffer). Returns (loss, mean log π, mean Q₁).
-    fn actor_gradient(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> (f32, f32, f32) {
-        let b = batch.len;
-        let buf = &mut self.buf;
-        self.actor
-            .sample(&self.actor_params, &batch.obs, b, &mut buf.pi, Some(rng));
-        self.critic.forward(
-            &self.critic_params,
-            &batch.obs,
-            &buf.pi.action,
-            b,
-            &mut buf.q,
-        );
-        let (q1, q2) = (self.critic.q(&buf.q, 0), self.critic.q(&buf.q, 1));
-        let (mut loss, mut mean_lp, mut q_mean) = (0.0f32, 0.0f32, 0.0f32);
-        let inv_b = 1.0 / b as f32;
-        for r in 0..b {
-            // The gradient of min(Q₁, Q₂) flows into the smaller one.
-            let first = q1[r] <= q2[r];
-            buf.d_q[0][r] = if first { -inv_b } else { 0.0 };
-            buf.d_q[1][r] = if first { 0.0 } else { -inv_b };
-            let lp = buf.pi.log_prob[r];
-            loss += (alpha * lp - q1[r].min(q2[r])) * inv_b;
-            mean_lp += lp * inv_b;
-            q_mean += q1[r] * inv_b;
-            buf.d_log_prob[r] = alpha * inv_b;
+    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and the shards' partial gradients,
+    /// with the noise already in `buf.noise`.
+    /// Returns (loss, mean log π, mean Q₁).
+    fn actor_gradient(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
+        let noise = std::mem::take(&mut self.buf.noise);
+        self.run_shards(alpha, |nets, shard| {
+            shard.actor_gradient(nets, batch, &noise)
+        });
+        self.buf.noise = noise;
+        let (mut loss, mut log_prob, mut q1) = (0.0f32, 0.0f32, 0.0f32);
+        for s in &self.buf.shards {
+            loss += s.sums.actor_loss;
+            log_prob += s.sums.log_prob;
+            q1 += s.sums.q1;
         }
-        self.critic.backward_action(
-            &self.critic_params,
-            &mut buf.q,
-            [&buf.d_q[0], &buf.d_q[1]],
-            &mut buf.d_act,
-        );
-        self.actor.backward(
-            &self.actor_params,
-            &batch.obs,
-            &mut buf.pi,
-            &buf.d_act,
-            &buf.d_log_prob,
-            &mut buf.actor_grads,
-        );
-        (loss, mean_lp, q_mean)
+        (loss, log_prob, q1)
     }
 
     /// Temperature step: descend −mean(log α · (log π + H̄)); ∂/∂log α = −(mean log π + H̄).
@@ -378,18 +381,132 @@ impl Sac {
     }
 }
 
+/// Standard normals from `rng` into `out`, in order.
+fn fill_normal(out: &mut [f32], rng: &mut Rng) {
+    out.iter_mut().for_each(|v| *v = normal_f32(rng));
+}
+
+/// An optimiser step is cut into at most this many parameter ranges (one per thread).
+const MAX_PARTS: usize = 16;
+
+/// One thread's range of an optimiser step: the Adam piece, the first shard's partial gradient
+/// of the range (which becomes the sum), and the target parameters of the range if any.
+struct StepPart<'a> {
+    adam: AdamPart<'a>,
+    grads: &'a mut [f32],
+    target: Option<&'a mut [f32]>,
+}
+
+/// Adam on `params` with the sum of the shards' `kind` gradients, cut into one parameter range
+/// per thread; each range adds the shards' partial gradients in shard order, takes its Adam
+/// step and, given `(θ̄, τ)`, its Polyak step θ̄ ← θ̄ + τ(θ − θ̄).
+fn optimizer_step(
+    buf: &mut Scratch,
+    opt: &mut Adam,
+    params: &mut [f32],
+    kind: Grads,
+    target: Option<(&mut Vec<f32>, f32)>,
+) {
+    let parts = buf.pool.threads().min(MAX_PARTS);
+    let len = part_len(params.len(), parts);
+    let (first, rest) = buf.shards.split_at_mut(1);
+    let tau = target.as_ref().map_or(0.0, |t| t.1);
+    let mut targets = target.map(|(t, _)| t.chunks_mut(len));
+    let mut items: [Option<StepPart>; MAX_PARTS] = Default::default();
+    let pieces = opt
+        .step_parts(params, parts)
+        .zip(first[0].grads_mut(kind).chunks_mut(len));
+    for (slot, (adam, grads)) in items.iter_mut().zip(pieces) {
+        let target = targets.as_mut().and_then(|t| t.next());
+        *slot = Some(StepPart {
+            adam,
+            grads,
+            target,
+        });
+    }
+    let rest: &[Shard] = rest;
+    buf.pool.for_each_mut(&mut items[..parts], |_, item| {
+        let Some(part) = item.take() else { return };
+        let range = part.adam.range();
+        for shard in rest {
+            part.grads
+                .iter_mut()
+                .zip(&shard.grads(kind)[range.clone()])
+                .for_each(|(g, &s)| *g += s);
+        }
+        let new = part.adam.apply(part.grads);
+        if let Some(t) = part.target {
+            polyak(t, new, tau);
+        }
+    });
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use mbpo_core::rng::{normal_f32, stream};
 
     fn small_sac(seed: u64) -> Sac {
+        sac_with_threads(seed, 1)
+    }
+
+    fn sac_with_threads(seed: u64, threads: usize) -> Sac {
         let config = SacConfig {
             batch_size: 6,
             hidden: vec![8, 8],
+            threads,
             ..SacConfig::default()
         };
         Sac::new(3, 2, config, &mut stream(seed, "test.init", 0))
+    }
+
+    /// The shards' partial gradients added up.
+    fn total(sac: &Sac, kind: Grads) -> Vec<f32> {
+        let mut sum = vec![0.0f32; sac.buf.shards[0].grads(kind).len()];
+        for s in &sac.buf.shards {
+            sum.iter_mut()
+                .zip(s.grads(kind))
+                .for_each(|(t, &g)| *t += g);
+        }
+        sum
+    }
+
+    /// The actor loss and gradient with the noise of `rng` (a pure function of θ_π for a seed).
+    fn actor_loss(sac: &mut Sac, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
+        fill_normal(&mut sac.buf.noise, rng);
+        sac.actor_gradient(batch, alpha).0
+    }
+
+    /// The critic loss and gradient with the noise of `rng` (a pure function of θ_Q).
+    fn critic_loss(sac: &mut Sac, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
+        fill_normal(&mut sac.buf.noise_next, rng);
+        sac.critic_gradient(batch, alpha)
+    }
+
+    /// Central differences of `loss` over every parameter against the analytic gradient.
+    fn check_gradient(
+        sac: &Sac,
+        analytic: &[f32],
+        params: fn(&mut Sac) -> &mut Vec<f32>,
+        loss: &dyn Fn(&mut Sac) -> f32,
+    ) {
+        let eps = 2e-3f32;
+        let scale = analytic.iter().fold(0.0f32, |m, g| m.max(g.abs())) as f64;
+        assert!(scale > 0.0);
+        for i in 0..analytic.len() {
+            let eval = |delta: f32| {
+                let mut s = sac.clone();
+                params(&mut s)[i] += delta;
+                loss(&mut s) as f64
+            };
+            let numeric = (eval(eps) - eval(-eps)) / (2.0 * eps as f64);
+            let err = (analytic[i] as f64 - numeric).abs() / (0.05 * scale + numeric.abs());
+            assert!(
+                err < 3e-2,
+                "param {i}: analytic {} numeric {numeric}",
+                analytic[i]
+            );
+        }
     }
 
     fn random_batch(len: usize, seed: u64) -> Batch {
@@ -406,31 +523,68 @@ mod tests {
 
     #[test]
     fn actor_loss_gradient_through_the_critic_matches_finite_differences() {
-        let mut sac = small_sac(1);
-        let batch = random_batch(6, 2);
-        let alpha = 0.3;
-        let (loss, _, _) = sac.actor_gradient(&batch, alpha, &mut stream(0, "eps", 0));
-        let analytic = sac.buf.actor_grads.clone();
-        let eps = 2e-3f32;
-        let mut worst = 0.0f64;
-        let scale = analytic.iter().fold(0.0f32, |m, g| m.max(g.abs())) as f64;
-        for i in 0..sac.actor_params.len() {
-            let eval = |delta: f32| {
-                let mut s = sac.clone();
-                s.actor_params[i] += delta;
-                // Same ε draws: the loss is a deterministic function of θ_π.
-                s.actor_gradient(&batch, alpha, &mut stream(0, "eps", 0)).0 as f64
-            };
-            let numeric = (eval(eps) - eval(-eps)) / (2.0 * eps as f64);
-            let err = (analytic[i] as f64 - numeric).abs() / (0.05 * scale + numeric.abs());
-            worst = worst.max(err);
-            assert!(
-                err < 3e-2,
-                "param {i}: analytic {} numeric {numeric}",
-                analytic[i]
-            );
+        // Two threads: the shards' partial gradients must add up to the whole gradient.
+        for threads in [1, 2] {
+            let mut sac = sac_with_threads(1, threads);
+            let batch = random_batch(6, 2);
+            let alpha = 0.3;
+            // Same ε draws in every evaluation: the loss is a deterministic function of θ_π.
+            let loss = |s: &mut Sac| actor_loss(s, &batch, alpha, &mut stream(0, "eps", 0));
+            assert!(loss(&mut sac).is_finite());
+            let analytic = total(&sac, Grads::Actor);
+            check_gradient(&sac, &analytic, |s| &mut s.actor_params, &loss);
         }
-        assert!(loss.is_finite() && scale > 0.0, "worst {worst}");
+    }
+
+    #[test]
+    fn critic_loss_gradient_matches_finite_differences() {
+        for threads in [1, 2] {
+            let mut sac = sac_with_threads(2, threads);
+            let batch = random_batch(6, 3);
+            let loss = |s: &mut Sac| critic_loss(s, &batch, 0.2, &mut stream(0, "eps", 1));
+            assert!(loss(&mut sac) > 0.0);
+            let analytic = total(&sac, Grads::Critic);
+            check_gradient(&sac, &analytic, |s| &mut s.critic_params, &loss);
+        }
+    }
+
+    #[test]
+    fn two_threads_compute_the_one_thread_update_up_to_rounding() {
+        let batch = random_batch(6, 5);
+        let (mut one, mut two) = (sac_with_threads(4, 1), sac_with_threads(4, 2));
+        assert_eq!((one.threads(), two.threads()), (1, 2));
+        let a = one.update(&batch, &mut stream(1, "upd", 0));
+        let b = two.update(&batch, &mut stream(1, "upd", 0));
+        let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * (1.0 + x.abs());
+        for (x, y) in [
+            (a.critic_loss, b.critic_loss),
+            (a.actor_loss, b.actor_loss),
+            (a.entropy, b.entropy),
+            (a.q_mean, b.q_mean),
+        ] {
+            assert!(close(x, y), "{a:?} vs {b:?}");
+        }
+        // The gradients themselves, before Adam's division by √v amplifies rounding in tiny ones.
+        let (mut one, mut two) = (sac_with_threads(4, 1), sac_with_threads(4, 2));
+        for (x, y) in [
+            (
+                critic_loss(&mut one, &batch, 0.2, &mut stream(2, "g", 0)),
+                critic_loss(&mut two, &batch, 0.2, &mut stream(2, "g", 0)),
+            ),
+            (
+                actor_loss(&mut one, &batch, 0.2, &mut stream(3, "g", 0)),
+                actor_loss(&mut two, &batch, 0.2, &mut stream(3, "g", 0)),
+            ),
+        ] {
+            assert!(close(x, y), "{x} vs {y}");
+        }
+        for kind in [Grads::Critic, Grads::Actor] {
+            let (a, b) = (total(&one, kind), total(&two, kind));
+            let scale = a.iter().fold(0.0f32, |m, g| m.max(g.abs()));
+            for (x, y) in a.iter().zip(b.iter()) {
+                assert!((x - y).abs() <= 1e-5 * scale, "{x} vs {y}");
+            }
+        }
     }
 
     #[test]
@@ -511,20 +665,22 @@ mod tests {
     #[test]
     fn update_is_deterministic_given_the_stream() {
         let batch = random_batch(6, 7);
-        let run = || {
-            let mut sac = small_sac(8);
-            let mut rng = stream(9, "upd", 0);
-            for _ in 0..5 {
-                sac.update(&batch, &mut rng);
-            }
-            (
-                sac.actor_params,
-                sac.critic_params,
-                sac.target_params,
-                sac.log_alpha,
-            )
-        };
-        assert_eq!(run(), run());
+        for threads in [1, 2] {
+            let run = || {
+                let mut sac = sac_with_threads(8, threads);
+                let mut rng = stream(9, "upd", 0);
+                for _ in 0..5 {
+                    sac.update(&batch, &mut rng);
+                }
+                (
+                    sac.actor_params,
+                    sac.critic_params,
+                    sac.target_params,
+                    sac.log_alpha,
+                )
+            };
+            assert_eq!(run(), run());
+        }
     }
 
     #[test]

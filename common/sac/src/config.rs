@@ -31,6 +31,10 @@ pub struct SacConfig {
     pub log_std_min: f32,
     /// Upper clamp of the actor's log σ.
     pub log_std_max: f32,
+    /// Threads one update runs on (≥ 1; at most the batch size is used). The minibatch is
+    /// split into that many row shards whose gradients are added in a fixed order, so results
+    /// are deterministic for a given thread count but differ in rounding between counts.
+    pub threads: usize,
 }
 
 impl Default for SacConfig {
@@ -48,6 +52,7 @@ impl Default for SacConfig {
             target_entropy: None,
             log_std_min: -20.0,
             log_std_max: 2.0,
+            threads: 1,
         }
     }
 }

@@ -16,6 +16,7 @@ pub mod agent;
 pub mod bench;
 pub mod config;
 pub mod critic;
+mod shard;
 
 pub use actor::{ActorCache, ActorPolicy, TanhGaussianActor};
 pub use agent::{Sac, SacPolicy, SacState, SacStats};

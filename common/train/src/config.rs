@@ -306,6 +306,7 @@ impl ExperimentConfig {
             ("sac.critic_lr", self.sac.critic_lr as f64),
             ("sac.alpha_lr", self.sac.alpha_lr as f64),
             ("sac.init_alpha", self.sac.init_alpha as f64),
+            ("sac.threads", self.sac.threads as f64),
             (
                 "sac_loop.replay_capacity",
                 self.sac_loop.replay_capacity as f64,

@@ -29,6 +29,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
                 6,
                 &[256, 256],
                 256,
+                t.threads.max(1),
                 Duration::from_secs_f64(t.seconds),
             );
             println!("{}", serde_json::to_string(&r)?);

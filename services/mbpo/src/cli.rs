@@ -92,14 +92,24 @@ pub enum BenchCommand {
     Gemm(BenchTime),
     /// Environment steps per second, per environment, single thread.
     Env(BenchTime),
-    /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims), single thread.
-    SacUpdate(BenchTime),
+    /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims).
+    SacUpdate(SacUpdateArgs),
     /// One dynamics-model training epoch over 10k transitions (7 x 4x200, HalfCheetah dims).
     ModelTrain(Repetitions),
     /// 100k one-step model rollouts (7 x 4x200, HalfCheetah dims).
     ModelRollout(Repetitions),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
     Learning(LearningArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct SacUpdateArgs {
+    /// Seconds of measurement.
+    #[arg(long, default_value_t = 2.0)]
+    pub seconds: f64,
+    /// Threads one update runs on (the config's `sac.threads`).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
 }
 
 #[derive(Debug, Args)]

@@ -49,6 +49,8 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         .attach(&policy);
 
     let mut role = LearnerRole::new(cfg, d.obs, d.act);
+    // More than one thread competes with the other services for the cores (ARCHITECTURE.md).
+    tracing::info!("SAC updates on {} thread(s) (sac.threads)", cfg.sac.threads);
     let schedule = Schedule::of(cfg);
     let g = cfg.mbpo.updates_per_step as f64;
     let warm = cfg.mbpo.init_random_steps;
