@@ -24,11 +24,13 @@ mod mountain_car;
 pub mod mujoco;
 pub mod numpy_sum;
 mod pendulum;
+mod reward;
 mod space;
 mod termination;
 
 pub use mountain_car::MountainCarContinuous;
 pub use pendulum::Pendulum;
+pub use reward::{reward_fn, RewardFn, RewardGradFn, RewardValueFn, REWARD_ENV_IDS};
 pub use space::BoxSpace;
 pub use termination::{termination_fn, TerminationFn, TERMINATION_ENV_IDS};
 

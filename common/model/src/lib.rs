@@ -11,6 +11,9 @@
 //!   [`ProbabilisticEnsemble::predict_sample`]) and model rollouts
 //!   ([`ProbabilisticEnsemble::rollout`], `rollout.rs`): samples are grouped by their member so
 //!   each member runs once on its own rows.
+//! * Input gradients of the mean prediction for gradient-based planning
+//!   ([`ProbabilisticEnsemble::mean_step_recorded`], [`ProbabilisticEnsemble::mean_step_backward`],
+//!   `grad.rs`): the MLP's input gradient and the normaliser's chain rule.
 //! * The rollout-length schedule ([`rollout_length`]) and model-buffer sizing
 //!   ([`ModelPoolSizing`]).
 //! * [`bench`](mod@bench): the training-epoch and rollout benchmarks (GFLOP/s against the GEMM roofline).
@@ -40,6 +43,7 @@
 pub mod bench;
 mod config;
 mod error;
+mod grad;
 mod model;
 mod network;
 mod normalizer;
@@ -49,6 +53,7 @@ mod train;
 
 pub use config::{ModelConfig, ModelConfigError};
 pub use error::{ParamsError, PredictError, RolloutError, TrainError};
+pub use grad::MeanTape;
 pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
 pub use rollout::{rollout_length, ModelPoolSizing, RolloutStats, Termination};

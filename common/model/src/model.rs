@@ -90,9 +90,9 @@ pub(crate) struct Workspace {
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Grouping {
     /// Sample indices, member 0's first; stable within a member.
-    order: Vec<u32>,
+    pub(crate) order: Vec<u32>,
     /// `starts[e]..starts[e + 1]` is member e's part of `order`.
-    starts: Vec<usize>,
+    pub(crate) starts: Vec<usize>,
 }
 
 impl Grouping {

@@ -1,0 +1,76 @@
+//! The [`Planner`] interface and [`build`], which makes the configured planner.
+
+use crate::cem::Cem;
+use crate::config::{PlannerConfig, PlannerKind};
+use crate::error::PlanError;
+use crate::grad::GradientPlanner;
+use crate::model::PlanningModel;
+use crate::mppi::Mppi;
+use crate::random::RandomShooting;
+use mbpo_core::Rng;
+
+/// An optimiser of action sequences `a_0 … a_{H−1}` (`H x A`, row-major, in [−1, 1]) that
+/// maximise the model's predicted return from an observation.
+///
+/// Planners keep their last solution so that model predictive control can warm-start the next
+/// step from it ([`Planner::shift`]).
+pub trait Planner: Send {
+    /// Planning horizon H.
+    fn horizon(&self) -> usize;
+    /// Action width A.
+    fn act_dim(&self) -> usize;
+
+    /// Plan from `obs`; the returned sequence (`H x A`) stays valid until the next call.
+    fn plan(
+        &mut self,
+        model: &mut dyn PlanningModel,
+        obs: &[f32],
+        rng: &mut Rng,
+    ) -> Result<&[f32], PlanError>;
+
+    /// The model's predicted return of the last plan (mean over particles).
+    fn predicted_return(&self) -> f32;
+
+    /// The first `k` actions of the last plan were executed: shift the solution by `k` so the
+    /// next plan starts from its remainder (warm start); the freed tail gets the planner's
+    /// initial value.
+    fn shift(&mut self, k: usize);
+
+    /// Forget the last solution (a new episode, or open-loop replanning from scratch).
+    fn reset(&mut self);
+}
+
+/// The planner `cfg.kind` for actions of width `act_dim`.
+pub fn build(cfg: &PlannerConfig, act_dim: usize) -> Result<Box<dyn Planner>, PlanError> {
+    cfg.validate()?;
+    if act_dim == 0 {
+        return Err(PlanError::Dims(
+            "actions must have at least one dimension".into(),
+        ));
+    }
+    Ok(match cfg.kind {
+        PlannerKind::Random => Box::new(RandomShooting::new(cfg, act_dim)),
+        PlannerKind::Cem => Box::new(Cem::new(cfg, act_dim)),
+        PlannerKind::Mppi => Box::new(Mppi::new(cfg, act_dim)),
+        PlannerKind::Grad => Box::new(GradientPlanner::new(cfg, act_dim)),
+    })
+}
+
+/// Copy `src` shifted by `k` steps of `a` values into itself, filling the tail with `fill`.
+pub(crate) fn shift_sequence(seq: &mut [f32], a: usize, k: usize, fill: f32) {
+    let len = seq.len();
+    let k = (k * a).min(len);
+    seq.copy_within(k.., 0);
+    seq[len - k..].fill(fill);
+}
+
+/// Index of the largest value (first on ties); −∞/NaN never win over a finite value.
+pub(crate) fn argmax(values: &[f32]) -> usize {
+    let mut best = 0;
+    for (i, &v) in values.iter().enumerate() {
+        if v > values[best] || values[best].is_nan() {
+            best = i;
+        }
+    }
+    best
+}
