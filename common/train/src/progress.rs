@@ -86,8 +86,9 @@ pub struct Progress {
     started: Instant,
     every: Duration,
     last_emit: Instant,
-    /// Start of the current rate window: (time, env steps, updates).
-    window: (Instant, u64, u64),
+    /// Start of the current rate window: (time, env steps, updates); set by the first update,
+    /// so a resumed run's earlier steps do not count as done in its first second.
+    window: Option<(Instant, u64, u64)>,
     /// (env steps/s, updates/s) over the last finished window.
     rates: Option<(f64, f64)>,
     steps: u64,
@@ -127,7 +128,7 @@ impl Progress {
             started: now,
             every,
             last_emit: now,
-            window: (now, 0, 0),
+            window: None,
             rates: None,
             steps: 0,
             updates: 0,
@@ -151,6 +152,13 @@ impl Progress {
         self.updates = updates;
         if let Some(bar) = &self.bar {
             bar.set_position(steps);
+        }
+        if self.window.is_none() {
+            self.window = Some((now, steps, updates));
+            if let Some(bar) = &self.bar {
+                bar.reset_eta();
+            }
+            return;
         }
         if now.duration_since(self.last_emit) >= self.every {
             self.last_emit = now;
@@ -178,14 +186,16 @@ impl Progress {
 
     /// Close the rate window ending at `now` (if it is long enough to mean something).
     fn roll_window(&mut self, now: Instant) {
-        let (t0, s0, u0) = self.window;
+        let Some((t0, s0, u0)) = self.window else {
+            return;
+        };
         let dt = now.duration_since(t0).as_secs_f64();
         if dt >= 0.5 {
             self.rates = Some((
                 self.steps.saturating_sub(s0) as f64 / dt,
                 self.updates.saturating_sub(u0) as f64 / dt,
             ));
-            self.window = (now, self.steps, self.updates);
+            self.window = Some((now, self.steps, self.updates));
         }
     }
 
@@ -286,6 +296,7 @@ mod tests {
         let t0 = Instant::now();
         let mut p = Progress::new_at("sac P s0".into(), 1000, lines(10), t0);
         assert_eq!(p.status(), "- env steps/s | eval -");
+        p.update_at(0, 0, t0);
         // Before the interval nothing is recomputed.
         p.update_at(50, 0, t0 + Duration::from_secs(5));
         assert_eq!(p.rates, None);
@@ -310,9 +321,20 @@ mod tests {
     }
 
     #[test]
+    fn a_resumed_run_measures_rates_from_its_first_update() {
+        let t0 = Instant::now();
+        let mut p = Progress::new_at("x".into(), 10_000, lines(10), t0);
+        p.update_at(6000, 120_000, t0 + Duration::from_secs(1));
+        p.update_at(6100, 122_000, t0 + Duration::from_secs(11));
+        assert_eq!(p.rates, Some((10.0, 200.0)));
+        assert_eq!(p.eta_seconds(), Some(390.0));
+    }
+
+    #[test]
     fn a_stalled_run_has_no_eta() {
         let t0 = Instant::now();
         let mut p = Progress::new_at("x".into(), 10, lines(1), t0);
+        p.update_at(0, 0, t0);
         p.update_at(0, 0, t0 + Duration::from_secs(2));
         assert_eq!(p.rates, Some((0.0, 0.0)));
         assert_eq!(p.eta_seconds(), None);
