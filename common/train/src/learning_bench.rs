@@ -5,7 +5,7 @@
 //! efficiency is compared in one place. Seeds run in parallel threads (each run is
 //! single-threaded and deterministic, so parallelism does not change any result).
 
-use crate::config::{Algo, ExperimentConfig};
+use crate::config::ExperimentConfig;
 use crate::run_dir::{read_eval_curve, Summary};
 use crate::sac_trainer::TrainError;
 use serde::{Deserialize, Serialize};
@@ -63,9 +63,10 @@ pub fn learning_benchmark(
     out: &Path,
     train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
 ) -> Result<AlgoResult, TrainError> {
+    // MPC entries are per planner (mpc-cem, mpc-mppi, ...), so each keeps its own results.
     let algo = match cfg.algo {
-        Algo::Sac => "sac",
-        Algo::Mbpo => "mbpo",
+        crate::config::Algo::Mpc => format!("mpc-{}", cfg.mpc.planner.kind.name()),
+        other => other.name().to_string(),
     };
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
@@ -117,7 +118,7 @@ pub fn learning_benchmark(
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
         .unwrap_or_default();
-    all.insert(algo.to_string(), entry.clone());
+    all.insert(algo.clone(), entry.clone());
     std::fs::create_dir_all(out)?;
     std::fs::write(&file, serde_json::to_string_pretty(&all)? + "\n")?;
     Ok(entry)

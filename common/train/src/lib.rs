@@ -4,6 +4,8 @@
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
+//! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
+//!   single-process MPC run).
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
@@ -12,11 +14,13 @@ pub mod config;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
+pub mod mpc;
 pub mod roles;
 pub mod run_dir;
 pub mod sac_trainer;
 
-pub use config::{Algo, ConfigError, ExperimentConfig};
+pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
 pub use mbpo_trainer::{train_mbpo, Mbpo};
+pub use mpc::train_mpc;
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, TrainError};

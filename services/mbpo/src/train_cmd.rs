@@ -2,7 +2,7 @@
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
-use mbpo_train::{train_mbpo, train_sac, Algo, ExperimentConfig};
+use mbpo_train::{train_mbpo, train_mpc, train_sac, Algo, ExperimentConfig};
 use std::path::PathBuf;
 
 /// Resolve the config from the file and the command-line overrides, validated.
@@ -16,7 +16,11 @@ pub fn resolve_config(
         None => ExperimentConfig::default(),
     };
     if let Some(a) = algo {
-        cfg.algo = if a == "sac" { Algo::Sac } else { Algo::Mbpo };
+        cfg.algo = match a {
+            "sac" => Algo::Sac,
+            "mpc" => Algo::Mpc,
+            _ => Algo::Mbpo,
+        };
     }
     if let Some(e) = env {
         cfg.env = e.to_string();
@@ -34,8 +38,12 @@ pub fn resolve_config(
 /// The run directory: `--out`, or `runs/<algo>-<env>-s<seed>`.
 pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
     common.out.clone().unwrap_or_else(|| {
-        let algo = if cfg.algo == Algo::Sac { "sac" } else { "mbpo" };
-        PathBuf::from(format!("runs/{algo}-{}-s{}", cfg.env, cfg.seed))
+        PathBuf::from(format!(
+            "runs/{}-{}-s{}",
+            cfg.algo.name(),
+            cfg.env,
+            cfg.seed
+        ))
     })
 }
 
@@ -45,6 +53,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let summary = match cfg.algo {
         Algo::Sac => train_sac(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
         Algo::Mbpo => train_mbpo(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
+        Algo::Mpc => train_mpc(&cfg, &out).with_context(|| format!("run {}", out.display()))?,
     };
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
