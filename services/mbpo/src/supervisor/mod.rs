@@ -463,9 +463,15 @@ fn supervise(
     } else {
         "completed"
     };
+    // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
+    let hashed = if cfg.algo == Algo::Mpc {
+        dims.model.n_params
+    } else {
+        dims.policy_len
+    };
     let sha = final_params
         .as_deref()
-        .map(policy_sha256)
+        .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
     let report = col.summary(status, sha, started);
     Ok((report, failure))
