@@ -20,6 +20,18 @@ pub enum PlannerKind {
     Grad,
 }
 
+impl PlannerKind {
+    /// Lower-case name (as in config files).
+    pub fn name(self) -> &'static str {
+        match self {
+            PlannerKind::Random => "random",
+            PlannerKind::Cem => "cem",
+            PlannerKind::Mppi => "mppi",
+            PlannerKind::Grad => "grad",
+        }
+    }
+}
+
 /// Random shooting settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

@@ -15,6 +15,19 @@ pub enum Algo {
     Sac,
     /// Model-based policy optimization.
     Mbpo,
+    /// Model predictive control with a planner on the learned model (no policy network).
+    Mpc,
+}
+
+impl Algo {
+    /// Lower-case name (as in config files and run directory names).
+    pub fn name(self) -> &'static str {
+        match self {
+            Algo::Sac => "sac",
+            Algo::Mbpo => "mbpo",
+            Algo::Mpc => "mpc",
+        }
+    }
 }
 
 /// Evaluation schedule.
@@ -118,6 +131,48 @@ impl Default for MbpoConfig {
     }
 }
 
+/// Where the planner's rewards come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PlanReward {
+    /// The task's known reward function (`mbpo_envs::reward_fn`), as PETS does.
+    Known,
+    /// The model's reward head.
+    Model,
+}
+
+/// Settings of model predictive control (algo = "mpc"): random warm-up, then every env step a
+/// plan on the newest model; the model is retrained on all real data every `model_train_freq`
+/// steps (data aggregation: the planner's own transitions teach the model where it goes).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MpcConfig {
+    /// Uniform-random env steps before the first model is trained.
+    pub init_random_steps: u64,
+    /// Retrain the model every this many env steps after the warm-up (the first training is
+    /// at step init_random_steps + 1).
+    pub model_train_freq: u64,
+    /// Reward source of the planner.
+    pub reward: PlanReward,
+    /// Execute each plan open loop (all H actions, then plan anew) instead of replanning every
+    /// step; for comparison.
+    pub open_loop: bool,
+    /// The planner.
+    pub planner: mbpo_plan::PlannerConfig,
+}
+
+impl Default for MpcConfig {
+    fn default() -> Self {
+        Self {
+            init_random_steps: 200,
+            model_train_freq: 200,
+            reward: PlanReward::Known,
+            open_loop: false,
+            planner: mbpo_plan::PlannerConfig::default(),
+        }
+    }
+}
+
 /// One experiment.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -138,10 +193,12 @@ pub struct ExperimentConfig {
     pub sac_loop: SacLoopConfig,
     /// MBPO loop settings (algo = "mbpo").
     pub mbpo: MbpoConfig,
-    /// Dynamics-model settings (algo = "mbpo").
+    /// Dynamics-model settings (algo = "mbpo" and "mpc").
     pub model: mbpo_model::ModelConfig,
     /// Checkpoint schedule.
     pub checkpoint: CheckpointConfig,
+    /// Model predictive control settings (algo = "mpc").
+    pub mpc: MpcConfig,
 }
 
 impl Default for ExperimentConfig {
@@ -157,6 +214,7 @@ impl Default for ExperimentConfig {
             mbpo: MbpoConfig::default(),
             model: mbpo_model::ModelConfig::default(),
             checkpoint: CheckpointConfig::default(),
+            mpc: MpcConfig::default(),
         }
     }
 }
@@ -347,7 +405,10 @@ impl ExperimentConfig {
                 format!("{:?}", m.rollout_schedule),
             ));
         }
-        if self.algo == Algo::Mbpo {
+        if self.algo == Algo::Mpc {
+            self.validate_mpc(&bad)?;
+        }
+        if matches!(self.algo, Algo::Mbpo | Algo::Mpc) {
             // The model crate checks its own ranges (dims, elites <= members, decay lengths).
             let env = mbpo_envs::make(&self.env)
                 .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
@@ -413,6 +474,45 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ConfigError
     }
     node.insert(last.to_string(), value);
     Ok(())
+}
+
+impl ExperimentConfig {
+    /// The `[mpc]` table: positive periods, a known reward that exists, a valid planner.
+    fn validate_mpc(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        let m = &self.mpc;
+        if m.model_train_freq == 0 {
+            return Err(bad("mpc.model_train_freq", "a positive number", "0".into()));
+        }
+        if m.init_random_steps == 0 {
+            return Err(bad(
+                "mpc.init_random_steps",
+                "a positive number (the first model needs data)",
+                "0".into(),
+            ));
+        }
+        if m.reward == PlanReward::Known && mbpo_envs::reward_fn(&self.env).is_none() {
+            return Err(bad(
+                "mpc.reward",
+                &format!(
+                    "\"model\" for {} (known rewards exist for {})",
+                    self.env,
+                    mbpo_envs::REWARD_ENV_IDS.join(", ")
+                ),
+                "\"known\"".into(),
+            ));
+        }
+        m.planner.validate().map_err(|e| match e {
+            mbpo_plan::PlanError::Config {
+                key,
+                expected,
+                found,
+            } => bad(&format!("mpc.planner.{key}"), &expected, found),
+            other => bad("mpc.planner", "a valid planner", other.to_string()),
+        })
+    }
 }
 
 #[cfg(test)]
@@ -533,6 +633,26 @@ mod tests {
             err.contains("--set sac.gamma=1.5") && err.contains("(0, 1]"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn mpc_settings_are_checked_with_their_keys() {
+        let err = parse("algo = \"mpc\"\n[mpc.planner.cem]\nelites = 900\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("mpc.planner.cem.elites") && err.contains("900"),
+            "{err}"
+        );
+        let err = parse("algo = \"mpc\"\n[mpc.planner]\nkind = \"ilqr\"\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("ilqr") && err.contains("cem"), "{err}");
+        let cfg =
+            parse("algo = \"mpc\"\n[mpc]\nreward = \"model\"\n[mpc.planner]\nkind = \"grad\"\n")
+                .unwrap();
+        assert_eq!(cfg.mpc.planner.kind, mbpo_plan::PlannerKind::Grad);
+        assert_eq!(cfg.mpc.reward, PlanReward::Model);
     }
 
     #[test]

@@ -173,9 +173,10 @@ pub fn learning_benchmark_at(
     train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
     budgets: &[u64],
 ) -> Result<AlgoResult, TrainError> {
+    // MPC entries are per planner (mpc-cem, mpc-mppi, ...), so each keeps its own results.
     let algo = match cfg.algo {
-        Algo::Sac => "sac",
-        Algo::Mbpo => "mbpo",
+        Algo::Mpc => format!("mpc-{}", cfg.mpc.planner.kind.name()),
+        other => other.name().to_string(),
     };
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
@@ -232,7 +233,7 @@ pub fn learning_benchmark_at(
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
         .unwrap_or_default();
-    all.insert(algo.to_string(), entry.clone());
+    all.insert(algo.clone(), entry.clone());
     std::fs::create_dir_all(out)?;
     std::fs::write(&file, serde_json::to_string_pretty(&all)? + "\n")?;
     Ok(entry)

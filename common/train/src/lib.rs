@@ -6,6 +6,8 @@
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
+//! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
+//!   single-process MPC run).
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
@@ -15,13 +17,15 @@ pub mod config;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
+pub mod mpc;
 pub mod progress;
 pub mod roles;
 pub mod run_dir;
 pub mod sac_trainer;
 pub mod tensorboard;
 
-pub use config::{Algo, ConfigError, ExperimentConfig};
+pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo, RunOptions};
+pub use mpc::train_mpc;
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, train_sac_with, TrainError};

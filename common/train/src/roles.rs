@@ -118,8 +118,15 @@ pub struct Schedule {
 }
 
 impl Schedule {
-    /// The schedule of a config.
+    /// The schedule of a config (MPC's warm-up and retrain period for algo = "mpc").
     pub fn of(cfg: &ExperimentConfig) -> Self {
+        if cfg.algo == crate::config::Algo::Mpc {
+            return Self {
+                init_random_steps: cfg.mpc.init_random_steps,
+                epoch_length: cfg.mpc.model_train_freq,
+                model_train_freq: cfg.mpc.model_train_freq,
+            };
+        }
         Self {
             init_random_steps: cfg.mbpo.init_random_steps,
             epoch_length: cfg.mbpo.epoch_length,

@@ -4,7 +4,8 @@
 //! the sequential evaluation points.
 //!
 //! Lockstep: the actor of global step t waits for policy version exactly t − 1. Pipelined: any
-//! version ≥ t − 1 − policy_lag.
+//! version ≥ t − 1 − policy_lag. With algo = "mpc" both plan on the model trainer's ensemble
+//! instead (`planning.rs`).
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -16,6 +17,8 @@ use mbpo_service_kit::{stats, *};
 use mbpo_train::actor::Behaviour;
 use mbpo_train::roles::{ActorRole, PolicySnapshot, Schedule};
 use mbpo_wire::*;
+
+mod planning;
 
 #[derive(Debug, Parser)]
 #[command(name = "mbpo-actor", about = "MBPO pipeline actor")]
@@ -38,6 +41,9 @@ fn main() -> ExitCode {
 
 fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     let s = Process::start(args, Role::Actor)?;
+    if s.cfg.algo == mbpo_train::Algo::Mpc {
+        return planning::act(args, s);
+    }
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::create(&s.node)?;
@@ -133,6 +139,9 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
 
 fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
     let s = Process::start(args, Role::Evaluator)?;
+    if s.cfg.algo == mbpo_train::Algo::Mpc {
+        return planning::evaluate(args, s);
+    }
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::create(&s.node)?;

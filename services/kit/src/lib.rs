@@ -294,10 +294,7 @@ impl Process {
             node.name(),
             args.run_id,
             cfg.env,
-            match cfg.algo {
-                mbpo_train::Algo::Mbpo => "mbpo",
-                mbpo_train::Algo::Sac => "sac",
-            },
+            cfg.algo.name(),
             cfg.seed,
             cfg.steps,
             args.mode.name(),
@@ -475,9 +472,11 @@ impl RealInbox {
     }
 }
 
-/// Eval points of a run: after step t when t % every == 0 or t == steps (as `train_mbpo`).
+/// Eval points of a run: after step t when t % every == 0 or t == steps (as `train_mbpo`);
+/// MPC runs skip the points of the warm-up, where there is no model to plan with (as `train_mpc`).
 pub fn is_eval_point(cfg: &ExperimentConfig, t: u64) -> bool {
-    t.is_multiple_of(cfg.eval.every) || t == cfg.steps
+    let warm_up = cfg.algo == mbpo_train::Algo::Mpc && t <= cfg.mpc.init_random_steps;
+    !warm_up && (t.is_multiple_of(cfg.eval.every) || t == cfg.steps)
 }
 
 /// Binary names of the services, as installed next to `mbpo`.

@@ -4,7 +4,7 @@
 //! | kind | sender | when | fields |
 //! |---|---|---|---|
 //! | `Episode` | actor | an episode ended (sent *before* the transition that ended it) | `value` return, `episode_len`, `env_steps` |
-//! | `Eval` | evaluator | after evaluating policy version t | `value` mean return, `env_steps` t, `policy_version` |
+//! | `Eval` | evaluator | after evaluating policy version t (MPC: model version) | `value` mean return, `env_steps` t, `policy_version` (MPC: `model_version`) |
 //! | `Learner` | learner | after step t at every eval point | see [`LearnerRow`] |
 //! | `Model` | model trainer | after each training (sent *before* the weights) | `value` mean elite holdout MSE, `env_steps` real rows trained on, `model_version` |
 //! | `Rollout` | rollout generator | after each branch | `metrics` = [rows, k, seconds] |
@@ -86,6 +86,19 @@ pub fn eval(env_steps: u64, policy_version: u64, mean_return: f64, episodes: usi
         value: mean_return,
         episode_len: episodes as u32,
         ..Default::default()
+    }
+}
+
+/// An evaluation of MPC with model version `model_version` (algo = "mpc": no policy).
+pub fn eval_model(
+    env_steps: u64,
+    model_version: u64,
+    mean_return: f64,
+    episodes: usize,
+) -> StatsRecord {
+    StatsRecord {
+        model_version,
+        ..eval(env_steps, 0, mean_return, episodes)
     }
 }
 

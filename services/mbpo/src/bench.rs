@@ -11,6 +11,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(t) => env(&t),
         BenchCommand::Learning(args) => learning(&args),
+        BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::ModelTrain(r) => {
             let cfg = model_bench_config(&r);
             let report = mbpo_model::bench::model_train(10_000, &cfg)?;
@@ -99,6 +100,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
     let train = match cfg.algo {
         mbpo_train::Algo::Sac => mbpo_train::train_sac,
         mbpo_train::Algo::Mbpo => mbpo_train::train_mbpo,
+        mbpo_train::Algo::Mpc => mbpo_train::train_mpc,
     };
     let seeds: Vec<u64> = (0..args.seeds).collect();
     let name = args.config.display().to_string();
@@ -136,4 +138,39 @@ fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBe
         repetitions: r.repetitions,
         ..Default::default()
     }
+}
+
+fn plan_latency(args: &crate::cli::PlanLatencyArgs) -> anyhow::Result<()> {
+    use mbpo_plan::{PlannerConfig, PlannerKind};
+    let kind: PlannerKind = serde_json::from_value(json!(args.planner)).map_err(|_| {
+        anyhow::anyhow!(
+            "--planner must be random, cem, mppi or grad, found {:?}",
+            args.planner
+        )
+    })?;
+    let mut planner = PlannerConfig {
+        kind,
+        horizon: args.horizon,
+        particles: args.particles,
+        ..PlannerConfig::default()
+    };
+    planner.random.candidates = args.candidates;
+    planner.cem.candidates = args.candidates;
+    planner.cem.elites = planner.cem.elites.min(args.candidates).max(1);
+    planner.cem.iterations = args.iterations;
+    planner.mppi.candidates = args.candidates;
+    planner.mppi.iterations = args.iterations;
+    planner.grad.sequences = args.candidates;
+    planner.grad.iterations = args.iterations;
+    let cfg = mbpo_plan::bench::PlanLatencyConfig {
+        env: args.env.clone(),
+        planner,
+        members: args.members,
+        hidden: args.hidden.clone(),
+        known_reward: !args.model_reward,
+        plans: args.plans,
+    };
+    let report = mbpo_plan::bench::plan_latency(&cfg)?;
+    println!("{}", serde_json::to_string(&report)?);
+    Ok(())
 }

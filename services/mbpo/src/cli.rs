@@ -100,6 +100,42 @@ pub enum BenchCommand {
     ModelRollout(Repetitions),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
     Learning(LearningArgs),
+    /// Milliseconds per MPC planning step with a randomly initialised ensemble.
+    PlanLatency(PlanLatencyArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct PlanLatencyArgs {
+    /// Planner: random, cem, mppi or grad.
+    #[arg(long, default_value = "cem")]
+    pub planner: String,
+    /// Environment (dimensions, action box, known reward).
+    #[arg(long, default_value = "Pendulum-v1")]
+    pub env: String,
+    /// Planning horizon H.
+    #[arg(long, default_value_t = 30)]
+    pub horizon: usize,
+    /// Candidate sequences per iteration (sequences for the gradient planner).
+    #[arg(long, default_value_t = 500)]
+    pub candidates: usize,
+    /// Iterations per plan (Adam steps for the gradient planner).
+    #[arg(long, default_value_t = 5)]
+    pub iterations: usize,
+    /// Particles per candidate (TS-infinity).
+    #[arg(long, default_value_t = 20)]
+    pub particles: usize,
+    /// Ensemble members.
+    #[arg(long, default_value_t = 5)]
+    pub members: usize,
+    /// Hidden widths, e.g. 200,200,200,200.
+    #[arg(long, default_value = "200,200,200,200", value_delimiter = ',')]
+    pub hidden: Vec<usize>,
+    /// Plan with the model's reward head instead of the known reward.
+    #[arg(long)]
+    pub model_reward: bool,
+    /// Timed plans (after two warm-up plans).
+    #[arg(long, default_value_t = 10)]
+    pub plans: usize,
 }
 
 #[derive(Debug, Args)]
@@ -138,7 +174,7 @@ pub struct CommonTrainArgs {
 #[derive(Debug, Args)]
 pub struct TrainArgs {
     /// Algorithm (overrides the config's `algo`).
-    #[arg(long, value_parser = ["sac", "mbpo"])]
+    #[arg(long, value_parser = ["sac", "mbpo", "mpc"])]
     pub algo: Option<String>,
     /// Environment id (overrides the config's `env`).
     #[arg(long)]

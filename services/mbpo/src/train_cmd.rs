@@ -2,7 +2,7 @@
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
-use mbpo_train::{train_mbpo_with, train_sac_with, Algo, ExperimentConfig, RunOptions};
+use mbpo_train::{train_mbpo_with, train_mpc, train_sac_with, Algo, ExperimentConfig, RunOptions};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -15,7 +15,11 @@ pub fn resolve_config(
     let mut cfg =
         ExperimentConfig::resolve(common.source.config.as_deref(), &common.source.overrides)?;
     if let Some(a) = algo {
-        cfg.algo = if a == "sac" { Algo::Sac } else { Algo::Mbpo };
+        cfg.algo = match a {
+            "sac" => Algo::Sac,
+            "mpc" => Algo::Mpc,
+            _ => Algo::Mbpo,
+        };
     }
     if let Some(e) = env {
         cfg.env = e.to_string();
@@ -33,8 +37,12 @@ pub fn resolve_config(
 /// The run directory: `--out`, or `runs/<algo>-<env>-s<seed>`.
 pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
     common.out.clone().unwrap_or_else(|| {
-        let algo = if cfg.algo == Algo::Sac { "sac" } else { "mbpo" };
-        PathBuf::from(format!("runs/{algo}-{}-s{}", cfg.env, cfg.seed))
+        PathBuf::from(format!(
+            "runs/{}-{}-s{}",
+            cfg.algo.name(),
+            cfg.env,
+            cfg.seed
+        ))
     })
 }
 
@@ -57,14 +65,27 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         }
     };
     crate::logging::also_to_file(&out.join("logs").join("train.log"))?;
-    let stop = stop_on_signals();
-    let opts = RunOptions {
-        resume,
-        stop: Some(stop),
-    };
+    if cfg.algo == Algo::Mpc && resume {
+        anyhow::bail!(
+            "{}: MPC runs (algo = \"mpc\") have no checkpoints yet, so they cannot be resumed; \
+             start a new run instead",
+            out.display()
+        );
+    }
     let summary = match cfg.algo {
-        Algo::Sac => train_sac_with(&cfg, &out, opts),
-        Algo::Mbpo => train_mbpo_with(&cfg, &out, opts),
+        // MPC runs have no checkpoints: SIGINT keeps its default (the run ends at once).
+        Algo::Mpc => train_mpc(&cfg, &out),
+        Algo::Sac | Algo::Mbpo => {
+            let opts = RunOptions {
+                resume,
+                stop: Some(stop_on_signals()),
+            };
+            if cfg.algo == Algo::Sac {
+                train_sac_with(&cfg, &out, opts)
+            } else {
+                train_mbpo_with(&cfg, &out, opts)
+            }
+        }
     }
     .with_context(|| format!("run {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);

@@ -4,6 +4,8 @@
 //!
 //! Lockstep: trains on exactly the first t − 1 real transitions (transition t may already have
 //! arrived; it is held back). Pipelined: trains on every transition received by then (≥ t − 1).
+//! In an MPC run (algo = "mpc") the same loop feeds the planning actors; in lockstep it also
+//! waits for the planning evaluator's acknowledgements before replacing a model version.
 
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -47,6 +49,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut rows = Batch::default();
     let mut flat = Vec::with_capacity(d.model.len());
     let mut version = 0;
+    let mut prev_train_point = 0;
     for t in (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some()) {
         let ok = wait_for(
             &waiter,
@@ -85,6 +88,12 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             report.epochs,
             seconds,
         ))?;
+        if cfg.algo == mbpo_train::Algo::Mpc && s.mode == Mode::Lockstep {
+            if !wait_for_mpc_eval_acks(cfg, &waiter, &control, prev_train_point, t, version)? {
+                return Ok(());
+            }
+            prev_train_point = t;
+        }
         d.model.encode(&snapshot.weights, &mut flat)?;
         let counters = WeightsCounters {
             env_steps: role.real_received(),
@@ -126,4 +135,31 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         inbox.received()
     );
     wait_for_stop(&waiter, &control)
+}
+
+/// MPC lockstep: before model `version` replaces `version − 1` (weights are latest-value), wait
+/// until the evaluator acknowledged every eval point in [prev_train_point, t) — the points the
+/// sequential run evaluates with `version − 1`. Returns false on stop.
+fn wait_for_mpc_eval_acks(
+    cfg: &mbpo_train::ExperimentConfig,
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    prev_train_point: u64,
+    t: u64,
+    version: u64,
+) -> anyhow::Result<bool> {
+    if version <= 1 {
+        return Ok(true);
+    }
+    let mut pending: Vec<u64> = (prev_train_point..t)
+        .filter(|&e| is_eval_point(cfg, e))
+        .collect();
+    let what = format!(
+        "the evaluator's acknowledgement of model v{} at steps {pending:?}",
+        version - 1
+    );
+    wait_for(waiter, control, &|| what.clone(), || {
+        pending.retain(|&e| !control.take_ack(e));
+        Ok(pending.is_empty())
+    })
 }

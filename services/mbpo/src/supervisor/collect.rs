@@ -159,6 +159,21 @@ impl Collector {
             Some(StatsKind::Episode) => self.episodes.push((r.env_steps, r.value)),
             Some(StatsKind::Eval) => {
                 self.evals.insert(r.env_steps, r.value);
+                if self.mpc() {
+                    // The evaluator's model version stands in for the learner's row.
+                    self.learner.insert(
+                        r.env_steps,
+                        LearnerRow {
+                            env_steps: r.env_steps,
+                            sac_updates: 0,
+                            stats: Default::default(),
+                            alpha: f32::NAN,
+                            rollout_length: 0,
+                            model_buffer: 0,
+                            model_version: r.model_version,
+                        },
+                    );
+                }
             }
             Some(StatsKind::Learner) => {
                 let row = LearnerRow::from_record(r);
@@ -177,6 +192,13 @@ impl Collector {
                 None if from.role() == Some(Role::Learner) => {
                     self.progress = (r.env_steps, r.sac_updates, r.model_version)
                 }
+                // MPC has no learner: the actors' progress is the run's.
+                None if self.mpc()
+                    && from.role() == Some(Role::Actor)
+                    && r.env_steps > self.progress.0 =>
+                {
+                    self.progress = (r.env_steps, 0, r.model_version)
+                }
                 None => {}
             },
             None => tracing::warn!("stats record of unknown kind {} from {from}", r.kind),
@@ -188,9 +210,14 @@ impl Collector {
         self.progress.0
     }
 
-    /// True when every process reported done.
+    /// True when every process reported done (MPC runs have no learner or rollout generator).
     pub fn all_done(&self, actors: u16) -> bool {
-        self.done.len() == actors as usize + 4
+        let others = if self.mpc() { 2 } else { 4 };
+        self.done.len() == actors as usize + others
+    }
+
+    fn mpc(&self) -> bool {
+        self.cfg.algo == mbpo_train::Algo::Mpc
     }
 
     /// Write the rows whose records are all in.
@@ -206,6 +233,10 @@ impl Collector {
             let model = (lr.model_version > 0)
                 .then(|| self.models.get(&lr.model_version).copied())
                 .flatten();
+            if self.mpc() && model.is_none() && lr.model_version > 0 {
+                break; // the model record arrives before its weights; wait for it
+            }
+            let mpc = self.mpc();
             let now = started.elapsed().as_secs_f64();
             let dt = (now - self.last_row.0).max(1e-9);
             let sps = (t - self.last_row.1) as f64 / dt;
@@ -220,12 +251,12 @@ impl Collector {
                 sac_updates: lr.sac_updates,
                 critic_loss: some(lr.stats.critic_loss),
                 actor_loss: some(lr.stats.actor_loss),
-                alpha: Some(lr.alpha as f64),
+                alpha: (!mpc).then_some(lr.alpha as f64),
                 entropy: some(lr.stats.entropy),
                 q_mean: some(lr.stats.q_mean),
                 model_holdout_mse: model,
-                rollout_length: model.map(|_| lr.rollout_length as f64),
-                model_buffer: model.map(|_| lr.model_buffer as f64),
+                rollout_length: model.filter(|_| !mpc).map(|_| lr.rollout_length as f64),
+                model_buffer: model.filter(|_| !mpc).map(|_| lr.model_buffer as f64),
                 wall_seconds: now,
                 env_steps_per_sec: sps,
                 updates_per_sec: ups,
@@ -292,6 +323,11 @@ impl Collector {
             match who.role() {
                 Some(Role::Actor) => {
                     real.produced += d.real;
+                    if self.mpc() && d.median_step_seconds > 0.0 {
+                        // Median planning time of an MPC step (the slowest actor's).
+                        let m = d.median_step_seconds as f64;
+                        median = Some(median.map_or(m, |x: f64| x.max(m)));
+                    }
                     lag.min = lag.min.min(d.slack_min);
                     lag.max = lag.max.max(d.slack_max);
                     lag.mean += d.slack_mean / self.actors as f32;
@@ -347,7 +383,7 @@ impl Collector {
         received.dedup();
         PipelineSummary {
             summary: Summary {
-                algo: "mbpo".into(),
+                algo: self.cfg.algo.name().into(),
                 env: self.cfg.env.clone(),
                 seed: self.cfg.seed,
                 env_steps: self.last_row.1,

@@ -148,8 +148,8 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     }
     let args = &args;
     let cfg = resolve_config(&args.common, None, None)?;
-    if cfg.algo != Algo::Mbpo {
-        bail!("mbpo run runs MBPO; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
+    if cfg.algo == Algo::Sac {
+        bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
     }
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
@@ -244,12 +244,22 @@ fn supervise(
     let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
     let stats = StatsSubscriber::create(&node)?;
     let dims = mbpo_service_kit::Dims::of(cfg)?;
-    let policy = WeightsSubscriber::create(
-        &node,
-        WeightsKind::Policy,
-        dims.policy_hash,
-        dims.policy_len,
-    )?;
+    // The run's final "policy": the SAC actor (MBPO), or the last model version (MPC).
+    let policy = if cfg.algo == Algo::Mpc {
+        WeightsSubscriber::create(
+            &node,
+            WeightsKind::Model,
+            dims.model.layout_hash,
+            dims.model.len(),
+        )?
+    } else {
+        WeightsSubscriber::create(
+            &node,
+            WeightsKind::Policy,
+            dims.policy_hash,
+            dims.policy_len,
+        )?
+    };
     let control = ControlPublisher::create(&node)?;
 
     let common: Vec<String> = vec![
@@ -286,9 +296,15 @@ fn supervise(
             cpu,
         });
     };
-    add("learner".into(), "mbpo-sac-learner", vec![]);
+    // MPC plans on the model trainer's ensemble: no SAC learner, no rollout generator.
+    let mpc = cfg.algo == Algo::Mpc;
+    if !mpc {
+        add("learner".into(), "mbpo-sac-learner", vec![]);
+    }
     add("model-trainer".into(), "mbpo-model-trainer", vec![]);
-    add("rollout-generator".into(), "mbpo-rollout-generator", vec![]);
+    if !mpc {
+        add("rollout-generator".into(), "mbpo-rollout-generator", vec![]);
+    }
     add("evaluator".into(), "mbpo-actor", vec!["--eval".into()]);
     for i in 0..args.actors {
         add(
@@ -302,8 +318,14 @@ fn supervise(
     }
 
     let mut col = Collector::new(cfg, args, run_id);
-    let final_wire = policy_wire_version(cfg.steps);
-    let mut final_params: Option<Vec<f32>> = None;
+    let final_wire = if cfg.algo == Algo::Mpc {
+        let schedule = mbpo_train::roles::Schedule::of(cfg);
+        mbpo_service_kit::train_points_upto(&schedule, cfg.steps)
+    } else {
+        policy_wire_version(cfg.steps)
+    };
+    // An MPC run shorter than its warm-up trains no model: nothing to wait for.
+    let mut final_params: Option<Vec<f32>> = (final_wire == 0).then(Vec::new);
     let mut waiter = Waiter::new()?;
     waiter.attach(&stats).attach(&policy);
     let display = if args.quiet {
@@ -442,9 +464,15 @@ fn supervise(
     } else {
         "completed"
     };
+    // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
+    let hashed = if cfg.algo == Algo::Mpc {
+        dims.model.n_params
+    } else {
+        dims.policy_len
+    };
     let sha = final_params
         .as_deref()
-        .map(policy_sha256)
+        .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
     let report = col.summary(status, sha, started);
     Ok((report, failure))

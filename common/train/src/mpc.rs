@@ -1,0 +1,373 @@
+//! Model predictive control on the learned model (PETS-style model-based RL, Chua et al. 2018),
+//! in one process: the sequential reference of the planning pipeline.
+//!
+//! ```text
+//! D_env ← init_random_steps uniform-random transitions                          warm-up
+//! for each env step t:
+//!     every model_train_freq steps: train p_θ on all of D_env; hand it to the planners
+//!     plan on p_θ from the real observation, execute the first action            act
+//!     add the transition to D_env (data aggregation: the model learns where the planner goes)
+//! ```
+//!
+//! The roles are those of the pipeline: [`PlanningActorRole`] is what a planning actor process
+//! runs, `ModelTrainerRole` (shared with MBPO) what the model trainer runs, and
+//! [`PlanningEvaluator`] what the evaluation actor runs. Random draws come from the same named
+//! streams in both: `actor.env` / `actor.policy` (planning noise) of the actor, `model.*` of
+//! the trainer, `eval.env` / `eval.plan` of the evaluator.
+
+use crate::actor::{Behaviour, EnvActor};
+use crate::config::{ExperimentConfig, PlanReward};
+use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
+use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::sac_trainer::TrainError;
+use mbpo_core::rng::stream;
+use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
+use mbpo_envs::{make, termination_fn, Env};
+use mbpo_model::{ProbabilisticEnsemble, TrainReport};
+use mbpo_plan::{build, EnsembleModel, Mpc, PlanError, RewardSource};
+use mbpo_sac::ActionScale;
+use std::path::Path;
+use std::time::Instant;
+
+fn plan_err(e: PlanError) -> TrainError {
+    TrainError::Config(format!("planning: {e}"))
+}
+
+/// A planning model of `cfg`'s architecture (weights arrive as snapshots) with the configured
+/// reward source, the task's termination rule and action box.
+pub fn planning_model(cfg: &ExperimentConfig, env: &dyn Env) -> Result<EnsembleModel, TrainError> {
+    let (o, a) = (env.obs_dim(), env.act_dim());
+    let ensemble = ProbabilisticEnsemble::new(
+        o,
+        a,
+        cfg.model.clone(),
+        &mut stream(cfg.seed, "plan.model-shape", 0),
+    )
+    .map_err(|e| TrainError::Config(e.to_string()))?;
+    let reward = match cfg.mpc.reward {
+        PlanReward::Model => RewardSource::Model,
+        PlanReward::Known => {
+            RewardSource::Known(mbpo_envs::reward_fn(&cfg.env).ok_or_else(|| {
+                TrainError::Config(format!("no known reward function for {}", cfg.env))
+            })?)
+        }
+    };
+    let space = env.action_space();
+    EnsembleModel::new(
+        ensemble,
+        reward,
+        termination_fn(&cfg.env),
+        &space.low,
+        &space.high,
+    )
+    .map_err(plan_err)
+}
+
+/// The configured planner run as a controller (closed or open loop).
+pub fn controller(cfg: &ExperimentConfig, act_dim: usize) -> Result<Mpc, TrainError> {
+    let planner = build(&cfg.mpc.planner, act_dim).map_err(plan_err)?;
+    Ok(Mpc::new(planner, cfg.mpc.open_loop))
+}
+
+/// MPC seen as a one-observation [`BatchPolicy`], so the shared [`EnvActor`] can act with it
+/// (same streams, same transition bookkeeping as the SAC actors). A planning error is kept and
+/// reported after the step.
+struct MpcPolicy<'a> {
+    mpc: &'a mut Mpc,
+    model: &'a mut EnsembleModel,
+    error: Option<PlanError>,
+    seconds: f64,
+}
+
+impl BatchPolicy for MpcPolicy<'_> {
+    fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        debug_assert_eq!(batch, 1, "MPC plans for one observation at a time");
+        let start = Instant::now();
+        if let Err(e) = self.mpc.act(self.model, obs, rng, actions) {
+            self.error = Some(e);
+            actions.fill(0.0);
+        }
+        self.seconds = start.elapsed().as_secs_f64();
+    }
+}
+
+/// Acting in the real environment with MPC on the newest model it was given.
+pub struct PlanningActorRole {
+    actor: EnvActor,
+    mpc: Mpc,
+    model: EnsembleModel,
+    model_version: u64,
+    staged: ReplayBuffer,
+    /// Wall seconds of the last plan (0 for a warm-up step).
+    pub last_plan_seconds: f64,
+}
+
+impl PlanningActorRole {
+    /// Planning actor `index` of the run (streams `actor.env` / `actor.policy`, index `index`).
+    pub fn new(cfg: &ExperimentConfig, index: u64) -> Result<Self, TrainError> {
+        let actor = EnvActor::new(&cfg.env, cfg.seed, index)?;
+        let env = make(&cfg.env)?;
+        Ok(Self {
+            model: planning_model(cfg, env.as_ref())?,
+            mpc: controller(cfg, env.act_dim())?,
+            staged: ReplayBuffer::new(env.obs_dim(), env.act_dim(), 1),
+            actor,
+            model_version: 0,
+            last_plan_seconds: 0.0,
+        })
+    }
+    /// Take a newer model.
+    pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
+        self.model
+            .ensemble_mut()
+            .load_weights(&snapshot.weights)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.model_version = snapshot.version;
+        Ok(())
+    }
+    /// Version of the model planned with (0: none yet).
+    pub fn model_version(&self) -> u64 {
+        self.model_version
+    }
+    /// The env actor (episode counters).
+    pub fn env_actor(&self) -> &EnvActor {
+        &self.actor
+    }
+    /// Plans made so far.
+    pub fn plans(&self) -> u64 {
+        self.mpc.plans()
+    }
+    /// One real env step (uniform, or the planner's action); returns the transition. The
+    /// planner's warm start is dropped at every episode end.
+    pub fn act(&mut self, behaviour: Behaviour) -> Result<Batch, TrainError> {
+        let episodes = self.actor.episodes;
+        let mut policy = MpcPolicy {
+            mpc: &mut self.mpc,
+            model: &mut self.model,
+            error: None,
+            seconds: 0.0,
+        };
+        self.actor.step(behaviour, &mut policy, &mut self.staged);
+        self.last_plan_seconds = policy.seconds;
+        if let Some(e) = policy.error {
+            return Err(plan_err(e));
+        }
+        if self.actor.episodes > episodes {
+            self.mpc.reset();
+        }
+        Ok(self.staged.to_batch())
+    }
+}
+
+/// Evaluation episodes with the planner: own environment (`eval.env`), own planning noise
+/// (`eval.plan`), own copy of the model.
+pub struct PlanningEvaluator {
+    env: Box<dyn Env>,
+    scale: ActionScale,
+    env_rng: Rng,
+    plan_rng: Rng,
+    mpc: Mpc,
+    model: EnsembleModel,
+    model_version: u64,
+}
+
+impl PlanningEvaluator {
+    /// The evaluator of the run.
+    pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
+        let env = make(&cfg.env)?;
+        Ok(Self {
+            scale: ActionScale::new(&env.action_space().low, &env.action_space().high),
+            model: planning_model(cfg, env.as_ref())?,
+            mpc: controller(cfg, env.act_dim())?,
+            env,
+            env_rng: stream(cfg.seed, "eval.env", 0),
+            plan_rng: stream(cfg.seed, "eval.plan", 0),
+            model_version: 0,
+        })
+    }
+    /// Take a newer model.
+    pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
+        self.model
+            .ensemble_mut()
+            .load_weights(&snapshot.weights)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.model_version = snapshot.version;
+        Ok(())
+    }
+    /// Version of the model evaluated.
+    pub fn model_version(&self) -> u64 {
+        self.model_version
+    }
+    /// Mean undiscounted return of `episodes` MPC episodes (the warm start reset per episode).
+    pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
+        let (o, a) = (self.env.obs_dim(), self.env.act_dim());
+        let (mut obs, mut action, mut env_action) =
+            (vec![0.0f32; o], vec![0.0f32; a], vec![0.0f32; a]);
+        let mut total = 0.0;
+        for _ in 0..episodes {
+            self.env.reset(&mut self.env_rng, &mut obs);
+            self.mpc.reset();
+            loop {
+                self.mpc
+                    .act(&mut self.model, &obs, &mut self.plan_rng, &mut action)
+                    .map_err(plan_err)?;
+                self.scale.to_env(&action, &mut env_action);
+                let step = self.env.step(&env_action, &mut obs);
+                total += step.reward;
+                if step.terminated || step.truncated {
+                    break;
+                }
+            }
+        }
+        Ok(total / episodes.max(1) as f64)
+    }
+}
+
+/// Every role of one MPC run in one process.
+pub struct MpcRun {
+    schedule: Schedule,
+    actor: PlanningActorRole,
+    model_trainer: ModelTrainerRole,
+    evaluator: PlanningEvaluator,
+    /// Report of the last model training.
+    pub last_model_report: Option<TrainReport>,
+    /// Parameters of the newest model (the "policy" of MPC is planner + model).
+    pub model_params: Vec<f32>,
+}
+
+impl MpcRun {
+    /// Build every role from `cfg`; no model is trained yet.
+    pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
+        let actor = PlanningActorRole::new(cfg, 0)?;
+        let (o, a) = (actor.env_actor().obs_dim(), actor.env_actor().act_dim());
+        Ok(Self {
+            schedule: Schedule::of(cfg),
+            model_trainer: ModelTrainerRole::new(cfg, o, a)?,
+            evaluator: PlanningEvaluator::new(cfg)?,
+            actor,
+            last_model_report: None,
+            model_params: Vec::new(),
+        })
+    }
+
+    /// The planning actor.
+    pub fn actor(&self) -> &PlanningActorRole {
+        &self.actor
+    }
+
+    /// Train p_θ on all of D_env and hand the new model to the actor and the evaluator.
+    pub fn train_model(&mut self) -> Result<&TrainReport, TrainError> {
+        let (snapshot, report) = self.model_trainer.train()?;
+        self.actor.set_model(&snapshot)?;
+        self.evaluator.set_model(&snapshot)?;
+        self.model_params = snapshot.weights.params;
+        Ok(self.last_model_report.insert(report))
+    }
+
+    /// One env step `t` (1-based): warm-up, or (re)train at a train point and act by planning.
+    pub fn step(&mut self, t: u64) -> Result<(), TrainError> {
+        let behaviour = if self.schedule.is_warm_up(t) {
+            Behaviour::Uniform
+        } else {
+            if self.schedule.train_point(t).is_some() {
+                let r = self.train_model()?;
+                tracing::debug!(
+                    "model trained before step {t}: {} epochs, elites {:?}",
+                    r.epochs,
+                    r.elites
+                );
+            }
+            Behaviour::Policy
+        };
+        let rows = self.actor.act(behaviour)?;
+        self.model_trainer.add_real(&rows);
+        Ok(())
+    }
+
+    /// Evaluation episodes with the current model.
+    pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
+        self.evaluator.evaluate(episodes)
+    }
+}
+
+/// Mean elite holdout MSE of a training report (the `model_holdout_mse` column).
+pub fn elite_holdout_mse(r: &TrainReport) -> f64 {
+    r.elites
+        .iter()
+        .map(|&e| r.final_holdout_mse[e] as f64)
+        .sum::<f64>()
+        / r.elites.len().max(1) as f64
+}
+
+/// Run MPC per `cfg`, writing the run directory `out`; returns the summary.
+///
+/// `metrics.csv` has the usual columns (SAC's empty); `summary.json`'s `policy_sha256` is the
+/// SHA-256 of the final model's parameters and `median_seconds_per_env_step` the median wall
+/// time of a planning step.
+pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
+    let mut run = RunDir::create(out, cfg)?;
+    let mut mpc = MpcRun::new(cfg)?;
+    let started = Instant::now();
+    let (mut last_time, mut last_steps) = (0.0, 0);
+    let (mut final_return, mut best_return, mut to_minus_200) = (f64::NAN, f64::NEG_INFINITY, None);
+    let mut plan_seconds = Vec::with_capacity(cfg.steps as usize);
+    for t in 1..=cfg.steps {
+        mpc.step(t)?;
+        if !mpc.schedule.is_warm_up(t) {
+            plan_seconds.push(mpc.actor.last_plan_seconds);
+        }
+        if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
+            if mpc.actor.model_version() == 0 {
+                // Still warming up: there is no model to plan with yet, so nothing to evaluate.
+                continue;
+            }
+            let ret = mpc.evaluate(cfg.eval.episodes)?;
+            if ret.is_finite() {
+                final_return = ret;
+                best_return = best_return.max(ret);
+                if ret >= -200.0 && to_minus_200.is_none() {
+                    to_minus_200 = Some(t);
+                }
+            }
+            let now = started.elapsed().as_secs_f64();
+            let actor = mpc.actor.env_actor();
+            let row = MetricsRow {
+                env_steps: t,
+                episodes: actor.episodes,
+                eval_return: ret,
+                train_return: actor.last_return,
+                model_holdout_mse: mpc.last_model_report.as_ref().map(elite_holdout_mse),
+                wall_seconds: now,
+                env_steps_per_sec: (t - last_steps) as f64 / (now - last_time).max(1e-9),
+                ..Default::default()
+            };
+            (last_time, last_steps) = (now, t);
+            run.write_metrics(&row)?;
+            tracing::info!(
+                "mpc {} seed {}: step {t} eval {ret:.1} best {best_return:.1} train episode {:.1} model v{} ({:.2} steps/s)",
+                cfg.env,
+                cfg.seed,
+                actor.last_return.unwrap_or(f64::NAN),
+                mpc.actor.model_version(),
+                row.env_steps_per_sec
+            );
+        }
+    }
+    plan_seconds.sort_by(f64::total_cmp);
+    let summary = Summary {
+        algo: "mpc".into(),
+        env: cfg.env.clone(),
+        seed: cfg.seed,
+        env_steps: cfg.steps,
+        sac_updates: 0,
+        final_eval_return: final_return,
+        best_eval_return: best_return,
+        env_steps_to_minus_200: to_minus_200,
+        policy_sha256: policy_sha256(&mpc.model_params),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        median_seconds_per_env_step: plan_seconds.get(plan_seconds.len() / 2).copied(),
+        status: "completed".into(),
+    };
+    run.write_summary(&summary)?;
+    Ok(summary)
+}
