@@ -134,14 +134,15 @@ pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanEr
         .chain(std::iter::once(2 * (o + 1)))
         .collect();
     let flop_per_row: f64 = dims.windows(2).map(|w| 2.0 * (w[0] * w[1]) as f64).sum();
+    // Forward passes per plan; the gradient planner adds one input-only backward pass per Adam
+    // step (dX = dY Wᵀ per layer, the forward's flops; no weight gradients) and evaluates once
+    // more after its last step.
     let passes = if p.kind == PlannerKind::Grad {
-        3.0
+        2 * p.iterations() + 1
     } else {
-        1.0
+        p.iterations()
     };
-    // The gradient planner evaluates once more after its last step.
-    let evaluations = p.iterations() + usize::from(p.kind == PlannerKind::Grad);
-    let gflop = passes * flop_per_row * (rows * p.horizon * evaluations) as f64 / 1e9;
+    let gflop = flop_per_row * (rows * p.horizon * passes) as f64 / 1e9;
     let best = times[0];
     Ok(PlanLatencyReport {
         bench: "plan-latency".into(),

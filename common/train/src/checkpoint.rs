@@ -145,8 +145,31 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError
     Ok(())
 }
 
+/// Check a checkpoint file of `kind` at `path` (every header field and the checksum) without
+/// decoding it: the supervisor checks every role file before it starts a resumed pipeline.
+pub fn verify(path: &Path, kind: &str) -> Result<(), CheckpointError> {
+    checked_payload(path, kind).map(|_| ())
+}
+
 /// Read a checkpoint of `kind` from `path`, checking every header field and the checksum.
 pub fn read<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<T, CheckpointError> {
+    let (bytes, range) = checked_payload(path, kind)?;
+    let payload = &bytes[range];
+    let p = || path.to_path_buf();
+    let (value, _) = bincode::serde::decode_from_slice(payload, bincode::config::standard())
+        .map_err(|e| CheckpointError::Decode {
+            path: p(),
+            kind: kind.to_string(),
+            message: e.to_string(),
+        })?;
+    Ok(value)
+}
+
+/// The file's bytes and the range of its payload, after every check.
+fn checked_payload(
+    path: &Path,
+    kind: &str,
+) -> Result<(Vec<u8>, std::ops::Range<usize>), CheckpointError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let p = || path.to_path_buf();
     let truncated = |expected: usize| CheckpointError::Truncated {
@@ -190,13 +213,8 @@ pub fn read<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<T, Checkpoin
     if Sha256::digest(payload).as_slice() != sum {
         return Err(CheckpointError::Corrupt { path: p() });
     }
-    let (value, _) = bincode::serde::decode_from_slice(payload, bincode::config::standard())
-        .map_err(|e| CheckpointError::Decode {
-            path: p(),
-            kind: kind.to_string(),
-            message: e.to_string(),
-        })?;
-    Ok(value)
+    let end = at;
+    Ok((bytes, end - len..end))
 }
 
 /// The `COMPLETE` marker of a checkpoint directory.

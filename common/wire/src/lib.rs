@@ -116,6 +116,13 @@ pub fn termination_requested() -> bool {
     seen
 }
 
+/// Forget a SIGINT/SIGTERM seen so far (returns whether there was one), so that [`Waiter`]s
+/// sleep again and the next signal is reported anew: the supervisor answers the first signal
+/// with a checkpoint and a clean stop, which takes a while, and a second one with a hard stop.
+pub fn take_termination_request() -> bool {
+    TERMINATION.swap(false, Ordering::Relaxed)
+}
+
 pub(crate) fn termination_latched() -> bool {
     TERMINATION.load(Ordering::Relaxed)
 }

@@ -163,6 +163,10 @@ pub enum StatsKind {
     Rollout = 5,
     /// Liveness and counters only.
     Heartbeat = 6,
+    /// A checkpoint barrier step (see `mbpo_service_kit::barrier`): `metrics[0]` = 0 "paused"
+    /// (`env_steps` = the producer's own work counter at the pause) or 1 "written"
+    /// (`env_steps` = the checkpoint's env step T).
+    Checkpoint = 7,
 }
 
 impl StatsKind {
@@ -175,6 +179,7 @@ impl StatsKind {
             4 => StatsKind::Model,
             5 => StatsKind::Rollout,
             6 => StatsKind::Heartbeat,
+            7 => StatsKind::Checkpoint,
             _ => return None,
         })
     }
@@ -229,10 +234,17 @@ impl StatsRecord {
 pub enum ControlCommand {
     /// Finish the current step, write nothing more, exit 0.
     Stop = 1,
-    /// Write a checkpoint tagged with `step`, then acknowledge.
+    /// The cut of a checkpoint barrier: reach the state after env step `step` (= T) with
+    /// `request_id` (= K) model trainings, write the role's file into checkpoint T, report it.
     Checkpoint = 2,
     /// Acknowledgement of request `request_id` (`status` 0 = done, else failed).
     Ack = 3,
+    /// Start a checkpoint barrier: actors finish their current step and produce nothing more,
+    /// the model trainer and rollout generator start no new training or branch; each reports
+    /// its counter.
+    Pause = 4,
+    /// The checkpoint is complete: go on.
+    Resume = 5,
 }
 
 impl ControlCommand {
@@ -242,6 +254,8 @@ impl ControlCommand {
             1 => ControlCommand::Stop,
             2 => ControlCommand::Checkpoint,
             3 => ControlCommand::Ack,
+            4 => ControlCommand::Pause,
+            5 => ControlCommand::Resume,
             _ => return None,
         })
     }

@@ -13,6 +13,7 @@ use std::time::{Duration, Instant};
 use clap::Parser;
 use mbpo_core::rng::stream;
 use mbpo_sac::ActorPolicy;
+use mbpo_service_kit::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::actor::Behaviour;
 use mbpo_train::roles::{ActorRole, PolicySnapshot, Schedule};
@@ -65,13 +66,48 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut lag = stats::SlackTracker::default();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::actor_file(args.index),
+        barrier::kind::ACTOR,
+    );
+    let mut first = 1;
+    if let Some(dir) = &args.resume_from {
+        let state: ActorCheckpoint = file.read(dir)?;
+        role.restore(state.role)?;
+        first = state.steps + 1;
+    }
+    // At a barrier: report the steps done, write the state at the cut, wait for the resume.
+    let at_barrier = |role: &ActorRole, done: u64| -> anyhow::Result<bool> {
+        let Some(cut) = barrier::report_paused(&waiter, &control, &stats_pub, done)? else {
+            return Ok(false);
+        };
+        let state = ActorCheckpoint {
+            role: role.checkpoint(),
+            steps: done,
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
     let started = Instant::now();
     let mut ipc = Duration::ZERO;
-    for t in 1..=steps {
+    for t in first..=steps {
         let g = global_step(t, args.actors, args.index);
-        let behaviour = if schedule.is_warm_up(g) {
-            Behaviour::Uniform
-        } else {
+        let behaviour = loop {
+            control.poll()?;
+            if control.stopped() {
+                tracing::info!("stopped before step {g}");
+                return Ok(());
+            }
+            if control.pause_requested() {
+                if !at_barrier(&role, t - 1)? {
+                    tracing::info!("stopped after the checkpoint, before step {g}");
+                    return Ok(());
+                }
+                continue;
+            }
+            if schedule.is_warm_up(g) {
+                break Behaviour::Uniform;
+            }
             let need = (g - 1).saturating_sub(s.slack.policy_lag);
             let ok = wait_for(
                 &waiter,
@@ -83,12 +119,15 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
                         snap.params.copy_from_slice(w.params());
                         role.set_policy(&snap);
                     }
-                    Ok(role.policy_version() >= need)
+                    Ok(role.policy_version() >= need || control.pause_requested())
                 },
             )?;
             if !ok {
                 tracing::info!("stopped before step {g}");
                 return Ok(());
+            }
+            if control.pause_requested() {
+                continue;
             }
             if s.mode == Mode::Lockstep {
                 anyhow::ensure!(
@@ -98,7 +137,7 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
                 );
             }
             lag.see((g - 1) as f64 - role.policy_version() as f64);
-            Behaviour::Policy
+            break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
         let rows = role.act(behaviour);
@@ -134,7 +173,13 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     stats_pub.send(&done.record())?;
     tracing::info!("done: {steps} steps, policy lag {lo}..{hi} (mean {mean:.2})");
-    wait_for_stop(&waiter, &control)
+    barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
+        let state = ActorCheckpoint {
+            role: role.checkpoint(),
+            steps,
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    })
 }
 
 fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
@@ -162,20 +207,44 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
     let learner = ProducerId::new(Role::Learner, 0);
     let mut version = 0;
     let mut evals = 0;
-    for t in (1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
-        let ok = wait_for(
-            &waiter,
-            &control,
-            &|| format!("policy version {t} to evaluate"),
-            || {
-                if let Some(h) = policy.receive_latest_into(&mut pol.params)? {
-                    version = policy_version_of(h.version);
+    let mut after = 0;
+    let file = barrier::FileTarget::new(&args.run_dir, "evaluator", barrier::kind::EVALUATOR);
+    if let Some(dir) = &args.resume_from {
+        let state: EvaluatorCheckpoint = file.read(dir)?;
+        (rng, version, evals, after) = (state.rng, state.version, state.evals, state.env_steps);
+    }
+    for t in (after + 1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
+        // Wait for policy version t, writing the checkpoint of a cut before t meanwhile.
+        loop {
+            let ok = wait_for(
+                &waiter,
+                &control,
+                &|| format!("policy version {t} to evaluate"),
+                || {
+                    if let Some(h) = policy.receive_latest_into(&mut pol.params)? {
+                        version = policy_version_of(h.version);
+                    }
+                    Ok(version >= t || control.cut().is_some_and(|c| c.env_steps < t))
+                },
+            )?;
+            if !ok {
+                return Ok(());
+            }
+            match control.cut() {
+                Some(cut) if cut.env_steps < t => {
+                    let state = EvaluatorCheckpoint {
+                        rng: rng.clone(),
+                        version,
+                        evals,
+                        env_steps: cut.env_steps,
+                    };
+                    let (w, c) = (&waiter, &control);
+                    if !barrier::write_and_await_resume(w, c, &stats_pub, &file, cut, &state)? {
+                        return Ok(());
+                    }
                 }
-                Ok(version >= t)
-            },
-        )?;
-        if !ok {
-            return Ok(());
+                _ => break,
+            }
         }
         if s.mode == Mode::Lockstep {
             anyhow::ensure!(
@@ -197,5 +266,13 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
         }
         .record(),
     )?;
-    wait_for_stop(&waiter, &control)
+    barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
+        let state = EvaluatorCheckpoint {
+            rng: rng.clone(),
+            version,
+            evals,
+            env_steps: cut.env_steps,
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    })
 }

@@ -9,8 +9,10 @@
 //! * [`ModelWireLayout`]: how a [`ModelWeights`] crosses as one flat `[f32]`;
 //! * [`stats`]: the meaning of every [`StatsRecord`] a service sends;
 //! * [`RealInbox`] (real transitions held back until a role may see them) and
-//!   [`ControlInbox`] (stop requests, evaluation acknowledgements).
+//!   [`ControlInbox`] (stop requests, evaluation acknowledgements, checkpoint barriers);
+//! * [`barrier`]: checkpoints of the running pipeline (the barrier protocol and the files).
 
+pub mod barrier;
 pub mod stats;
 
 use std::cell::{Cell, RefCell};
@@ -107,6 +109,9 @@ pub struct ServiceArgs {
     pub actors: u16,
     #[command(flatten)]
     pub slack: Slack,
+    /// Continue from this checkpoint directory (`<run-dir>/checkpoints/<T>`; `mbpo run --resume`).
+    #[arg(long)]
+    pub resume_from: Option<PathBuf>,
 }
 
 /// Logs to stderr (the supervisor redirects it to `<run-dir>/logs/<process>.log`).
@@ -284,6 +289,10 @@ impl Process {
     /// Load the config, open the run and create the node of `(role, args.index)`.
     pub fn start(args: &ServiceArgs, role: Role) -> anyhow::Result<Self> {
         init_logging();
+        // The supervisor starts services in their own process group (so a Ctrl-C reaches only
+        // it); should it die without stopping them, SIGTERM makes them exit too.
+        // SAFETY: prctl(PR_SET_PDEATHSIG) only sets a flag of this process.
+        unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
         let cfg = load_config(&args.run_dir)?;
         let dims = Dims::of(&cfg)?;
         let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
@@ -318,6 +327,9 @@ pub struct ControlInbox {
     me: ProducerId,
     stop: Cell<bool>,
     acked: RefCell<BTreeSet<u64>>,
+    pause: Cell<bool>,
+    cut: Cell<Option<barrier::Cut>>,
+    resume: Cell<bool>,
 }
 
 impl ControlInbox {
@@ -328,6 +340,9 @@ impl ControlInbox {
             me: node.producer(),
             stop: Cell::new(false),
             acked: RefCell::new(BTreeSet::new()),
+            pause: Cell::new(false),
+            cut: Cell::new(None),
+            resume: Cell::new(false),
         })
     }
     /// Read pending control messages.
@@ -341,7 +356,20 @@ impl ControlInbox {
                 Some(ControlCommand::Ack) => {
                     self.acked.borrow_mut().insert(m.msg.step);
                 }
-                _ => {}
+                Some(ControlCommand::Pause) => self.pause.set(true),
+                Some(ControlCommand::Checkpoint) => {
+                    self.pause.set(true);
+                    self.cut.set(Some(barrier::Cut {
+                        env_steps: m.msg.step,
+                        model_trainings: m.msg.request_id,
+                    }));
+                }
+                Some(ControlCommand::Resume) => {
+                    self.pause.set(false);
+                    self.cut.set(None);
+                    self.resume.set(true);
+                }
+                None => {}
             }
         }
         Ok(())
@@ -353,6 +381,23 @@ impl ControlInbox {
     /// True when an acknowledgement for `step` arrived (consumes it).
     pub fn take_ack(&self, step: u64) -> bool {
         self.acked.borrow_mut().remove(&step)
+    }
+    /// Count `step` as acknowledged (a resumed learner: the evaluator acknowledged the eval
+    /// point of the checkpoint before it was written).
+    pub fn assume_ack(&self, step: u64) {
+        self.acked.borrow_mut().insert(step);
+    }
+    /// True while a checkpoint barrier is under way (from its Pause to its Resume).
+    pub fn pause_requested(&self) -> bool {
+        self.pause.get()
+    }
+    /// The cut of the checkpoint barrier under way, once the supervisor sent it.
+    pub fn cut(&self) -> Option<barrier::Cut> {
+        self.cut.get()
+    }
+    /// True when the supervisor said "resume" after a checkpoint (consumes it).
+    pub fn take_resume(&self) -> bool {
+        self.resume.replace(false)
     }
 }
 
@@ -448,6 +493,12 @@ impl RealInbox {
         }
         self.received += n as u64;
         Ok(n)
+    }
+    /// A resumed consumer: the first `n` rows of the run were received and taken before the
+    /// checkpoint it continues from.
+    pub fn resume_at(&mut self, n: u64) {
+        self.received = n;
+        self.taken = n;
     }
     /// Rows received so far (taken or not).
     pub fn received(&self) -> u64 {

@@ -244,6 +244,10 @@ pub enum RestartPolicy {
 
 #[derive(Debug, Clone, Args)]
 pub struct RunArgs {
+    /// Continue the pipeline run in this directory from its newest complete checkpoint, with
+    /// its config, mode, actors and slack (`--steps` may extend it).
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["config", "overrides", "seed", "out"])]
+    pub resume: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub common: CommonTrainArgs,
     /// Hand-off mode: `lockstep` equals `mbpo train --mode sequential` bit for bit (one actor);

@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use mbpo_core::Batch;
+use mbpo_service_kit::barrier::{self, ModelTrainerCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::roles::{ModelTrainerRole, Schedule};
 use mbpo_wire::*;
@@ -48,19 +49,32 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut inbox = RealInbox::new(d.rows());
     let mut rows = Batch::default();
     let mut flat = Vec::with_capacity(d.model.len());
-    let mut version = 0;
+    let file =
+        barrier::FileTarget::new(&args.run_dir, "model-trainer", barrier::kind::MODEL_TRAINER);
+    if let Some(dir) = &args.resume_from {
+        let state: ModelTrainerCheckpoint = file.read(dir)?;
+        role.restore(state.role)?;
+        inbox.resume_at(role.real_received());
+        // No republish: the rollout generator's checkpoint holds this model version too.
+    }
+    let mut version = role.version();
     let mut prev_train_point = 0;
-    for t in (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some()) {
-        let ok = wait_for(
-            &waiter,
-            &control,
-            &|| format!("{} real transitions", t - 1),
-            || {
-                inbox.pull(&real)?;
-                Ok(inbox.received() >= t - 1)
-            },
-        )?;
-        if !ok {
+    let at_cut = |role: &mut ModelTrainerRole, rows: &Batch, cut: barrier::Cut| {
+        role.add_real(rows);
+        let state = ModelTrainerCheckpoint {
+            role: role.checkpoint(),
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
+    let gate = barrier::DataGate {
+        waiter: &waiter,
+        control: &control,
+        stats: &stats_pub,
+        real: &real,
+    };
+    let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
+    for t in train_points.skip(version as usize) {
+        if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, t - 1, version, at_cut)? {
             return Ok(());
         }
         let n = match s.mode {
@@ -109,15 +123,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     }
     // Take the rest so that no actor blocks and the counts are complete.
     let total = cfg.steps;
-    if !wait_for(
-        &waiter,
-        &control,
-        &|| format!("{total} real transitions"),
-        || {
-            inbox.pull(&real)?;
-            Ok(inbox.received() >= total)
-        },
-    )? {
+    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, version, at_cut)? {
         return Ok(());
     }
     let lost = real.stats().missing;
@@ -134,7 +140,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         "done: {} real transitions received, {lost} lost, {version} trainings",
         inbox.received()
     );
-    wait_for_stop(&waiter, &control)
+    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version), at_cut)
 }
 
 /// MPC lockstep: before model `version` replaces `version − 1` (weights are latest-value), wait

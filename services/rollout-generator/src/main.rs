@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use mbpo_core::Batch;
+use mbpo_service_kit::barrier::{self, Gate, RolloutCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::roles::{ModelSnapshot, PolicySnapshot, RolloutRole, Schedule};
 use mbpo_wire::*;
@@ -64,40 +65,85 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let mut model_version = 0;
     let mut staleness = stats::SlackTracker::default();
-    let mut branches = 0;
-    for t in (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some()) {
+    // A Cell: the checkpoint closure reads it while the loop counts.
+    let branches = std::cell::Cell::new(0);
+    let file = barrier::FileTarget::new(&args.run_dir, "rollout-generator", barrier::kind::ROLLOUT);
+    if let Some(dir) = &args.resume_from {
+        let state: RolloutCheckpoint = file.read(dir)?;
+        snap.version = state.role.policy_version;
+        snap.params.copy_from_slice(&state.role.policy);
+        branches.set(state.branches);
+        role.restore(state.role)?;
+        model_version = role.model_version();
+        inbox.resume_at(role.real_received());
+    }
+    let at_cut = |role: &mut RolloutRole, rows: &Batch, cut: barrier::Cut| {
+        role.add_real(rows);
+        let state = RolloutCheckpoint {
+            role: role.checkpoint(),
+            branches: branches.get(),
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
+    let gate = barrier::DataGate {
+        waiter: &waiter,
+        control: &control,
+        stats: &stats_pub,
+        real: &real,
+    };
+    let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
+    for t in train_points.skip(branches.get() as usize) {
         let epoch = schedule.train_point(t).expect("train point");
-        let v = branches + 1;
+        let v = branches.get() + 1;
         let need_policy = (t - 1).saturating_sub(s.slack.policy_lag);
-        let ok = wait_for(
-            &waiter,
-            &control,
-            &|| {
-                format!(
-                    "model v{v}, policy v{need_policy}, {} real transitions",
-                    t - 1
-                )
-            },
-            || {
-                inbox.pull(&real)?;
-                if let Some(w) = model.receive_latest()? {
-                    let weights = d.model.decode(w.params())?;
-                    model_version = w.version();
-                    role.set_model(&ModelSnapshot {
-                        version: model_version,
-                        weights,
-                    })?;
+        // Wait for model v, the policy and t − 1 transitions, serving a checkpoint barrier.
+        loop {
+            let ok = wait_for(
+                &waiter,
+                &control,
+                &|| {
+                    format!(
+                        "model v{v}, policy v{need_policy}, {} real transitions",
+                        t - 1
+                    )
+                },
+                || {
+                    inbox.pull(&real)?;
+                    if let Some(w) = model.receive_latest()? {
+                        let weights = d.model.decode(w.params())?;
+                        model_version = w.version();
+                        role.set_model(&ModelSnapshot {
+                            version: model_version,
+                            weights,
+                        })?;
+                    }
+                    if let Some(w) = policy.receive_latest()? {
+                        snap.version = policy_version_of(w.version());
+                        snap.params.copy_from_slice(w.params());
+                        role.set_policy(&snap);
+                    }
+                    let ready = model_version >= v
+                        && snap.version >= need_policy
+                        && inbox.received() >= t - 1;
+                    Ok(ready || barrier::holds(&control, branches.get()))
+                },
+            )?;
+            if !ok {
+                return Ok(());
+            }
+            let ready =
+                model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1;
+            match barrier::gate(&waiter, &control, &stats_pub, branches.get())? {
+                Gate::Stop => return Ok(()),
+                Gate::Work if ready => break,
+                Gate::Work => {}
+                Gate::AtCut(cut) => {
+                    let (inbox, rows) = (&mut inbox, &mut rows);
+                    if !gate.serve_cut(inbox, rows, &mut role, cut, &mut at_cut.clone())? {
+                        return Ok(());
+                    }
                 }
-                if let Some(w) = policy.receive_latest()? {
-                    snap.version = policy_version_of(w.version());
-                    snap.params.copy_from_slice(w.params());
-                    role.set_policy(&snap);
-                }
-                Ok(model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1)
-            },
-        )?;
-        if !ok {
-            return Ok(());
+            }
         }
         if s.mode == Mode::Lockstep {
             anyhow::ensure!(
@@ -131,7 +177,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             env_steps: t - 1,
         };
         imagined.send_batch(&batch.rows, meta)?;
-        branches += 1;
+        branches.set(branches.get() + 1);
         tracing::info!(
             "step {t}: {} rollouts of k={} with model v{} and policy v{}: {} rows in {seconds:.2} s",
             n_rollouts,
@@ -142,14 +188,13 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         );
     }
     let total = cfg.steps;
-    if !wait_for(
-        &waiter,
-        &control,
-        &|| format!("{total} real transitions"),
-        || {
-            inbox.pull(&real)?;
-            Ok(inbox.received() >= total)
-        },
+    if !gate.wait_for_real(
+        &mut inbox,
+        &mut rows,
+        &mut role,
+        total,
+        branches.get(),
+        at_cut,
     )? {
         return Ok(());
     }
@@ -158,7 +203,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let done = stats::Done {
         real: inbox.received(),
         lost,
-        work: branches,
+        work: branches.get(),
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,
@@ -166,8 +211,15 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     stats_pub.send(&done.record())?;
     tracing::info!(
-        "done: {} real transitions received, {lost} lost, {branches} branches",
-        inbox.received()
+        "done: {} real transitions received, {lost} lost, {} branches",
+        inbox.received(),
+        branches.get()
     );
-    wait_for_stop(&waiter, &control)
+    gate.idle_until_stop(
+        &mut inbox,
+        &mut rows,
+        &mut role,
+        Some(branches.get()),
+        at_cut,
+    )
 }

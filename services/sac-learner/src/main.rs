@@ -16,6 +16,7 @@ use clap::Parser;
 use mbpo_core::rate_limit::RateLimiter;
 use mbpo_core::Batch;
 use mbpo_model::rollout_length;
+use mbpo_service_kit::barrier::{self, LearnerCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::roles::{ImaginedBatch, LearnerRole, Schedule};
 use mbpo_wire::*;
@@ -69,6 +70,17 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let (mut consumed, mut updates, mut published) = (0u64, 0u64, 0u64);
     let mut model_batches = 0u64;
+    let file = barrier::FileTarget::new(&args.run_dir, "learner", barrier::kind::LEARNER);
+    if let Some(dir) = &args.resume_from {
+        let state: LearnerCheckpoint = file.read(dir)?;
+        role.restore(state.role)?;
+        (consumed, published) = (state.consumed, state.consumed);
+        (updates, model_batches) = (state.updates, state.model_batches);
+        batch.model_version = state.model_version;
+        inbox.resume_at(consumed);
+        // The evaluator acknowledged this eval point before the checkpoint was written.
+        control.assume_ack(consumed);
+    }
     let mut owed = stats::SlackTracker::default();
     let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
     let mut last_publish = Instant::now();
@@ -92,14 +104,41 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let started = Instant::now();
     let mut ipc = Duration::ZERO;
-    // Version 0: the initial parameters (actors of step 1 use them when there is no warm-up).
-    publish(0, &role, 0, 0)?;
+    // Version 0: the initial parameters (actors of step 1 use them when there is no warm-up);
+    // a resumed learner republishes the version of its checkpoint.
+    publish(published, &role, updates, model_batches)?;
+    // A resumed learner's first version must reach readers that connect after it was sent
+    // (the actors wait for it): offer it to new connections while idle until a step arrives.
+    let resumed_at = args.resume_from.as_ref().map(|_| consumed);
     loop {
         let t0 = Instant::now();
         control.poll()?;
         if control.stopped() {
             tracing::info!("stopped after {consumed} steps");
             return Ok(());
+        }
+        if let Some(cut) = control.cut() {
+            // The cut: step T consumed and published, the K imagined batches in D_model. No
+            // transition after T exists while the actors are paused.
+            if consumed == cut.env_steps
+                && published == cut.env_steps
+                && model_batches == cut.model_trainings
+            {
+                let state = LearnerCheckpoint {
+                    role: role.checkpoint(),
+                    consumed,
+                    updates,
+                    model_batches,
+                    model_version: batch.model_version,
+                };
+                if !barrier::write_and_await_resume(
+                    &waiter, &control, &stats_pub, &file, cut, &state,
+                )? {
+                    tracing::info!("stopped after the checkpoint at step {consumed}");
+                    return Ok(());
+                }
+                continue;
+            }
         }
         inbox.pull(&real)?;
         while let Some(b) = imagined.receive()? {
@@ -183,6 +222,11 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             updates += 1;
             continue;
         }
+        if resumed_at == Some(consumed) {
+            policy.update_connections()?;
+            waiter.wait(Duration::from_millis(20))?;
+            continue;
+        }
         waiter.wait(Duration::from_secs(1))?;
     }
     step_seconds.sort_by(f64::total_cmp);
@@ -209,5 +253,19 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         ipc.as_secs_f64(),
         started.elapsed().as_secs_f64()
     );
-    wait_for_stop(&waiter, &control)
+    barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
+        anyhow::ensure!(
+            cut.env_steps == consumed,
+            "checkpoint after step {} but the learner consumed all {consumed} steps",
+            cut.env_steps
+        );
+        let state = LearnerCheckpoint {
+            role: role.checkpoint(),
+            consumed,
+            updates,
+            model_batches,
+            model_version: batch.model_version,
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    })
 }

@@ -14,7 +14,7 @@ use mbpo_train::progress::Progress;
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::cli::RunArgs;
 
@@ -99,6 +99,23 @@ pub struct PipelineSummary {
     pub ipc_leftovers: Vec<String>,
 }
 
+/// The collector's bookkeeping at a checkpoint (every row ≤ T is written by then), so a
+/// resumed run continues its rows, episode count, best return and clock.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct CollectorBook {
+    next_row: usize,
+    episodes: Vec<(u64, f64)>,
+    models: BTreeMap<u64, f64>,
+    progress: (u64, u64, u64),
+    last_row: (f64, u64),
+    last_row_updates: u64,
+    final_return: f64,
+    best_return: f64,
+    to_minus_200: Option<u64>,
+    last_eval: Option<f64>,
+    restarts: u32,
+}
+
 /// What the supervisor knows about the run.
 pub struct Collector {
     cfg: ExperimentConfig,
@@ -153,6 +170,46 @@ impl Collector {
         }
     }
 
+    /// The bookkeeping to checkpoint.
+    pub fn book(&self) -> CollectorBook {
+        CollectorBook {
+            next_row: self.next_row,
+            episodes: self.episodes.clone(),
+            models: self.models.clone(),
+            progress: self.progress,
+            last_row: self.last_row,
+            last_row_updates: self.last_row_updates,
+            final_return: self.final_return,
+            best_return: self.best_return,
+            to_minus_200: self.to_minus_200,
+            last_eval: self.last_eval,
+            restarts: self.restarts,
+        }
+    }
+
+    /// Continue from a checkpoint's bookkeeping.
+    pub fn restore(&mut self, b: CollectorBook) {
+        self.next_row = b.next_row;
+        self.episodes = b.episodes;
+        self.models = b.models;
+        self.progress = b.progress;
+        self.last_row = b.last_row;
+        self.last_row_updates = b.last_row_updates;
+        self.final_return = b.final_return;
+        self.best_return = b.best_return;
+        self.to_minus_200 = b.to_minus_200;
+        self.last_eval = b.last_eval;
+        self.restarts = b.restarts;
+    }
+
+    /// Eval points ≤ `t` whose row is not written yet.
+    pub fn rows_missing_upto(&self, t: u64) -> usize {
+        self.eval_points[self.next_row.min(self.eval_points.len())..]
+            .iter()
+            .take_while(|&&p| p <= t)
+            .count()
+    }
+
     /// Take one record.
     pub fn on_record(&mut self, from: ProducerId, r: &StatsRecord) {
         match r.stats_kind() {
@@ -183,7 +240,8 @@ impl Collector {
             Some(StatsKind::Model) => {
                 self.models.insert(r.model_version, r.value);
             }
-            Some(StatsKind::Rollout) => {}
+            // Barrier reports go to the supervisor's barrier, never here.
+            Some(StatsKind::Rollout | StatsKind::Checkpoint) => {}
             Some(StatsKind::Heartbeat) => match Done::from_record(r) {
                 Some(d) => {
                     tracing::info!("{from} finished: {d:?}");
@@ -394,7 +452,7 @@ impl Collector {
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
                 median_seconds_per_env_step: median,
-                // `completed`, `failed` or `interrupted`.
+                // `completed`, `stopped` (checkpointed, resumable), `failed` or `interrupted`.
                 status: status.into(),
             },
             mode: self.mode.clone(),

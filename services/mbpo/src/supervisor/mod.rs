@@ -11,6 +11,7 @@
 //! supervisor sleeps in the same [`Waiter`] as the services (stats and policy channels, 250 ms
 //! timeout for reaping and the progress bar), so it needs no async runtime.
 
+mod checkpoints;
 mod collect;
 
 use std::fs::File;
@@ -19,6 +20,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use mbpo_service_kit::barrier::BarrierReport;
 use mbpo_service_kit::{configure_run, policy_wire_version, Mode};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::{policy_sha256, Algo, RunDir};
@@ -29,6 +31,7 @@ use mbpo_wire::{
 
 use crate::cli::{RestartPolicy, RunArgs};
 use crate::train_cmd::{resolve_config, run_dir};
+use checkpoints::{Barrier, SupervisorCheckpoint};
 use collect::Collector;
 
 /// One supervised process.
@@ -50,8 +53,12 @@ impl Proc {
             .append(true)
             .open(&self.log)
             .with_context(|| format!("opening {}", self.log.display()))?;
+        use std::os::unix::process::CommandExt;
         let child = Command::new(&self.bin)
             .args(&self.args)
+            // Own process group: a Ctrl-C at the terminal reaches only the supervisor, which
+            // answers it with a checkpoint and a clean stop of every process.
+            .process_group(0)
             .stdin(Stdio::null())
             .stdout(log.try_clone()?)
             .stderr(log)
@@ -146,8 +153,37 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     if let Some(k) = args.actors_per_core {
         args.actors = k.saturating_mul(ncpu() as u16);
     }
+    // A resumed run: its config, its newest checkpoint (every file checked), and the mode,
+    // actors and slack it ran with.
+    let resume = match args.resume.clone() {
+        Some(dir) => {
+            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir)
+                .with_context(|| format!("resuming {}", dir.display()))?;
+            args.mode = state.mode;
+            args.actors = state.actors;
+            args.slack = state.slack;
+            Some((ckpt, env_steps, state))
+        }
+        None => None,
+    };
     let args = &args;
-    let cfg = resolve_config(&args.common, None, None)?;
+    let (cfg, out) = match &args.resume {
+        Some(dir) => {
+            let path = dir.join("config.toml");
+            let mut cfg = mbpo_train::ExperimentConfig::load(&path)
+                .with_context(|| format!("resuming {}: its resolved config", dir.display()))?;
+            if let Some(steps) = args.common.steps {
+                cfg.steps = steps;
+                cfg.validate("command line --steps")?;
+            }
+            (cfg, dir.clone())
+        }
+        None => {
+            let cfg = resolve_config(&args.common, None, None)?;
+            let out = run_dir(&args.common, &cfg);
+            (cfg, out)
+        }
+    };
     if cfg.algo == Algo::Sac {
         bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
     }
@@ -157,9 +193,21 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     if args.actors == 0 {
         bail!("--actors must be at least 1");
     }
-    let out = run_dir(&args.common, &cfg);
-    let mut run_dir =
-        RunDir::create(&out, &cfg).with_context(|| format!("creating {}", out.display()))?;
+    let mut run_dir = match &resume {
+        Some((_, env_steps, _)) => {
+            if *env_steps > cfg.steps {
+                bail!(
+                    "the checkpoint is after step {env_steps}, past the run's {} steps; give --steps N with N > {env_steps}",
+                    cfg.steps
+                );
+            }
+            RunDir::reopen_with_config(&out, &cfg, *env_steps)
+                .with_context(|| format!("reopening {}", out.display()))?
+        }
+        None => {
+            RunDir::create(&out, &cfg).with_context(|| format!("creating {}", out.display()))?
+        }
+    };
     let out = out.canonicalize()?;
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs)?;
@@ -187,7 +235,12 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         ipc.root_path().display()
     );
 
-    let started = Instant::now();
+    // A resumed run's clock continues from its checkpoint.
+    let elapsed = resume.as_ref().map_or(0.0, |r| r.2.elapsed_seconds);
+    let now = Instant::now();
+    let started = now
+        .checked_sub(Duration::from_secs_f64(elapsed))
+        .unwrap_or(now);
     let outcome = supervise(
         args,
         &cfg,
@@ -198,6 +251,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         &bin_dir,
         &mut run_dir,
         started,
+        resume,
     );
 
     // Every node of the run is gone now (children reaped, ours dropped): remove everything.
@@ -240,6 +294,7 @@ fn supervise(
     bin_dir: &Path,
     run_dir: &mut RunDir,
     started: Instant,
+    resume: Option<(PathBuf, u64, SupervisorCheckpoint)>,
 ) -> anyhow::Result<(collect::PipelineSummary, Option<anyhow::Error>)> {
     let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
     let stats = StatsSubscriber::create(&node)?;
@@ -280,6 +335,11 @@ fn supervise(
         "--model-lag".into(),
         args.slack.model_lag.to_string(),
     ];
+    let mut common = common;
+    if let Some((dir, env_steps, _)) = &resume {
+        tracing::info!("resuming from {} (after step {env_steps})", dir.display());
+        common.extend(["--resume-from".into(), dir.display().to_string()]);
+    }
     let mut procs = Vec::new();
     let mut add = |name: String, bin: &str, extra: Vec<String>| {
         let mut a = common.clone();
@@ -318,6 +378,16 @@ fn supervise(
     }
 
     let mut col = Collector::new(cfg, args, run_id);
+    let mpc = cfg.algo == Algo::Mpc;
+    let schedule = mbpo_train::roles::Schedule::of(cfg);
+    let every = cfg.checkpoint.every;
+    let mut next_checkpoint = every;
+    if let Some((_, env_steps, state)) = resume {
+        col.restore(state.book);
+        next_checkpoint = env_steps + every;
+    }
+    let mut barrier: Option<Barrier> = None;
+    let mut stopped = false;
     let final_wire = if cfg.algo == Algo::Mpc {
         let schedule = mbpo_train::roles::Schedule::of(cfg);
         mbpo_service_kit::train_points_upto(&schedule, cfg.steps)
@@ -339,12 +409,34 @@ fn supervise(
     let mut interrupted = false;
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
-            interrupted = true;
-            break;
+            mbpo_wire::take_termination_request();
+            let clean = !mpc && !col.all_done(args.actors);
+            match barrier.as_mut() {
+                // First signal: checkpoint, then stop (resumable with --resume).
+                None if clean => {
+                    tracing::warn!("stopping: writing a checkpoint first (press Ctrl-C again to stop at once, without one)");
+                    barrier = Some(start_barrier(&control, args.actors, true)?);
+                }
+                Some(b) if !b.stop_after => {
+                    tracing::warn!("stopping after the checkpoint under way (press Ctrl-C again to stop at once)");
+                    b.stop_after = true;
+                }
+                // A second signal, or nothing to checkpoint: stop at once.
+                _ => {
+                    interrupted = true;
+                    break;
+                }
+            }
         }
         loop {
             match stats.receive() {
-                Ok(Some(r)) => col.on_record(r.producer(), &r.msg),
+                Ok(Some(r)) => match (BarrierReport::from_record(&r.msg), barrier.as_mut()) {
+                    (Some(report), Some(b)) => b.on_report(r.producer(), report),
+                    (Some(report), None) => {
+                        tracing::warn!("{}: {report:?} outside a barrier", r.producer())
+                    }
+                    (None, _) => col.on_record(r.producer(), &r.msg),
+                },
                 Ok(None) => break,
                 Err(e) => tracing::warn!("stats: {e}"),
             }
@@ -388,6 +480,68 @@ fn supervise(
         }
         if col.all_done(args.actors) && final_params.is_some() {
             break;
+        }
+        // Periodic checkpoints (`[checkpoint] every` env steps; MPC runs have none yet).
+        if barrier.is_none()
+            && !mpc
+            && every > 0
+            && col.env_steps() >= next_checkpoint
+            && !col.all_done(args.actors)
+        {
+            barrier = Some(start_barrier(&control, args.actors, false)?);
+        }
+        if let Some(b) = barrier.as_mut() {
+            if let Some(cut) = b.take_cut(&schedule) {
+                tracing::info!(
+                    "checkpoint cut: after step {} with {} model trainings",
+                    cut.env_steps,
+                    cut.model_trainings
+                );
+                control.send(&ControlMsg::request(
+                    ControlCommand::Checkpoint,
+                    cut.model_trainings,
+                    CONTROL_TARGET_ALL,
+                    cut.env_steps,
+                ))?;
+            }
+            if let Some(cut) = b.complete() {
+                col.write_rows(run_dir, started)?;
+                let missing = col.rows_missing_upto(cut.env_steps);
+                anyhow::ensure!(
+                    missing == 0,
+                    "checkpoint after step {}: {missing} metrics row(s) up to it are not in",
+                    cut.env_steps
+                );
+                let state = SupervisorCheckpoint {
+                    mode: args.mode,
+                    actors: args.actors,
+                    slack: args.slack,
+                    book: col.book(),
+                    elapsed_seconds: started.elapsed().as_secs_f64(),
+                };
+                checkpoints::finish(out, cut, &state, cfg.checkpoint.keep)?;
+                tracing::info!(
+                    "checkpoint after step {} complete ({:.2} s barrier): {}",
+                    cut.env_steps,
+                    b.started.elapsed().as_secs_f64(),
+                    mbpo_train::checkpoint::dir_for(out, cut.env_steps).display()
+                );
+                next_checkpoint = cut.env_steps + every.max(1);
+                if b.stop_after {
+                    stopped = true;
+                    break;
+                }
+                control.send(&ControlMsg::request(
+                    ControlCommand::Resume,
+                    cut.model_trainings,
+                    CONTROL_TARGET_ALL,
+                    cut.env_steps,
+                ))?;
+                barrier = None;
+            } else if b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1) {
+                b.warnings += 1;
+                tracing::warn!("checkpoint barrier still waiting for {}", b.waiting_for());
+            }
         }
     }
     progress.finish();
@@ -461,6 +615,8 @@ fn supervise(
         } else {
             "failed"
         }
+    } else if stopped {
+        "stopped"
     } else {
         "completed"
     };
@@ -476,4 +632,19 @@ fn supervise(
         .unwrap_or_default();
     let report = col.summary(status, sha, started);
     Ok((report, failure))
+}
+
+/// Broadcast the Pause that starts a checkpoint barrier.
+fn start_barrier(
+    control: &ControlPublisher<ipc::Service>,
+    actors: u16,
+    stop_after: bool,
+) -> anyhow::Result<Barrier> {
+    control.send(&ControlMsg::request(
+        ControlCommand::Pause,
+        0,
+        CONTROL_TARGET_ALL,
+        0,
+    ))?;
+    Ok(Barrier::new(actors, stop_after))
 }

@@ -1,0 +1,418 @@
+//! Checkpoints of the running pipeline: a barrier that brings every process to one consistent
+//! cut, and the file each service writes there.
+//!
+//! A checkpoint of a pipeline must hold, for every process, the state after the *same* real env
+//! step T, with no transition in flight that one process has and another lacks. The supervisor
+//! gets there in four messages on the control channel (ARCHITECTURE.md, "Checkpoints of the
+//! pipeline"):
+//!
+//! 1. **Pause** (to all): actors finish their current step and produce nothing more; the model
+//!    trainer and rollout generator start no new training / branch. Each of those reports its
+//!    counter ([`report_paused`]: an actor its local steps, the others their trainings or
+//!    branches). The learner and evaluator keep consuming.
+//! 2. **Checkpoint(T, K)** (the cut, to all): T = the actors' steps summed (every real
+//!    transition that exists), K = the model trainings the cut holds (at least those of the
+//!    train points ≤ T, more if the trainer had already trained for T + 1). Every process goes
+//!    on until its state is exactly "after T with K trainings" -- the learner consumed T steps,
+//!    published version T and holds K imagined batches; the model trainer and rollout generator
+//!    did K trainings / branches and hold all T transitions; the evaluator evaluated every eval
+//!    point ≤ T -- then writes its file into `checkpoints/<T>/` and reports it
+//!    ([`write_and_await_resume`]).
+//! 3. The supervisor writes its own file and the `COMPLETE` marker when all files are in.
+//! 4. **Resume** (go on) or **Stop** (a clean stop: SIGINT/SIGTERM).
+//!
+//! Lockstep runs are deterministic whatever the cut's timing, so a resumed lockstep run ends
+//! with the same weights as an uninterrupted one (`tests/tests/pipeline_resume.rs`).
+
+use std::path::Path;
+
+use mbpo_core::Rng;
+use mbpo_train::checkpoint;
+use mbpo_train::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
+use mbpo_wire::{ipc, StatsKind, StatsPublisher, StatsRecord, Waiter};
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+
+use crate::{wait_for, ControlInbox, RealInbox};
+use mbpo_core::Batch;
+use mbpo_wire::TransitionSubscriber;
+
+/// The cut of a checkpoint barrier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cut {
+    /// Real env steps T every process holds.
+    pub env_steps: u64,
+    /// Model trainings K (= imagined batches) the cut holds.
+    pub model_trainings: u64,
+}
+
+/// File kinds of the pipeline's checkpoint files (they wrap the role states of
+/// `mbpo_train::roles` with the service's loop counters).
+pub mod kind {
+    /// [`super::ActorCheckpoint`].
+    pub const ACTOR: &str = "mbpo.pipeline.actor";
+    /// [`super::EvaluatorCheckpoint`].
+    pub const EVALUATOR: &str = "mbpo.pipeline.evaluator";
+    /// [`super::ModelTrainerCheckpoint`].
+    pub const MODEL_TRAINER: &str = "mbpo.pipeline.model-trainer";
+    /// [`super::RolloutCheckpoint`].
+    pub const ROLLOUT: &str = "mbpo.pipeline.rollout-generator";
+    /// [`super::LearnerCheckpoint`].
+    pub const LEARNER: &str = "mbpo.pipeline.learner";
+    /// The supervisor's bookkeeping (metrics rows, counters).
+    pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor";
+}
+
+/// An actor at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ActorCheckpoint {
+    /// The role (env episode in progress, streams, policy).
+    pub role: ActorState,
+    /// Local steps done (its global steps follow from the index).
+    pub steps: u64,
+}
+
+/// The evaluator at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct EvaluatorCheckpoint {
+    /// The `eval.env` stream.
+    pub rng: Rng,
+    /// Policy version last evaluated.
+    pub version: u64,
+    /// Evaluations done.
+    pub evals: u64,
+    /// The cut's env step T (every eval point ≤ T is done).
+    pub env_steps: u64,
+}
+
+/// The model trainer at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ModelTrainerCheckpoint {
+    /// The role (D_env, model, optimiser, stream, version = K).
+    pub role: ModelTrainerState,
+}
+
+/// The rollout generator at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct RolloutCheckpoint {
+    /// The role (D_env, model, policy, stream).
+    pub role: RolloutState,
+    /// Branches done (= K).
+    pub branches: u64,
+}
+
+/// The learner at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LearnerCheckpoint {
+    /// The role (SAC, D_env, D_model, streams).
+    pub role: LearnerState,
+    /// Env steps consumed and published (= T).
+    pub consumed: u64,
+    /// SAC updates done.
+    pub updates: u64,
+    /// Imagined batches received (= K).
+    pub model_batches: u64,
+    /// Model version of the newest imagined batch.
+    pub model_version: u64,
+}
+
+/// The file name of an actor's checkpoint.
+pub fn actor_file(index: u16) -> String {
+    format!("actor-{index}")
+}
+
+/// Report the pause with the process's own counter, then sleep until the cut arrives.
+/// `Ok(None)`: stopped instead.
+pub fn report_paused(
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    stats: &StatsPublisher,
+    counter: u64,
+) -> anyhow::Result<Option<Cut>> {
+    if control.cut().is_none() {
+        stats.send(&record(counter, 0.0))?;
+        tracing::info!("checkpoint barrier: paused at {counter}");
+    }
+    let arrived = wait_for(waiter, control, &|| "the checkpoint cut".into(), || {
+        Ok(control.cut().is_some())
+    })?;
+    Ok(arrived.then(|| control.cut()).flatten())
+}
+
+/// Where a service's checkpoint file goes: `<run_dir>/checkpoints/<T>/<file>`, of `kind`.
+#[derive(Debug, Clone)]
+pub struct FileTarget {
+    /// The run directory.
+    pub run_dir: std::path::PathBuf,
+    /// File name inside the checkpoint directory.
+    pub file: String,
+    /// Checkpoint kind (see [`kind`]).
+    pub kind: &'static str,
+}
+
+impl FileTarget {
+    /// The file `file` of `kind` in checkpoints of `run_dir`.
+    pub fn new(run_dir: &Path, file: impl Into<String>, kind: &'static str) -> Self {
+        Self {
+            run_dir: run_dir.to_path_buf(),
+            file: file.into(),
+            kind,
+        }
+    }
+    /// Read this file of the checkpoint directory `dir` (`--resume-from`).
+    pub fn read<S: DeserializeOwned>(&self, dir: &Path) -> anyhow::Result<S> {
+        let path = dir.join(&self.file);
+        let state = checkpoint::read(&path, self.kind)?;
+        tracing::info!("resuming from {}", path.display());
+        Ok(state)
+    }
+}
+
+/// Write `state` into checkpoint `cut` at `target`, report it, then sleep until the supervisor
+/// says resume (`Ok(true)`) or stop (`Ok(false)`).
+pub fn write_and_await_resume<S: Serialize>(
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    stats: &StatsPublisher,
+    target: &FileTarget,
+    cut: Cut,
+    state: &S,
+) -> anyhow::Result<bool> {
+    let dir = checkpoint::dir_for(&target.run_dir, cut.env_steps);
+    std::fs::create_dir_all(&dir)?;
+    checkpoint::write(&dir.join(&target.file), target.kind, state)?;
+    stats.send(&record(cut.env_steps, 1.0))?;
+    tracing::info!(
+        "checkpoint after step {} ({} model trainings): wrote {}",
+        cut.env_steps,
+        cut.model_trainings,
+        target.file
+    );
+    let resumed = wait_for(
+        waiter,
+        control,
+        &|| "the supervisor's resume after the checkpoint".into(),
+        || Ok(control.take_resume()),
+    )?;
+    Ok(resumed)
+}
+
+/// What a producer of trainings or branches (model trainer, rollout generator) may do before
+/// its next one, given the barrier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Gate {
+    /// No barrier, or the cut still holds this work (`done < K`): go on.
+    Work,
+    /// At the cut: take the transitions ≤ T, write the checkpoint, wait for the resume.
+    AtCut(Cut),
+    /// Stopped.
+    Stop,
+}
+
+/// True when a barrier holds a producer that has done `done` pieces of work: paused and the
+/// cut not yet known, or known and not needing more work. Use it in a wait's wake-up condition.
+pub fn holds(control: &ControlInbox, done: u64) -> bool {
+    control.pause_requested() && control.cut().is_none_or(|c| done >= c.model_trainings)
+}
+
+/// Look at the barrier before the `done + 1`-th piece of work: report the pause (once) and
+/// wait for the cut if a barrier is under way.
+pub fn gate(
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    stats: &StatsPublisher,
+    done: u64,
+) -> anyhow::Result<Gate> {
+    if !control.pause_requested() {
+        return Ok(Gate::Work);
+    }
+    let cut = match control.cut() {
+        Some(c) => c,
+        None => match report_paused(waiter, control, stats, done)? {
+            Some(c) => c,
+            None => return Ok(Gate::Stop),
+        },
+    };
+    Ok(if done < cut.model_trainings {
+        Gate::Work
+    } else {
+        Gate::AtCut(cut)
+    })
+}
+
+/// Wait until the first `env_steps` real transitions of the run arrived and hand out those not
+/// yet taken into `rows` (a consumer at the cut holds every transition ≤ T). `Ok(false)`: stopped.
+pub fn take_upto(
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    real: &TransitionSubscriber<ipc::Service>,
+    inbox: &mut RealInbox,
+    rows: &mut Batch,
+    env_steps: u64,
+) -> anyhow::Result<bool> {
+    let arrived = wait_for(
+        waiter,
+        control,
+        &|| format!("{env_steps} real transitions for the checkpoint"),
+        || {
+            inbox.pull(real)?;
+            Ok(inbox.received() >= env_steps)
+        },
+    )?;
+    if arrived {
+        anyhow::ensure!(
+            inbox.received() == env_steps,
+            "checkpoint after step {env_steps}: {} real transitions arrived although the actors are paused",
+            inbox.received()
+        );
+        inbox.take((env_steps - inbox.taken()) as usize, rows);
+    }
+    Ok(arrived)
+}
+
+/// After its work, sleep until the supervisor's Stop while still taking part in checkpoint
+/// barriers: `pause_counter` is reported at a pause (`None` for the learner and evaluator,
+/// which never pause), `at_cut` writes the file and waits for the resume (`Ok(false)`: stop).
+pub fn idle_until_stop(
+    waiter: &Waiter<'_, ipc::Service>,
+    control: &ControlInbox,
+    stats: &StatsPublisher,
+    pause_counter: Option<u64>,
+    mut at_cut: impl FnMut(Cut) -> anyhow::Result<bool>,
+) -> anyhow::Result<()> {
+    loop {
+        let what = || "the supervisor's stop".to_string();
+        if !wait_for(waiter, control, &what, || Ok(control.pause_requested()))? {
+            return Ok(());
+        }
+        let cut = match pause_counter {
+            Some(c) => report_paused(waiter, control, stats, c)?,
+            None => wait_for(waiter, control, &what, || Ok(control.cut().is_some()))?
+                .then(|| control.cut())
+                .flatten(),
+        };
+        match cut {
+            Some(cut) if at_cut(cut)? => {}
+            _ => return Ok(()),
+        }
+    }
+}
+
+/// The ports a consumer that keeps its own D_env (model trainer, rollout generator) serves a
+/// barrier with.
+pub struct DataGate<'w, 'a> {
+    /// The process's waiter.
+    pub waiter: &'w Waiter<'a, ipc::Service>,
+    /// Its control inbox.
+    pub control: &'w ControlInbox,
+    /// Its stats publisher.
+    pub stats: &'w StatsPublisher,
+    /// The real-transition subscriber.
+    pub real: &'w TransitionSubscriber<ipc::Service>,
+}
+
+impl DataGate<'_, '_> {
+    /// At the cut: take every transition ≤ T out of `inbox`, then `at_cut(role, rows, cut)`
+    /// (adds them to the role, writes the file, waits for the resume). `Ok(false)`: stopped.
+    pub fn serve_cut<R>(
+        &self,
+        inbox: &mut RealInbox,
+        rows: &mut Batch,
+        role: &mut R,
+        cut: Cut,
+        at_cut: &mut impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+    ) -> anyhow::Result<bool> {
+        let n = cut.env_steps;
+        if !take_upto(self.waiter, self.control, self.real, inbox, rows, n)? {
+            return Ok(false);
+        }
+        at_cut(role, rows, cut)
+    }
+
+    /// Wait until `need` real transitions arrived, serving checkpoint barriers meanwhile
+    /// (`done`: trainings or branches so far). `Ok(false)`: stopped.
+    pub fn wait_for_real<R>(
+        &self,
+        inbox: &mut RealInbox,
+        rows: &mut Batch,
+        role: &mut R,
+        need: u64,
+        done: u64,
+        mut at_cut: impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+    ) -> anyhow::Result<bool> {
+        loop {
+            let ok = wait_for(
+                self.waiter,
+                self.control,
+                &|| format!("{need} real transitions"),
+                || {
+                    inbox.pull(self.real)?;
+                    Ok(inbox.received() >= need || holds(self.control, done))
+                },
+            )?;
+            if !ok {
+                return Ok(false);
+            }
+            match gate(self.waiter, self.control, self.stats, done)? {
+                Gate::Stop => return Ok(false),
+                Gate::Work if inbox.received() >= need => return Ok(true),
+                Gate::Work => {}
+                Gate::AtCut(cut) => {
+                    if !self.serve_cut(inbox, rows, role, cut, &mut at_cut)? {
+                        return Ok(false);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`idle_until_stop`] for such a consumer.
+    pub fn idle_until_stop<R>(
+        &self,
+        inbox: &mut RealInbox,
+        rows: &mut Batch,
+        role: &mut R,
+        pause_counter: Option<u64>,
+        mut at_cut: impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+    ) -> anyhow::Result<()> {
+        idle_until_stop(
+            self.waiter,
+            self.control,
+            self.stats,
+            pause_counter,
+            |cut| self.serve_cut(inbox, rows, role, cut, &mut at_cut),
+        )
+    }
+}
+
+fn record(env_steps: u64, phase: f32) -> StatsRecord {
+    let mut metrics = [0.0; 8];
+    metrics[0] = phase;
+    StatsRecord {
+        kind: StatsKind::Checkpoint as u32,
+        env_steps,
+        metrics,
+        ..Default::default()
+    }
+}
+
+/// A decoded [`StatsKind::Checkpoint`] record.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BarrierReport {
+    /// Paused with this counter.
+    Paused(u64),
+    /// Wrote its file of checkpoint T.
+    Written(u64),
+}
+
+impl BarrierReport {
+    /// Decode, if `r` is a checkpoint record.
+    pub fn from_record(r: &StatsRecord) -> Option<Self> {
+        (r.stats_kind() == Some(StatsKind::Checkpoint)).then(|| {
+            if r.metrics[0] == 1.0 {
+                BarrierReport::Written(r.env_steps)
+            } else {
+                BarrierReport::Paused(r.env_steps)
+            }
+        })
+    }
+}

@@ -1,0 +1,196 @@
+//! The supervisor's side of pipeline checkpoints (protocol in `mbpo_service_kit::barrier`):
+//! start a barrier (periodically, or on SIGINT/SIGTERM for a clean stop), turn the processes'
+//! pause reports into the cut, and write its own file and `COMPLETE` once every file is in.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::Path;
+use std::time::Instant;
+
+use mbpo_service_kit::barrier::{self, BarrierReport, Cut};
+use mbpo_service_kit::{train_points_upto, Mode, Slack};
+use mbpo_train::checkpoint;
+use mbpo_train::roles::Schedule;
+use mbpo_wire::{ProducerId, Role};
+use serde::{Deserialize, Serialize};
+
+use super::collect::CollectorBook;
+
+/// The supervisor's file of a checkpoint.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SupervisorCheckpoint {
+    /// Hand-off mode of the run (a resumed run keeps it).
+    pub mode: Mode,
+    /// Actors of the run (one file each; a resumed run keeps the count).
+    pub actors: u16,
+    /// Slack of the run.
+    pub slack: Slack,
+    /// Metrics bookkeeping.
+    pub book: CollectorBook,
+    /// Wall seconds of the run so far (the clock continues from here).
+    pub elapsed_seconds: f64,
+}
+
+/// The file name of the supervisor's state in a checkpoint directory.
+pub const SUPERVISOR_FILE: &str = "supervisor";
+
+/// Every file of a checkpoint of an MBPO pipeline with `actors` actors.
+pub fn files(actors: u16) -> Vec<String> {
+    let mut f: Vec<String> = ["learner", "model-trainer", "rollout-generator", "evaluator"]
+        .into_iter()
+        .map(String::from)
+        .collect();
+    f.extend((0..actors).map(barrier::actor_file));
+    f.push(SUPERVISOR_FILE.into());
+    f
+}
+
+/// The kind of each file of [`files`].
+pub fn kind_of(file: &str) -> &'static str {
+    match file {
+        "learner" => barrier::kind::LEARNER,
+        "model-trainer" => barrier::kind::MODEL_TRAINER,
+        "rollout-generator" => barrier::kind::ROLLOUT,
+        "evaluator" => barrier::kind::EVALUATOR,
+        SUPERVISOR_FILE => barrier::kind::SUPERVISOR,
+        _ => barrier::kind::ACTOR,
+    }
+}
+
+/// One checkpoint barrier under way.
+pub struct Barrier {
+    /// When it started (for the log).
+    pub started: Instant,
+    /// Stop the run once the checkpoint is complete (SIGINT/SIGTERM) instead of resuming.
+    pub stop_after: bool,
+    paused: BTreeMap<ProducerId, u64>,
+    cut: Option<Cut>,
+    written: BTreeSet<ProducerId>,
+    actors: u16,
+    /// Warnings logged about a slow barrier.
+    pub warnings: u32,
+}
+
+/// A barrier is reported as slow after this long (and every as long again).
+pub const BARRIER_WARN_AFTER: std::time::Duration = std::time::Duration::from_secs(60);
+
+impl Barrier {
+    /// A barrier over a pipeline with `actors` actors.
+    pub fn new(actors: u16, stop_after: bool) -> Self {
+        Self {
+            started: Instant::now(),
+            stop_after,
+            paused: BTreeMap::new(),
+            cut: None,
+            written: BTreeSet::new(),
+            actors,
+            warnings: 0,
+        }
+    }
+
+    /// Take one report.
+    pub fn on_report(&mut self, from: ProducerId, report: BarrierReport) {
+        match report {
+            BarrierReport::Paused(n) => {
+                self.paused.insert(from, n);
+            }
+            BarrierReport::Written(t) => {
+                if self.cut.is_some_and(|c| c.env_steps == t) {
+                    self.written.insert(from);
+                } else {
+                    tracing::warn!("{from} wrote checkpoint {t}, expected {:?}", self.cut);
+                }
+            }
+        }
+    }
+
+    /// The cut, once every actor, the model trainer and the rollout generator paused (and not
+    /// yet sent): T = the actors' steps summed; K = the trainings of the train points ≤ T, or
+    /// more if the model trainer or rollout generator had gone further (at most T + 1's).
+    pub fn take_cut(&mut self, schedule: &Schedule) -> Option<Cut> {
+        if self.cut.is_some() || self.paused.len() < self.actors as usize + 2 {
+            return None;
+        }
+        let of = |role: Role| {
+            self.paused
+                .iter()
+                .filter(move |(p, _)| p.role() == Some(role))
+                .map(|(_, &n)| n)
+        };
+        let env_steps: u64 = of(Role::Actor).sum();
+        let done = of(Role::ModelTrainer)
+            .chain(of(Role::RolloutGenerator))
+            .max();
+        let cut = Cut {
+            env_steps,
+            model_trainings: train_points_upto(schedule, env_steps).max(done.unwrap_or(0)),
+        };
+        self.cut = Some(cut);
+        Some(cut)
+    }
+
+    /// The cut once every process wrote its file.
+    pub fn complete(&self) -> Option<Cut> {
+        (self.written.len() == self.actors as usize + 4)
+            .then_some(self.cut)
+            .flatten()
+    }
+
+    /// What the barrier still waits for (for a warning when it takes long).
+    pub fn waiting_for(&self) -> String {
+        match self.cut {
+            None => format!(
+                "pause reports: {} of {}",
+                self.paused.len(),
+                self.actors as usize + 2
+            ),
+            Some(c) => format!(
+                "checkpoint files of step {}: {} of {}",
+                c.env_steps,
+                self.written.len(),
+                self.actors as usize + 4
+            ),
+        }
+    }
+}
+
+/// Write the supervisor's file and `COMPLETE`, then keep the newest `keep` checkpoints.
+pub fn finish(
+    run: &Path,
+    cut: Cut,
+    state: &SupervisorCheckpoint,
+    keep: usize,
+) -> anyhow::Result<()> {
+    let dir = checkpoint::dir_for(run, cut.env_steps);
+    checkpoint::write(&dir.join(SUPERVISOR_FILE), barrier::kind::SUPERVISOR, state)?;
+    let files = files(state.actors);
+    let names: Vec<&str> = files.iter().map(String::as_str).collect();
+    checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
+    checkpoint::prune(run, keep)?;
+    Ok(())
+}
+
+/// The newest complete checkpoint of `run`, every file checked (header and checksum), and the
+/// supervisor's state in it.
+pub fn latest_verified(
+    run: &Path,
+) -> anyhow::Result<(std::path::PathBuf, u64, SupervisorCheckpoint)> {
+    let Some((dir, manifest)) = checkpoint::latest(run)? else {
+        anyhow::bail!(
+            "{} has no complete checkpoint (nothing under {}); start a new run instead",
+            run.display(),
+            checkpoint::root(run).display()
+        );
+    };
+    let sup_path = dir.join(SUPERVISOR_FILE);
+    if !sup_path.is_file() {
+        anyhow::bail!(
+            "{} is not a checkpoint of `mbpo run` (no {SUPERVISOR_FILE} file); resume it with `mbpo train --resume`",
+            dir.display()
+        );
+    }
+    let state: SupervisorCheckpoint = checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?;
+    for f in files(state.actors) {
+        checkpoint::verify(&dir.join(&f), kind_of(&f))?;
+    }
+    Ok((dir, manifest.env_steps, state))
+}

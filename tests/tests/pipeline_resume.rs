@@ -1,0 +1,233 @@
+//! Checkpoints of the running pipeline (`mbpo_service_kit::barrier`): SIGINT writes one and
+//! stops cleanly, `mbpo run --resume` continues, and a lockstep run stopped and resumed ends
+//! with the same weights as the sequential reference (= an uninterrupted lockstep run).
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use mbpo_integration_tests::*;
+use mbpo_train::train_mbpo;
+
+const TIMEOUT: Duration = Duration::from_secs(300);
+
+/// The complete checkpoints of a run, oldest first, as env steps.
+fn checkpoints(run: &Path) -> Vec<u64> {
+    let Ok(entries) = std::fs::read_dir(run.join("checkpoints")) else {
+        return Vec::new();
+    };
+    let mut steps: Vec<u64> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.join("COMPLETE").is_file())
+        .filter_map(|p| p.file_name()?.to_str()?.parse().ok())
+        .collect();
+    steps.sort_unstable();
+    steps
+}
+
+/// `mbpo run --quiet` with `args`, its stderr going to `log` (a pipe nobody reads while the
+/// test waits would fill up and block the supervisor's logging).
+fn spawn_logged(args: &[&str], log: &Path) -> Child {
+    Command::new(bin_dir().join("mbpo"))
+        .arg("run")
+        .args(args)
+        .arg("--quiet")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .expect("spawning mbpo run")
+}
+
+/// Wait for `child` at most `timeout`; its exit status and stderr (from `log`).
+fn wait_logged(child: Child, log: &Path) -> (ExitStatus, String) {
+    let o = wait_output(child, TIMEOUT);
+    (o.status, std::fs::read_to_string(log).unwrap_or_default())
+}
+
+/// Wait until the run has a complete checkpoint, then SIGINT it.
+fn stop_after_first_checkpoint(mut child: Child, run: &Path, log: &Path) -> (ExitStatus, String) {
+    let t = Instant::now();
+    while checkpoints(run).is_empty() {
+        let exited = child.try_wait().unwrap();
+        assert!(
+            exited.is_none(),
+            "the run ended ({exited:?}) before its first checkpoint:\n{}",
+            std::fs::read_to_string(log).unwrap_or_default()
+        );
+        assert!(t.elapsed() < TIMEOUT, "no checkpoint within {TIMEOUT:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: kill(2) on our child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    wait_logged(child, log)
+}
+
+fn resume(run: &Path, root: &Path, log: &Path) -> (ExitStatus, String) {
+    let args = [
+        "--resume",
+        run.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    wait_logged(spawn_logged(&args, log), log)
+}
+
+/// Env steps of the metrics rows: every eval point exactly once, in order.
+fn metric_steps(run: &Path) -> Vec<u64> {
+    let text = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect()
+}
+
+fn start(input: &Path, out: &Path, root: &Path, extra: &[&str], log: &Path) -> Child {
+    let mut args = vec![
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    spawn_logged(&args, log)
+}
+
+/// Lockstep: periodic checkpoints, a SIGINT stop and a resume from disk change nothing -- the
+/// final policy equals the sequential run's, and so does every metrics column but the timings.
+#[test]
+fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
+    let mut cfg = tiny_config(800);
+    cfg.checkpoint.every = 100;
+    let dir = scratch("resume-lockstep");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("rl");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    // Sequential first: the pipeline's first checkpoint comes within a second.
+    let seq_dir = dir.join("sequential");
+    let seq = train_mbpo(&cfg, &seq_dir).unwrap();
+    let child = start(&input, &run, &root, &["--mode", "lockstep"], &log);
+
+    let (status, err) = stop_after_first_checkpoint(child, &run, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "stopped", "{s}");
+    let stopped_at = *checkpoints(&run).last().unwrap();
+    assert!(
+        stopped_at < cfg.steps,
+        "stopped at {stopped_at}: too late to test a resume"
+    );
+
+    let (status, err) = resume(&run, &root, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["mode"], "lockstep");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "stopped at {stopped_at} and resumed != uninterrupted (sequential)"
+    );
+    assert_eq!(
+        metrics_without_timing(&run),
+        metrics_without_timing(&seq_dir)
+    );
+    assert!(checkpoints(&run).len() <= cfg.checkpoint.keep);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Pipelined with two actors: SIGINT writes a checkpoint and stops every process; the resumed
+/// run ends with each real transition received exactly once by every consumer, the metrics
+/// rows continue (each eval point once) and the env-step count reaches the total.
+#[test]
+fn pipelined_stop_and_resume_loses_and_duplicates_nothing() {
+    let mut cfg = tiny_config(800);
+    cfg.checkpoint.every = 300;
+    let dir = scratch("resume-pipelined");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("rp");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let child = start(
+        &input,
+        &run,
+        &root,
+        &["--mode", "pipelined", "--actors", "2"],
+        &log,
+    );
+    let (status, err) = stop_after_first_checkpoint(child, &run, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "stopped", "{s}");
+    let alive = processes_mentioning(s["run_id"].as_str().unwrap());
+    assert!(alive.is_empty(), "processes still alive: {alive:?}");
+    let stopped_at = *checkpoints(&run).last().unwrap();
+
+    let (status, err) = resume(&run, &root, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["actors"], 2, "the resumed run keeps its actors");
+    let real = &s["real_transitions"];
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(
+            real["received"][consumer], cfg.steps,
+            "{consumer} (stopped at {stopped_at}): {s}"
+        );
+    }
+    assert_eq!(real["lost"], 0, "{s}");
+    assert_eq!(s["env_steps"], cfg.steps, "{s}");
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0)
+        .collect();
+    assert_eq!(metric_steps(&run), want);
+    let left = leftovers(s["run_id"].as_str().unwrap(), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A damaged checkpoint is named, with the problem, before any process starts; a run without
+/// checkpoints says so.
+#[test]
+fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
+    let mut cfg = tiny_config(400);
+    cfg.checkpoint.every = 250;
+    let dir = scratch("resume-damaged");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("rd");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let (status, err) = wait_logged(
+        start(&input, &run, &root, &["--mode", "lockstep"], &log),
+        &log,
+    );
+    assert!(status.success(), "{err}");
+    let ckpt: PathBuf = mbpo_train::checkpoint::dir_for(&run, checkpoints(&run)[0]);
+
+    let learner = ckpt.join("learner");
+    let bytes = std::fs::read(&learner).unwrap();
+    std::fs::write(&learner, &bytes[..bytes.len() / 2]).unwrap();
+    let (status, err) = resume(&run, &root, &log);
+    assert!(!status.success());
+    assert!(
+        err.contains("learner") && err.contains("truncated"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
+    let mut flipped = bytes.clone();
+    *flipped.last_mut().unwrap() ^= 1;
+    std::fs::write(&learner, &flipped).unwrap();
+    let (_, err) = resume(&run, &root, &log);
+    assert!(
+        err.contains("learner") && err.contains("corrupted"),
+        "{err}"
+    );
+
+    std::fs::remove_dir_all(run.join("checkpoints")).unwrap();
+    let (_, err) = resume(&run, &root, &log);
+    assert!(err.contains("no complete checkpoint"), "{err}");
+    let _ = std::fs::remove_dir_all(dir);
+}
