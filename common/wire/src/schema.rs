@@ -163,8 +163,8 @@ pub enum StatsKind {
     Rollout = 5,
     /// Liveness and counters only.
     Heartbeat = 6,
-    /// A checkpoint barrier step (see `mbpo_service_kit::barrier`): `metrics[0]` = 0 "paused"
-    /// (`env_steps` = the producer's own work counter at the pause) or 1 "written"
+    /// A checkpoint barrier step (`mbpo_service_kit::stats::BarrierReport`): `metrics[0]` = 0
+    /// "paused" (`env_steps` = the producer's own work counter at the pause) or 1 "written"
     /// (`env_steps` = the checkpoint's env step T).
     Checkpoint = 7,
 }

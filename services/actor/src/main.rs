@@ -66,27 +66,27 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut lag = stats::SlackTracker::default();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::actor_file(args.index),
-        barrier::kind::ACTOR,
-    );
+    let file = barrier::FileTarget::new(&args.run_dir, barrier::actor_file(args.index));
     let mut first = 1;
     if let Some(dir) = &args.resume_from {
         let state: ActorCheckpoint = file.read(dir)?;
         role.restore(state.role)?;
         first = state.steps + 1;
     }
-    // At a barrier: report the steps done, write the state at the cut, wait for the resume.
-    let at_barrier = |role: &ActorRole, done: u64| -> anyhow::Result<bool> {
-        let Some(cut) = barrier::report_paused(&waiter, &control, &stats_pub, done)? else {
-            return Ok(false);
-        };
+    // At the cut: write the state after `done` local steps, wait for the resume.
+    let write_at = |role: &ActorRole, done: u64, cut| {
         let state = ActorCheckpoint {
             role: role.checkpoint(),
             steps: done,
         };
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
+    // At a barrier: report the steps done, then as above.
+    let at_barrier = |role: &ActorRole, done: u64| -> anyhow::Result<bool> {
+        match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
+            Some(cut) => write_at(role, done, cut),
+            None => Ok(false),
+        }
     };
     let started = Instant::now();
     let mut ipc = Duration::ZERO;
@@ -174,11 +174,7 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     stats_pub.send(&done.record())?;
     tracing::info!("done: {steps} steps, policy lag {lo}..{hi} (mean {mean:.2})");
     barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
-        let state = ActorCheckpoint {
-            role: role.checkpoint(),
-            steps,
-        };
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+        write_at(&role, steps, cut)
     })
 }
 
@@ -208,7 +204,7 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut version = 0;
     let mut evals = 0;
     let mut after = 0;
-    let file = barrier::FileTarget::new(&args.run_dir, "evaluator", barrier::kind::EVALUATOR);
+    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::EVALUATOR);
     if let Some(dir) = &args.resume_from {
         let state: EvaluatorCheckpoint = file.read(dir)?;
         (rng, version, evals, after) = (state.rng, state.version, state.evals, state.env_steps);
@@ -232,12 +228,7 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
             }
             match control.cut() {
                 Some(cut) if cut.env_steps < t => {
-                    let state = EvaluatorCheckpoint {
-                        rng: rng.clone(),
-                        version,
-                        evals,
-                        env_steps: cut.env_steps,
-                    };
+                    let state = evaluator_state(&rng, version, evals, cut);
                     let (w, c) = (&waiter, &control);
                     if !barrier::write_and_await_resume(w, c, &stats_pub, &file, cut, &state)? {
                         return Ok(());
@@ -267,12 +258,22 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
         .record(),
     )?;
     barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
-        let state = EvaluatorCheckpoint {
-            rng: rng.clone(),
-            version,
-            evals,
-            env_steps: cut.env_steps,
-        };
+        let state = evaluator_state(&rng, version, evals, cut);
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     })
+}
+
+/// The evaluator's file at `cut` (every eval point ≤ T evaluated).
+fn evaluator_state(
+    rng: &mbpo_core::Rng,
+    version: u64,
+    evals: u64,
+    cut: barrier::Cut,
+) -> EvaluatorCheckpoint {
+    EvaluatorCheckpoint {
+        rng: rng.clone(),
+        version,
+        evals,
+        env_steps: cut.env_steps,
+    }
 }

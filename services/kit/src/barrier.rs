@@ -24,12 +24,13 @@
 //! Lockstep runs are deterministic whatever the cut's timing, so a resumed lockstep run ends
 //! with the same weights as an uninterrupted one (`tests/tests/pipeline_resume.rs`).
 
+use std::marker::PhantomData;
 use std::path::Path;
 
 use mbpo_core::Rng;
 use mbpo_train::checkpoint;
 use mbpo_train::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
-use mbpo_wire::{ipc, StatsKind, StatsPublisher, StatsRecord, Waiter};
+use mbpo_wire::{ipc, StatsPublisher, Waiter};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
 use crate::{wait_for, ControlInbox, RealInbox};
@@ -115,9 +116,51 @@ pub struct LearnerCheckpoint {
     pub model_version: u64,
 }
 
+/// File names in a checkpoint directory of the pipeline (actors: [`actor_file`]).
+pub mod file {
+    /// The learner's.
+    pub const LEARNER: &str = "learner";
+    /// The model trainer's.
+    pub const MODEL_TRAINER: &str = "model-trainer";
+    /// The rollout generator's.
+    pub const ROLLOUT: &str = "rollout-generator";
+    /// The evaluator's.
+    pub const EVALUATOR: &str = "evaluator";
+    /// The supervisor's.
+    pub const SUPERVISOR: &str = "supervisor";
+}
+
 /// The file name of an actor's checkpoint.
 pub fn actor_file(index: u16) -> String {
     format!("actor-{index}")
+}
+
+/// Every file of a checkpoint of an MBPO pipeline with `actors` actors.
+pub fn pipeline_files(actors: u16) -> Vec<String> {
+    let mut f: Vec<String> = [
+        file::LEARNER,
+        file::MODEL_TRAINER,
+        file::ROLLOUT,
+        file::EVALUATOR,
+    ]
+    .into_iter()
+    .map(String::from)
+    .collect();
+    f.extend((0..actors).map(actor_file));
+    f.push(file::SUPERVISOR.into());
+    f
+}
+
+/// The checkpoint kind of a file of [`pipeline_files`].
+pub fn kind_of(file_name: &str) -> &'static str {
+    match file_name {
+        file::LEARNER => kind::LEARNER,
+        file::MODEL_TRAINER => kind::MODEL_TRAINER,
+        file::ROLLOUT => kind::ROLLOUT,
+        file::EVALUATOR => kind::EVALUATOR,
+        file::SUPERVISOR => kind::SUPERVISOR,
+        _ => kind::ACTOR,
+    }
 }
 
 /// Report the pause with the process's own counter, then sleep until the cut arrives.
@@ -129,7 +172,7 @@ pub fn report_paused(
     counter: u64,
 ) -> anyhow::Result<Option<Cut>> {
     if control.cut().is_none() {
-        stats.send(&record(counter, 0.0))?;
+        stats.send(&crate::stats::BarrierReport::Paused(counter).record())?;
         tracing::info!("checkpoint barrier: paused at {counter}");
     }
     let arrived = wait_for(waiter, control, &|| "the checkpoint cut".into(), || {
@@ -138,7 +181,7 @@ pub fn report_paused(
     Ok(arrived.then(|| control.cut()).flatten())
 }
 
-/// Where a service's checkpoint file goes: `<run_dir>/checkpoints/<T>/<file>`, of `kind`.
+/// Where a service's checkpoint file goes: `<run_dir>/checkpoints/<T>/<file>`, of its kind.
 #[derive(Debug, Clone)]
 pub struct FileTarget {
     /// The run directory.
@@ -150,12 +193,13 @@ pub struct FileTarget {
 }
 
 impl FileTarget {
-    /// The file `file` of `kind` in checkpoints of `run_dir`.
-    pub fn new(run_dir: &Path, file: impl Into<String>, kind: &'static str) -> Self {
+    /// The file `file` (see [`file`], [`actor_file`]) in checkpoints of `run_dir`.
+    pub fn new(run_dir: &Path, file: impl Into<String>) -> Self {
+        let file = file.into();
         Self {
             run_dir: run_dir.to_path_buf(),
-            file: file.into(),
-            kind,
+            kind: kind_of(&file),
+            file,
         }
     }
     /// Read this file of the checkpoint directory `dir` (`--resume-from`).
@@ -180,7 +224,7 @@ pub fn write_and_await_resume<S: Serialize>(
     let dir = checkpoint::dir_for(&target.run_dir, cut.env_steps);
     std::fs::create_dir_all(&dir)?;
     checkpoint::write(&dir.join(&target.file), target.kind, state)?;
-    stats.send(&record(cut.env_steps, 1.0))?;
+    stats.send(&crate::stats::BarrierReport::Written(cut.env_steps).record())?;
     tracing::info!(
         "checkpoint after step {} ({} model trainings): wrote {}",
         cut.env_steps,
@@ -297,67 +341,84 @@ pub fn idle_until_stop(
     }
 }
 
-/// The ports a consumer that keeps its own D_env (model trainer, rollout generator) serves a
-/// barrier with.
-pub struct DataGate<'w, 'a> {
-    /// The process's waiter.
-    pub waiter: &'w Waiter<'a, ipc::Service>,
-    /// Its control inbox.
-    pub control: &'w ControlInbox,
-    /// Its stats publisher.
-    pub stats: &'w StatsPublisher,
-    /// The real-transition subscriber.
-    pub real: &'w TransitionSubscriber<ipc::Service>,
+/// How a consumer that keeps its own D_env (model trainer, rollout generator) serves a
+/// barrier: its ports, and `at_cut(role, rows, cut)`, called at the cut with every transition
+/// ≤ T not yet taken in `rows`, which adds them to the role, writes the role's file and waits
+/// for the resume (`Ok(false)`: stopped).
+pub struct DataGate<'w, 'a, R, F> {
+    waiter: &'w Waiter<'a, ipc::Service>,
+    control: &'w ControlInbox,
+    stats: &'w StatsPublisher,
+    real: &'w TransitionSubscriber<ipc::Service>,
+    at_cut: F,
+    role: PhantomData<fn(&mut R)>,
 }
 
-impl DataGate<'_, '_> {
-    /// At the cut: take every transition ≤ T out of `inbox`, then `at_cut(role, rows, cut)`
-    /// (adds them to the role, writes the file, waits for the resume). `Ok(false)`: stopped.
-    pub fn serve_cut<R>(
+impl<'w, 'a, R, F> DataGate<'w, 'a, R, F>
+where
+    F: Fn(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+{
+    /// The gate of a process with these ports.
+    pub fn new(
+        waiter: &'w Waiter<'a, ipc::Service>,
+        control: &'w ControlInbox,
+        stats: &'w StatsPublisher,
+        real: &'w TransitionSubscriber<ipc::Service>,
+        at_cut: F,
+    ) -> Self {
+        Self {
+            waiter,
+            control,
+            stats,
+            real,
+            at_cut,
+            role: PhantomData,
+        }
+    }
+
+    /// At the cut: take every transition ≤ T out of `inbox`, then `at_cut`. `Ok(false)`: stopped.
+    fn serve_cut(
         &self,
         inbox: &mut RealInbox,
         rows: &mut Batch,
         role: &mut R,
         cut: Cut,
-        at_cut: &mut impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
     ) -> anyhow::Result<bool> {
         let n = cut.env_steps;
         if !take_upto(self.waiter, self.control, self.real, inbox, rows, n)? {
             return Ok(false);
         }
-        at_cut(role, rows, cut)
+        (self.at_cut)(role, rows, cut)
     }
 
-    /// Wait until `need` real transitions arrived, serving checkpoint barriers meanwhile
-    /// (`done`: trainings or branches so far). `Ok(false)`: stopped.
-    pub fn wait_for_real<R>(
+    /// Sleep until `ready(role, inbox)` (evaluated after pulling the real transitions on every
+    /// wake-up), serving checkpoint barriers meanwhile (`done`: trainings or branches so far).
+    /// `Ok(false)`: stopped.
+    pub fn wait_until(
         &self,
         inbox: &mut RealInbox,
         rows: &mut Batch,
         role: &mut R,
-        need: u64,
         done: u64,
-        mut at_cut: impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+        what: &dyn Fn() -> String,
+        mut ready: impl FnMut(&mut R, &RealInbox) -> anyhow::Result<bool>,
     ) -> anyhow::Result<bool> {
         loop {
-            let ok = wait_for(
-                self.waiter,
-                self.control,
-                &|| format!("{need} real transitions"),
-                || {
-                    inbox.pull(self.real)?;
-                    Ok(inbox.received() >= need || holds(self.control, done))
-                },
-            )?;
-            if !ok {
+            let mut is_ready = false;
+            let woke = wait_for(self.waiter, self.control, what, || {
+                inbox.pull(self.real)?;
+                is_ready = ready(role, inbox)?;
+                Ok(is_ready || holds(self.control, done))
+            })?;
+            if !woke {
                 return Ok(false);
             }
             match gate(self.waiter, self.control, self.stats, done)? {
                 Gate::Stop => return Ok(false),
-                Gate::Work if inbox.received() >= need => return Ok(true),
+                Gate::Work if is_ready => return Ok(true),
                 Gate::Work => {}
                 Gate::AtCut(cut) => {
-                    if !self.serve_cut(inbox, rows, role, cut, &mut at_cut)? {
+                    if !self.serve_cut(inbox, rows, role, cut)? {
                         return Ok(false);
                     }
                 }
@@ -365,54 +426,35 @@ impl DataGate<'_, '_> {
         }
     }
 
+    /// [`DataGate::wait_until`] the first `need` real transitions arrived.
+    pub fn wait_for_real(
+        &self,
+        inbox: &mut RealInbox,
+        rows: &mut Batch,
+        role: &mut R,
+        need: u64,
+        done: u64,
+    ) -> anyhow::Result<bool> {
+        let what = || format!("{need} real transitions");
+        self.wait_until(inbox, rows, role, done, &what, |_, inbox| {
+            Ok(inbox.received() >= need)
+        })
+    }
+
     /// [`idle_until_stop`] for such a consumer.
-    pub fn idle_until_stop<R>(
+    pub fn idle_until_stop(
         &self,
         inbox: &mut RealInbox,
         rows: &mut Batch,
         role: &mut R,
         pause_counter: Option<u64>,
-        mut at_cut: impl FnMut(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
     ) -> anyhow::Result<()> {
         idle_until_stop(
             self.waiter,
             self.control,
             self.stats,
             pause_counter,
-            |cut| self.serve_cut(inbox, rows, role, cut, &mut at_cut),
+            |cut| self.serve_cut(inbox, rows, role, cut),
         )
-    }
-}
-
-fn record(env_steps: u64, phase: f32) -> StatsRecord {
-    let mut metrics = [0.0; 8];
-    metrics[0] = phase;
-    StatsRecord {
-        kind: StatsKind::Checkpoint as u32,
-        env_steps,
-        metrics,
-        ..Default::default()
-    }
-}
-
-/// A decoded [`StatsKind::Checkpoint`] record.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum BarrierReport {
-    /// Paused with this counter.
-    Paused(u64),
-    /// Wrote its file of checkpoint T.
-    Written(u64),
-}
-
-impl BarrierReport {
-    /// Decode, if `r` is a checkpoint record.
-    pub fn from_record(r: &StatsRecord) -> Option<Self> {
-        (r.stats_kind() == Some(StatsKind::Checkpoint)).then(|| {
-            if r.metrics[0] == 1.0 {
-                BarrierReport::Written(r.env_steps)
-            } else {
-                BarrierReport::Paused(r.env_steps)
-            }
-        })
     }
 }

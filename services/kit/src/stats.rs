@@ -9,6 +9,7 @@
 //! | `Model` | model trainer | after each training (sent *before* the weights) | `value` mean elite holdout MSE, `env_steps` real rows trained on, `model_version` |
 //! | `Rollout` | rollout generator | after each branch | `metrics` = [rows, k, seconds] |
 //! | `Heartbeat` | everyone | progress (`metrics[0]` = 0) or done (`metrics[0]` = 1, see [`Done`]) | counters |
+//! | `Checkpoint` | everyone | a checkpoint barrier step (see [`BarrierReport`], `crate::barrier`) | `env_steps` counter or T, `metrics[0]` phase |
 
 use mbpo_sac::SacStats;
 use mbpo_wire::{StatsKind, StatsRecord};
@@ -267,5 +268,60 @@ impl SlackTracker {
             self.max as f32,
             (self.sum / self.n as f64) as f32,
         )
+    }
+}
+
+/// A step of a checkpoint barrier ([`StatsKind::Checkpoint`]; protocol in `crate::barrier`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BarrierReport {
+    /// Paused with this counter (actor: local steps; model trainer: trainings; rollout
+    /// generator: branches). `metrics[0]` = 0.
+    Paused(u64),
+    /// Wrote its file of checkpoint T. `metrics[0]` = 1.
+    Written(u64),
+}
+
+impl BarrierReport {
+    /// Encode.
+    pub fn record(self) -> StatsRecord {
+        let (env_steps, phase) = match self {
+            BarrierReport::Paused(n) => (n, 0.0),
+            BarrierReport::Written(t) => (t, 1.0),
+        };
+        let mut metrics = [0.0; 8];
+        metrics[0] = phase;
+        StatsRecord {
+            kind: StatsKind::Checkpoint as u32,
+            env_steps,
+            metrics,
+            ..Default::default()
+        }
+    }
+    /// Decode, if `r` is a checkpoint record.
+    pub fn from_record(r: &StatsRecord) -> Option<Self> {
+        (r.stats_kind() == Some(StatsKind::Checkpoint)).then(|| {
+            if r.metrics[0] == 1.0 {
+                BarrierReport::Written(r.env_steps)
+            } else {
+                BarrierReport::Paused(r.env_steps)
+            }
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn barrier_reports_round_trip_and_other_kinds_are_not_reports() {
+        for r in [
+            BarrierReport::Paused(0),
+            BarrierReport::Paused(7),
+            BarrierReport::Written(1200),
+        ] {
+            assert_eq!(BarrierReport::from_record(&r.record()), Some(r));
+        }
+        assert_eq!(BarrierReport::from_record(&progress(5, 0, 0, 4)), None);
     }
 }

@@ -49,8 +49,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut inbox = RealInbox::new(d.rows());
     let mut rows = Batch::default();
     let mut flat = Vec::with_capacity(d.model.len());
-    let file =
-        barrier::FileTarget::new(&args.run_dir, "model-trainer", barrier::kind::MODEL_TRAINER);
+    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::MODEL_TRAINER);
     if let Some(dir) = &args.resume_from {
         let state: ModelTrainerCheckpoint = file.read(dir)?;
         role.restore(state.role)?;
@@ -66,15 +65,10 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         };
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
-    let gate = barrier::DataGate {
-        waiter: &waiter,
-        control: &control,
-        stats: &stats_pub,
-        real: &real,
-    };
+    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, at_cut);
     let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
     for t in train_points.skip(version as usize) {
-        if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, t - 1, version, at_cut)? {
+        if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, t - 1, version)? {
             return Ok(());
         }
         let n = match s.mode {
@@ -123,7 +117,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     }
     // Take the rest so that no actor blocks and the counts are complete.
     let total = cfg.steps;
-    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, version, at_cut)? {
+    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, version)? {
         return Ok(());
     }
     let lost = real.stats().missing;
@@ -140,7 +134,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         "done: {} real transitions received, {lost} lost, {version} trainings",
         inbox.received()
     );
-    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version), at_cut)
+    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version))
 }
 
 /// MPC lockstep: before model `version` replaces `version − 1` (weights are latest-value), wait

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use mbpo_core::Batch;
-use mbpo_service_kit::barrier::{self, Gate, RolloutCheckpoint};
+use mbpo_service_kit::barrier::{self, RolloutCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::roles::{ModelSnapshot, PolicySnapshot, RolloutRole, Schedule};
 use mbpo_wire::*;
@@ -65,85 +65,56 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let mut model_version = 0;
     let mut staleness = stats::SlackTracker::default();
-    // A Cell: the checkpoint closure reads it while the loop counts.
-    let branches = std::cell::Cell::new(0);
-    let file = barrier::FileTarget::new(&args.run_dir, "rollout-generator", barrier::kind::ROLLOUT);
+    let mut branches = 0;
+    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::ROLLOUT);
     if let Some(dir) = &args.resume_from {
         let state: RolloutCheckpoint = file.read(dir)?;
         snap.version = state.role.policy_version;
         snap.params.copy_from_slice(&state.role.policy);
-        branches.set(state.branches);
+        branches = state.branches;
         role.restore(state.role)?;
         model_version = role.model_version();
         inbox.resume_at(role.real_received());
     }
+    // At the cut the branches done are the cut's K.
     let at_cut = |role: &mut RolloutRole, rows: &Batch, cut: barrier::Cut| {
         role.add_real(rows);
         let state = RolloutCheckpoint {
             role: role.checkpoint(),
-            branches: branches.get(),
+            branches: cut.model_trainings,
         };
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
-    let gate = barrier::DataGate {
-        waiter: &waiter,
-        control: &control,
-        stats: &stats_pub,
-        real: &real,
-    };
+    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, at_cut);
     let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
-    for t in train_points.skip(branches.get() as usize) {
+    for t in train_points.skip(branches as usize) {
         let epoch = schedule.train_point(t).expect("train point");
-        let v = branches.get() + 1;
+        let v = branches + 1;
         let need_policy = (t - 1).saturating_sub(s.slack.policy_lag);
-        // Wait for model v, the policy and t − 1 transitions, serving a checkpoint barrier.
-        loop {
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| {
-                    format!(
-                        "model v{v}, policy v{need_policy}, {} real transitions",
-                        t - 1
-                    )
-                },
-                || {
-                    inbox.pull(&real)?;
-                    if let Some(w) = model.receive_latest()? {
-                        let weights = d.model.decode(w.params())?;
-                        model_version = w.version();
-                        role.set_model(&ModelSnapshot {
-                            version: model_version,
-                            weights,
-                        })?;
-                    }
-                    if let Some(w) = policy.receive_latest()? {
-                        snap.version = policy_version_of(w.version());
-                        snap.params.copy_from_slice(w.params());
-                        role.set_policy(&snap);
-                    }
-                    let ready = model_version >= v
-                        && snap.version >= need_policy
-                        && inbox.received() >= t - 1;
-                    Ok(ready || barrier::holds(&control, branches.get()))
-                },
-            )?;
-            if !ok {
-                return Ok(());
+        let what = || {
+            format!(
+                "model v{v}, policy v{need_policy}, {} real transitions",
+                t - 1
+            )
+        };
+        let ready = |role: &mut RolloutRole, inbox: &RealInbox| {
+            if let Some(w) = model.receive_latest()? {
+                let weights = d.model.decode(w.params())?;
+                model_version = w.version();
+                role.set_model(&ModelSnapshot {
+                    version: model_version,
+                    weights,
+                })?;
             }
-            let ready =
-                model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1;
-            match barrier::gate(&waiter, &control, &stats_pub, branches.get())? {
-                Gate::Stop => return Ok(()),
-                Gate::Work if ready => break,
-                Gate::Work => {}
-                Gate::AtCut(cut) => {
-                    let (inbox, rows) = (&mut inbox, &mut rows);
-                    if !gate.serve_cut(inbox, rows, &mut role, cut, &mut at_cut.clone())? {
-                        return Ok(());
-                    }
-                }
+            if let Some(w) = policy.receive_latest()? {
+                snap.version = policy_version_of(w.version());
+                snap.params.copy_from_slice(w.params());
+                role.set_policy(&snap);
             }
+            Ok(model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1)
+        };
+        if !gate.wait_until(&mut inbox, &mut rows, &mut role, branches, &what, ready)? {
+            return Ok(());
         }
         if s.mode == Mode::Lockstep {
             anyhow::ensure!(
@@ -177,7 +148,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             env_steps: t - 1,
         };
         imagined.send_batch(&batch.rows, meta)?;
-        branches.set(branches.get() + 1);
+        branches += 1;
         tracing::info!(
             "step {t}: {} rollouts of k={} with model v{} and policy v{}: {} rows in {seconds:.2} s",
             n_rollouts,
@@ -188,14 +159,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         );
     }
     let total = cfg.steps;
-    if !gate.wait_for_real(
-        &mut inbox,
-        &mut rows,
-        &mut role,
-        total,
-        branches.get(),
-        at_cut,
-    )? {
+    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, branches)? {
         return Ok(());
     }
     let (lo, hi, mean) = staleness.get();
@@ -203,7 +167,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let done = stats::Done {
         real: inbox.received(),
         lost,
-        work: branches.get(),
+        work: branches,
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,
@@ -211,15 +175,8 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     stats_pub.send(&done.record())?;
     tracing::info!(
-        "done: {} real transitions received, {lost} lost, {} branches",
-        inbox.received(),
-        branches.get()
+        "done: {} real transitions received, {lost} lost, {branches} branches",
+        inbox.received()
     );
-    gate.idle_until_stop(
-        &mut inbox,
-        &mut rows,
-        &mut role,
-        Some(branches.get()),
-        at_cut,
-    )
+    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(branches))
 }

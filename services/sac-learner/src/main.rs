@@ -70,7 +70,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let (mut consumed, mut updates, mut published) = (0u64, 0u64, 0u64);
     let mut model_batches = 0u64;
-    let file = barrier::FileTarget::new(&args.run_dir, "learner", barrier::kind::LEARNER);
+    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::LEARNER);
     if let Some(dir) = &args.resume_from {
         let state: LearnerCheckpoint = file.read(dir)?;
         role.restore(state.role)?;
@@ -106,10 +106,8 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut ipc = Duration::ZERO;
     // Version 0: the initial parameters (actors of step 1 use them when there is no warm-up);
     // a resumed learner republishes the version of its checkpoint.
+    // Readers that connect later get it too (latest value, see mbpo_wire::weights).
     publish(published, &role, updates, model_batches)?;
-    // A resumed learner's first version must reach readers that connect after it was sent
-    // (the actors wait for it): offer it to new connections while idle until a step arrives.
-    let resumed_at = args.resume_from.as_ref().map(|_| consumed);
     loop {
         let t0 = Instant::now();
         control.poll()?;
@@ -124,13 +122,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
                 && published == cut.env_steps
                 && model_batches == cut.model_trainings
             {
-                let state = LearnerCheckpoint {
-                    role: role.checkpoint(),
-                    consumed,
-                    updates,
-                    model_batches,
-                    model_version: batch.model_version,
-                };
+                let state = checkpoint_at(&role, cut, updates, batch.model_version);
                 if !barrier::write_and_await_resume(
                     &waiter, &control, &stats_pub, &file, cut, &state,
                 )? {
@@ -222,11 +214,6 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             updates += 1;
             continue;
         }
-        if resumed_at == Some(consumed) {
-            policy.update_connections()?;
-            waiter.wait(Duration::from_millis(20))?;
-            continue;
-        }
         waiter.wait(Duration::from_secs(1))?;
     }
     step_seconds.sort_by(f64::total_cmp);
@@ -255,17 +242,29 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     );
     barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
         anyhow::ensure!(
-            cut.env_steps == consumed,
-            "checkpoint after step {} but the learner consumed all {consumed} steps",
-            cut.env_steps
+            (cut.env_steps, cut.model_trainings) == (consumed, model_batches),
+            "checkpoint after step {} with {} model trainings, but the learner is done: {consumed} steps, {model_batches} imagined batches",
+            cut.env_steps,
+            cut.model_trainings
         );
-        let state = LearnerCheckpoint {
-            role: role.checkpoint(),
-            consumed,
-            updates,
-            model_batches,
-            model_version: batch.model_version,
-        };
+        let state = checkpoint_at(&role, cut, updates, batch.model_version);
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     })
+}
+
+/// The learner's file at `cut`: it has consumed and published step T and holds the K imagined
+/// batches.
+fn checkpoint_at(
+    role: &LearnerRole,
+    cut: barrier::Cut,
+    updates: u64,
+    model_version: u64,
+) -> LearnerCheckpoint {
+    LearnerCheckpoint {
+        role: role.checkpoint(),
+        consumed: cut.env_steps,
+        updates,
+        model_batches: cut.model_trainings,
+        model_version,
+    }
 }

@@ -6,7 +6,8 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Instant;
 
-use mbpo_service_kit::barrier::{self, BarrierReport, Cut};
+use mbpo_service_kit::barrier::{self, Cut};
+use mbpo_service_kit::stats::BarrierReport;
 use mbpo_service_kit::{train_points_upto, Mode, Slack};
 use mbpo_train::checkpoint;
 use mbpo_train::roles::Schedule;
@@ -28,32 +29,6 @@ pub struct SupervisorCheckpoint {
     pub book: CollectorBook,
     /// Wall seconds of the run so far (the clock continues from here).
     pub elapsed_seconds: f64,
-}
-
-/// The file name of the supervisor's state in a checkpoint directory.
-pub const SUPERVISOR_FILE: &str = "supervisor";
-
-/// Every file of a checkpoint of an MBPO pipeline with `actors` actors.
-pub fn files(actors: u16) -> Vec<String> {
-    let mut f: Vec<String> = ["learner", "model-trainer", "rollout-generator", "evaluator"]
-        .into_iter()
-        .map(String::from)
-        .collect();
-    f.extend((0..actors).map(barrier::actor_file));
-    f.push(SUPERVISOR_FILE.into());
-    f
-}
-
-/// The kind of each file of [`files`].
-pub fn kind_of(file: &str) -> &'static str {
-    match file {
-        "learner" => barrier::kind::LEARNER,
-        "model-trainer" => barrier::kind::MODEL_TRAINER,
-        "rollout-generator" => barrier::kind::ROLLOUT,
-        "evaluator" => barrier::kind::EVALUATOR,
-        SUPERVISOR_FILE => barrier::kind::SUPERVISOR,
-        _ => barrier::kind::ACTOR,
-    }
 }
 
 /// One checkpoint barrier under way.
@@ -161,8 +136,12 @@ pub fn finish(
     keep: usize,
 ) -> anyhow::Result<()> {
     let dir = checkpoint::dir_for(run, cut.env_steps);
-    checkpoint::write(&dir.join(SUPERVISOR_FILE), barrier::kind::SUPERVISOR, state)?;
-    let files = files(state.actors);
+    checkpoint::write(
+        &dir.join(barrier::file::SUPERVISOR),
+        barrier::kind::SUPERVISOR,
+        state,
+    )?;
+    let files = barrier::pipeline_files(state.actors);
     let names: Vec<&str> = files.iter().map(String::as_str).collect();
     checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
     checkpoint::prune(run, keep)?;
@@ -181,16 +160,17 @@ pub fn latest_verified(
             checkpoint::root(run).display()
         );
     };
-    let sup_path = dir.join(SUPERVISOR_FILE);
+    let sup_path = dir.join(barrier::file::SUPERVISOR);
     if !sup_path.is_file() {
         anyhow::bail!(
-            "{} is not a checkpoint of `mbpo run` (no {SUPERVISOR_FILE} file); resume it with `mbpo train --resume`",
-            dir.display()
+            "{} is not a checkpoint of `mbpo run` (no {} file); resume it with `mbpo train --resume`",
+            dir.display(),
+            barrier::file::SUPERVISOR
         );
     }
     let state: SupervisorCheckpoint = checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?;
-    for f in files(state.actors) {
-        checkpoint::verify(&dir.join(&f), kind_of(&f))?;
+    for f in barrier::pipeline_files(state.actors) {
+        checkpoint::verify(&dir.join(&f), barrier::kind_of(&f))?;
     }
     Ok((dir, manifest.env_steps, state))
 }

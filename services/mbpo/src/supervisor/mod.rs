@@ -20,7 +20,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use mbpo_service_kit::barrier::BarrierReport;
+use mbpo_service_kit::stats::BarrierReport;
 use mbpo_service_kit::{configure_run, policy_wire_version, Mode};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::{policy_sha256, Algo, RunDir};
