@@ -3,7 +3,7 @@
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
 use mbpo_train::{train_mbpo_with, train_mpc, train_sac_with, Algo, ExperimentConfig, RunOptions};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Resolve the config from the file and the command-line overrides, validated.
@@ -46,18 +46,22 @@ pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
     })
 }
 
+/// The config of the run in `dir` being resumed (`mbpo train/run --resume`): its own resolved
+/// `config.toml`, with `--steps` the only change allowed.
+pub fn resumed_config(dir: &Path, steps: Option<u64>) -> anyhow::Result<ExperimentConfig> {
+    let path = dir.join("config.toml");
+    let mut cfg = ExperimentConfig::load(&path)
+        .with_context(|| format!("resuming {}: its resolved config", dir.display()))?;
+    if let Some(steps) = steps {
+        cfg.steps = steps;
+        cfg.validate("command line --steps")?;
+    }
+    Ok(cfg)
+}
+
 pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     let (cfg, out, resume) = match &args.resume {
-        Some(dir) => {
-            let path = dir.join("config.toml");
-            let mut cfg = ExperimentConfig::load(&path)
-                .with_context(|| format!("resuming {}: its resolved config", dir.display()))?;
-            if let Some(steps) = args.common.steps {
-                cfg.steps = steps;
-                cfg.validate("command line --steps")?;
-            }
-            (cfg, dir.clone(), true)
-        }
+        Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone(), true),
         None => {
             let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
             let out = run_dir(&args.common, &cfg);

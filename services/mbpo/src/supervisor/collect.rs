@@ -113,7 +113,8 @@ pub struct CollectorBook {
     best_return: f64,
     to_minus_200: Option<u64>,
     last_eval: Option<f64>,
-    restarts: u32,
+    /// Process restarts.
+    pub restarts: u32,
 }
 
 /// What the supervisor knows about the run.
@@ -124,21 +125,11 @@ pub struct Collector {
     run_id: String,
     slack: mbpo_service_kit::Slack,
     eval_points: Vec<u64>,
-    next_row: usize,
     evals: BTreeMap<u64, f64>,
     learner: BTreeMap<u64, LearnerRow>,
-    episodes: Vec<(u64, f64)>,
-    models: BTreeMap<u64, f64>,
     done: BTreeMap<ProducerId, Done>,
-    progress: (u64, u64, u64),
-    last_row: (f64, u64),
-    last_row_updates: u64,
-    final_return: f64,
-    best_return: f64,
-    to_minus_200: Option<u64>,
-    last_eval: Option<f64>,
-    /// Process restarts.
-    pub restarts: u32,
+    /// Rows, returns, counters: what a checkpoint keeps.
+    pub book: CollectorBook,
 }
 
 impl Collector {
@@ -153,58 +144,28 @@ impl Collector {
             eval_points: (1..=cfg.steps)
                 .filter(|&t| mbpo_service_kit::is_eval_point(cfg, t))
                 .collect(),
-            next_row: 0,
             evals: BTreeMap::new(),
             learner: BTreeMap::new(),
-            episodes: Vec::new(),
-            models: BTreeMap::new(),
             done: BTreeMap::new(),
-            progress: (0, 0, 0),
-            last_row: (0.0, 0),
-            last_row_updates: 0,
-            final_return: f64::NAN,
-            best_return: f64::NEG_INFINITY,
-            to_minus_200: None,
-            last_eval: None,
-            restarts: 0,
+            book: CollectorBook {
+                next_row: 0,
+                episodes: Vec::new(),
+                models: BTreeMap::new(),
+                progress: (0, 0, 0),
+                last_row: (0.0, 0),
+                last_row_updates: 0,
+                final_return: f64::NAN,
+                best_return: f64::NEG_INFINITY,
+                to_minus_200: None,
+                last_eval: None,
+                restarts: 0,
+            },
         }
-    }
-
-    /// The bookkeeping to checkpoint.
-    pub fn book(&self) -> CollectorBook {
-        CollectorBook {
-            next_row: self.next_row,
-            episodes: self.episodes.clone(),
-            models: self.models.clone(),
-            progress: self.progress,
-            last_row: self.last_row,
-            last_row_updates: self.last_row_updates,
-            final_return: self.final_return,
-            best_return: self.best_return,
-            to_minus_200: self.to_minus_200,
-            last_eval: self.last_eval,
-            restarts: self.restarts,
-        }
-    }
-
-    /// Continue from a checkpoint's bookkeeping.
-    pub fn restore(&mut self, b: CollectorBook) {
-        self.next_row = b.next_row;
-        self.episodes = b.episodes;
-        self.models = b.models;
-        self.progress = b.progress;
-        self.last_row = b.last_row;
-        self.last_row_updates = b.last_row_updates;
-        self.final_return = b.final_return;
-        self.best_return = b.best_return;
-        self.to_minus_200 = b.to_minus_200;
-        self.last_eval = b.last_eval;
-        self.restarts = b.restarts;
     }
 
     /// Eval points ≤ `t` whose row is not written yet.
     pub fn rows_missing_upto(&self, t: u64) -> usize {
-        self.eval_points[self.next_row.min(self.eval_points.len())..]
+        self.eval_points[self.book.next_row.min(self.eval_points.len())..]
             .iter()
             .take_while(|&&p| p <= t)
             .count()
@@ -213,7 +174,7 @@ impl Collector {
     /// Take one record.
     pub fn on_record(&mut self, from: ProducerId, r: &StatsRecord) {
         match r.stats_kind() {
-            Some(StatsKind::Episode) => self.episodes.push((r.env_steps, r.value)),
+            Some(StatsKind::Episode) => self.book.episodes.push((r.env_steps, r.value)),
             Some(StatsKind::Eval) => {
                 self.evals.insert(r.env_steps, r.value);
                 if self.mpc() {
@@ -234,11 +195,11 @@ impl Collector {
             }
             Some(StatsKind::Learner) => {
                 let row = LearnerRow::from_record(r);
-                self.progress = (r.env_steps, r.sac_updates, r.model_version);
+                self.book.progress = (r.env_steps, r.sac_updates, r.model_version);
                 self.learner.insert(r.env_steps, row);
             }
             Some(StatsKind::Model) => {
-                self.models.insert(r.model_version, r.value);
+                self.book.models.insert(r.model_version, r.value);
             }
             // Barrier reports go to the supervisor's barrier, never here.
             Some(StatsKind::Rollout | StatsKind::Checkpoint) => {}
@@ -248,14 +209,14 @@ impl Collector {
                     self.done.insert(from, d);
                 }
                 None if from.role() == Some(Role::Learner) => {
-                    self.progress = (r.env_steps, r.sac_updates, r.model_version)
+                    self.book.progress = (r.env_steps, r.sac_updates, r.model_version)
                 }
                 // MPC has no learner: the actors' progress is the run's.
                 None if self.mpc()
                     && from.role() == Some(Role::Actor)
-                    && r.env_steps > self.progress.0 =>
+                    && r.env_steps > self.book.progress.0 =>
                 {
-                    self.progress = (r.env_steps, 0, r.model_version)
+                    self.book.progress = (r.env_steps, 0, r.model_version)
                 }
                 None => {}
             },
@@ -265,7 +226,7 @@ impl Collector {
 
     /// Env steps consumed by the learner (last report).
     pub fn env_steps(&self) -> u64 {
-        self.progress.0
+        self.book.progress.0
     }
 
     /// True when every process reported done (MPC runs have no learner or rollout generator).
@@ -280,27 +241,27 @@ impl Collector {
 
     /// Write the rows whose records are all in.
     pub fn write_rows(&mut self, run: &mut RunDir, started: Instant) -> std::io::Result<()> {
-        while let Some(&t) = self.eval_points.get(self.next_row) {
+        while let Some(&t) = self.eval_points.get(self.book.next_row) {
             let (Some(&ret), Some(lr)) = (self.evals.get(&t), self.learner.get(&t).copied()) else {
                 break;
             };
-            let done: Vec<&(u64, f64)> = self.episodes.iter().filter(|e| e.0 <= t).collect();
+            let done: Vec<&(u64, f64)> = self.book.episodes.iter().filter(|e| e.0 <= t).collect();
             let train_return = done.iter().max_by_key(|e| e.0).map(|e| e.1);
             let updated = lr.sac_updates > 0;
             let some = |v: f32| updated.then_some(v as f64);
             let model = (lr.model_version > 0)
-                .then(|| self.models.get(&lr.model_version).copied())
+                .then(|| self.book.models.get(&lr.model_version).copied())
                 .flatten();
             if self.mpc() && model.is_none() && lr.model_version > 0 {
                 break; // the model record arrives before its weights; wait for it
             }
             let mpc = self.mpc();
             let now = started.elapsed().as_secs_f64();
-            let dt = (now - self.last_row.0).max(1e-9);
-            let sps = (t - self.last_row.1) as f64 / dt;
-            let ups = lr.sac_updates.saturating_sub(self.last_row_updates) as f64 / dt;
-            self.last_row = (now, t);
-            self.last_row_updates = lr.sac_updates;
+            let dt = (now - self.book.last_row.0).max(1e-9);
+            let sps = (t - self.book.last_row.1) as f64 / dt;
+            let ups = lr.sac_updates.saturating_sub(self.book.last_row_updates) as f64 / dt;
+            self.book.last_row = (now, t);
+            self.book.last_row_updates = lr.sac_updates;
             let row = MetricsRow {
                 env_steps: t,
                 episodes: done.len() as u64,
@@ -325,22 +286,22 @@ impl Collector {
                 lr.sac_updates,
                 lr.alpha
             );
-            self.final_return = ret;
-            self.best_return = self.best_return.max(ret);
-            if ret >= -200.0 && self.to_minus_200.is_none() {
-                self.to_minus_200 = Some(t);
+            self.book.final_return = ret;
+            self.book.best_return = self.book.best_return.max(ret);
+            if ret >= -200.0 && self.book.to_minus_200.is_none() {
+                self.book.to_minus_200 = Some(t);
             }
-            self.last_eval = Some(ret);
-            self.next_row += 1;
+            self.book.last_eval = Some(ret);
+            self.book.next_row += 1;
         }
         Ok(())
     }
 
     /// Hand the learner's progress and the last evaluation to the progress bar / lines.
     pub fn show_progress(&self, progress: &mut Progress) {
-        let (steps, updates, model) = self.progress;
+        let (steps, updates, model) = self.book.progress;
         progress.set_model_version(model);
-        if let Some(r) = self.last_eval {
+        if let Some(r) = self.book.last_eval {
             progress.set_eval(r);
         }
         progress.update(steps, updates);
@@ -444,11 +405,11 @@ impl Collector {
                 algo: self.cfg.algo.name().into(),
                 env: self.cfg.env.clone(),
                 seed: self.cfg.seed,
-                env_steps: self.last_row.1,
+                env_steps: self.book.last_row.1,
                 sac_updates,
-                final_eval_return: self.final_return,
-                best_eval_return: self.best_return,
-                env_steps_to_minus_200: self.to_minus_200,
+                final_eval_return: self.book.final_return,
+                best_eval_return: self.book.best_return,
+                env_steps_to_minus_200: self.book.to_minus_200,
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
                 median_seconds_per_env_step: median,
@@ -461,7 +422,7 @@ impl Collector {
             real_transitions: real,
             ratios,
             ipc,
-            restarts: self.restarts,
+            restarts: self.book.restarts,
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
         }

@@ -30,7 +30,7 @@ use mbpo_wire::{
 };
 
 use crate::cli::{RestartPolicy, RunArgs};
-use crate::train_cmd::{resolve_config, run_dir};
+use crate::train_cmd::{resolve_config, resumed_config, run_dir};
 use checkpoints::{Barrier, SupervisorCheckpoint};
 use collect::Collector;
 
@@ -168,16 +168,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     };
     let args = &args;
     let (cfg, out) = match &args.resume {
-        Some(dir) => {
-            let path = dir.join("config.toml");
-            let mut cfg = mbpo_train::ExperimentConfig::load(&path)
-                .with_context(|| format!("resuming {}: its resolved config", dir.display()))?;
-            if let Some(steps) = args.common.steps {
-                cfg.steps = steps;
-                cfg.validate("command line --steps")?;
-            }
-            (cfg, dir.clone())
-        }
+        Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone()),
         None => {
             let cfg = resolve_config(&args.common, None, None)?;
             let out = run_dir(&args.common, &cfg);
@@ -383,7 +374,7 @@ fn supervise(
     let every = cfg.checkpoint.every;
     let mut next_checkpoint = every;
     if let Some((_, env_steps, state)) = resume {
-        col.restore(state.book);
+        col.book = state.book;
         next_checkpoint = env_steps + every;
     }
     let mut barrier: Option<Barrier> = None;
@@ -463,7 +454,7 @@ fn supervise(
                     p.restarts,
                     args.max_restarts
                 );
-                col.restarts += 1;
+                col.book.restarts += 1;
                 p.spawn()?;
             } else {
                 let more = if args.restart == RestartPolicy::OnFailure {
@@ -516,7 +507,7 @@ fn supervise(
                     mode: args.mode,
                     actors: args.actors,
                     slack: args.slack,
-                    book: col.book(),
+                    book: col.book.clone(),
                     elapsed_seconds: started.elapsed().as_secs_f64(),
                 };
                 checkpoints::finish(out, cut, &state, cfg.checkpoint.keep)?;
