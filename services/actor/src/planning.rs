@@ -115,7 +115,9 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         let t0 = Instant::now();
         real.send_batch(&rows, meta)?;
         ipc += t0.elapsed();
-        if last_progress.elapsed() >= Duration::from_millis(500) {
+        // After every planned step (planning takes far longer than a record): the supervisor
+        // writes the metrics row of eval point t only once every actor is past t.
+        if behaviour == Behaviour::Policy || last_progress.elapsed() >= Duration::from_millis(500) {
             last_progress = Instant::now();
             stats_pub.send(&stats::progress(g, 0, role.model_version(), 0))?;
         }

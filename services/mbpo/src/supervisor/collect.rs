@@ -128,6 +128,8 @@ pub struct Collector {
     evals: BTreeMap<u64, f64>,
     learner: BTreeMap<u64, LearnerRow>,
     done: BTreeMap<ProducerId, Done>,
+    /// MPC: the last global step each actor reported (`u64::MAX` once done).
+    actor_steps: BTreeMap<ProducerId, u64>,
     /// Rows, returns, counters: what a checkpoint keeps.
     pub book: CollectorBook,
 }
@@ -147,6 +149,7 @@ impl Collector {
             evals: BTreeMap::new(),
             learner: BTreeMap::new(),
             done: BTreeMap::new(),
+            actor_steps: BTreeMap::new(),
             book: CollectorBook {
                 next_row: 0,
                 episodes: Vec::new(),
@@ -206,22 +209,33 @@ impl Collector {
             Some(StatsKind::Heartbeat) => match Done::from_record(r) {
                 Some(d) => {
                     tracing::info!("{from} finished: {d:?}");
+                    if from.role() == Some(Role::Actor) {
+                        self.actor_steps.insert(from, u64::MAX);
+                    }
                     self.done.insert(from, d);
                 }
                 None if from.role() == Some(Role::Learner) => {
                     self.book.progress = (r.env_steps, r.sac_updates, r.model_version)
                 }
                 // MPC has no learner: the actors' progress is the run's.
-                None if self.mpc()
-                    && from.role() == Some(Role::Actor)
-                    && r.env_steps > self.book.progress.0 =>
-                {
-                    self.book.progress = (r.env_steps, 0, r.model_version)
+                None if self.mpc() && from.role() == Some(Role::Actor) => {
+                    self.actor_steps.insert(from, r.env_steps);
+                    if r.env_steps > self.book.progress.0 {
+                        self.book.progress = (r.env_steps, 0, r.model_version)
+                    }
                 }
                 None => {}
             },
             None => tracing::warn!("stats record of unknown kind {} from {from}", r.kind),
         }
+    }
+
+    /// MPC: every actor reported a step after which its next one is past `t` (its episodes
+    /// ending at steps ≤ t are in: an actor sends them before its progress).
+    fn actors_past(&self, t: u64) -> bool {
+        let n = self.actors as u64;
+        self.actor_steps.len() == self.actors as usize
+            && self.actor_steps.values().all(|&g| g.saturating_add(n) > t)
     }
 
     /// Env steps consumed by the learner (last report).
@@ -254,6 +268,11 @@ impl Collector {
                 .flatten();
             if self.mpc() && model.is_none() && lr.model_version > 0 {
                 break; // the model record arrives before its weights; wait for it
+            }
+            if self.mpc() && !self.actors_past(t) {
+                // The evaluator may plan for t before the actors get there (the model of t
+                // is older than step t): the row waits for their episodes up to t.
+                break;
             }
             let mpc = self.mpc();
             let now = started.elapsed().as_secs_f64();
