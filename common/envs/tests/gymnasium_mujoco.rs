@@ -9,12 +9,13 @@
 //! replay is also bit-exact, which the test asserts there (see [`BIT_EXACT_PLATFORM`]).
 #![cfg(feature = "mujoco")]
 
-use std::path::PathBuf;
-
+use fixture::Episode;
 use mbpo_core::rng::stream;
 use mbpo_envs::mujoco::{MujocoEnv, Task, MAX_EPISODE_STEPS};
 use mbpo_envs::{make, termination_fn, Env, EnvError, MUJOCO_ENV_IDS};
 use serde::Deserialize;
+
+mod fixture;
 
 const TOL: f64 = 1e-9;
 
@@ -29,28 +30,11 @@ struct Fixture {
     episodes: Vec<Episode>,
 }
 
-#[derive(Deserialize)]
-struct Episode {
-    name: String,
-    state: Vec<f64>,
-    actions: Vec<Vec<f64>>,
-    obs: Vec<Vec<f64>>,
-    rewards: Vec<f64>,
-    terminated: Vec<bool>,
-    truncated: Vec<bool>,
-}
-
 fn load(env_id: &str) -> Fixture {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(format!("{env_id}.json"));
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e}; regenerate with `bash deploy/setup_mujoco.sh && .venv/bin/python tools/gym_mujoco_reference.py`",
-            path.display()
-        )
-    });
-    let fixture: Fixture = serde_json::from_str(&text).expect("fixture parses");
+    let fixture: Fixture = fixture::load(
+        env_id,
+        "bash deploy/setup_mujoco.sh && .venv/bin/python tools/gym_mujoco_reference.py",
+    );
     assert_eq!(fixture.env_id, env_id);
     fixture
 }

@@ -8,11 +8,12 @@
 //! (see [`BIT_EXACT_PLATFORM`]). The test prints the largest deviations it saw
 //! (`cargo test -p mbpo-envs -- --nocapture`).
 
-use std::path::PathBuf;
-
+use fixture::Episode;
 use mbpo_core::rng::stream;
 use mbpo_envs::{make, Env, EnvError, MountainCarContinuous, Pendulum, ENV_IDS};
 use serde::Deserialize;
+
+mod fixture;
 
 const OBS_TOL: f64 = 1e-6;
 const REWARD_REL_TOL: f64 = 1e-6;
@@ -25,28 +26,11 @@ struct Fixture {
     episodes: Vec<Episode>,
 }
 
-#[derive(Deserialize)]
-struct Episode {
-    name: String,
-    state: Vec<f64>,
-    actions: Vec<Vec<f64>>,
-    obs: Vec<Vec<f64>>,
-    rewards: Vec<f64>,
-    terminated: Vec<bool>,
-    truncated: Vec<bool>,
-}
-
 fn load(env_id: &str) -> Fixture {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/fixtures")
-        .join(format!("{env_id}.json"));
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "{}: {e}; regenerate with `bash tools/setup_venv.sh && .venv/bin/python tools/gym_reference.py`",
-            path.display()
-        )
-    });
-    let fixture: Fixture = serde_json::from_str(&text).expect("fixture parses");
+    let fixture: Fixture = fixture::load(
+        env_id,
+        "bash tools/setup_venv.sh && .venv/bin/python tools/gym_reference.py",
+    );
     assert_eq!(fixture.env_id, env_id);
     fixture
 }

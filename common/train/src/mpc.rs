@@ -91,12 +91,35 @@ impl BatchPolicy for MpcPolicy<'_> {
     }
 }
 
+/// The ensemble a planner plans with, and the version of the weights it holds.
+struct VersionedModel {
+    model: EnsembleModel,
+    version: u64,
+}
+
+impl VersionedModel {
+    fn new(cfg: &ExperimentConfig, env: &dyn Env) -> Result<Self, TrainError> {
+        Ok(Self {
+            model: planning_model(cfg, env)?,
+            version: 0,
+        })
+    }
+    /// Take a newer model.
+    fn set(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
+        self.model
+            .ensemble_mut()
+            .load_weights(&snapshot.weights)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.version = snapshot.version;
+        Ok(())
+    }
+}
+
 /// Acting in the real environment with MPC on the newest model it was given.
 pub struct PlanningActorRole {
     actor: EnvActor,
     mpc: Mpc,
-    model: EnsembleModel,
-    model_version: u64,
+    model: VersionedModel,
     staged: ReplayBuffer,
     /// Wall seconds of the last plan (0 for a warm-up step).
     pub last_plan_seconds: f64,
@@ -108,26 +131,20 @@ impl PlanningActorRole {
         let actor = EnvActor::new(&cfg.env, cfg.seed, index)?;
         let env = make(&cfg.env)?;
         Ok(Self {
-            model: planning_model(cfg, env.as_ref())?,
+            model: VersionedModel::new(cfg, env.as_ref())?,
             mpc: controller(cfg, env.act_dim())?,
             staged: ReplayBuffer::new(env.obs_dim(), env.act_dim(), 1),
             actor,
-            model_version: 0,
             last_plan_seconds: 0.0,
         })
     }
     /// Take a newer model.
     pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
-        self.model
-            .ensemble_mut()
-            .load_weights(&snapshot.weights)
-            .map_err(|e| TrainError::Config(e.to_string()))?;
-        self.model_version = snapshot.version;
-        Ok(())
+        self.model.set(snapshot)
     }
     /// Version of the model planned with (0: none yet).
     pub fn model_version(&self) -> u64 {
-        self.model_version
+        self.model.version
     }
     /// The env actor (episode counters).
     pub fn env_actor(&self) -> &EnvActor {
@@ -143,7 +160,7 @@ impl PlanningActorRole {
         let episodes = self.actor.episodes;
         let mut policy = MpcPolicy {
             mpc: &mut self.mpc,
-            model: &mut self.model,
+            model: &mut self.model.model,
             error: None,
             seconds: 0.0,
         };
@@ -167,8 +184,7 @@ pub struct PlanningEvaluator {
     env_rng: Rng,
     plan_rng: Rng,
     mpc: Mpc,
-    model: EnsembleModel,
-    model_version: u64,
+    model: VersionedModel,
 }
 
 impl PlanningEvaluator {
@@ -177,26 +193,20 @@ impl PlanningEvaluator {
         let env = make(&cfg.env)?;
         Ok(Self {
             scale: ActionScale::new(&env.action_space().low, &env.action_space().high),
-            model: planning_model(cfg, env.as_ref())?,
+            model: VersionedModel::new(cfg, env.as_ref())?,
             mpc: controller(cfg, env.act_dim())?,
             env,
             env_rng: stream(cfg.seed, "eval.env", 0),
             plan_rng: stream(cfg.seed, "eval.plan", 0),
-            model_version: 0,
         })
     }
     /// Take a newer model.
     pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
-        self.model
-            .ensemble_mut()
-            .load_weights(&snapshot.weights)
-            .map_err(|e| TrainError::Config(e.to_string()))?;
-        self.model_version = snapshot.version;
-        Ok(())
+        self.model.set(snapshot)
     }
     /// Version of the model evaluated.
     pub fn model_version(&self) -> u64 {
-        self.model_version
+        self.model.version
     }
     /// Mean undiscounted return of `episodes` MPC episodes (the warm start reset per episode).
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
@@ -209,7 +219,7 @@ impl PlanningEvaluator {
             self.mpc.reset();
             loop {
                 self.mpc
-                    .act(&mut self.model, &obs, &mut self.plan_rng, &mut action)
+                    .act(&mut self.model.model, &obs, &mut self.plan_rng, &mut action)
                     .map_err(plan_err)?;
                 self.scale.to_env(&action, &mut env_action);
                 let step = self.env.step(&env_action, &mut obs);
