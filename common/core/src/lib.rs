@@ -7,8 +7,10 @@
 //! * [`replay`]: the FIFO transition buffer used for real data and for MBPO's model buffer.
 //! * [`policy`]: the batched-policy interface (SAC actor, planners, uniform warm-up).
 //! * [`rate_limit`]: Reverb-style limiters that hold the algorithm's ratios in a pipeline.
+//! * [`alloc_count`]: the counting allocator of the no-allocation tests.
 #![warn(missing_docs)]
 
+pub mod alloc_count;
 pub mod policy;
 pub mod rate_limit;
 pub mod replay;

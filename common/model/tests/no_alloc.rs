@@ -7,39 +7,22 @@
 mod common;
 
 use common::{pendulum_data, small_config};
+use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use mbpo_core::{stream, ReplayBuffer, UniformPolicy};
 use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(layout)
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.realloc(ptr, layout, new_size)
-    }
-}
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 fn count(f: impl FnOnce()) -> usize {
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = allocations();
     f();
-    ALLOCS.load(Ordering::Relaxed) - before
+    allocations() - before
 }
 
 #[test]
 fn training_steps_predictions_and_rollouts_do_not_allocate() {
+    ignore_libtest_main_thread();
     let data = pendulum_data(3000, 1); // 2400 training rows: 10 steps per epoch
     let mut rng = stream(0, "alloc", 0);
     let train_for = |epochs: usize| ModelConfig {

@@ -3,29 +3,16 @@
 //! A counting global allocator wraps the system one; this file holds one test so no other test
 //! allocates concurrently.
 
+use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use mbpo_core::stream;
 use mbpo_nn::{Activation, Adam, AdamConfig, EnsembleCache, EnsembleMlp, Init, Mlp, MlpCache};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(layout)
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
-    }
-}
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn forward_backward_and_adam_do_not_allocate_in_steady_state() {
+    ignore_libtest_main_thread();
     let net = Mlp::new(&[23, 256, 256, 1], Activation::Relu, Activation::Identity);
     let ens = EnsembleMlp::new(
         7,
@@ -61,11 +48,11 @@ fn forward_backward_and_adam_do_not_allocate_in_steady_state() {
         net.forward(p, &x, batch / 2, &mut cache);
     };
     run(&mut p); // warm-up: faer sizes its thread-local packing buffers on first use
-    let before = ALLOCS.load(Ordering::Relaxed);
+    let before = allocations();
     for _ in 0..3 {
         run(&mut p);
     }
-    let allocs = ALLOCS.load(Ordering::Relaxed) - before;
+    let allocs = allocations() - before;
     assert_eq!(
         allocs, 0,
         "{allocs} allocations in 3 steady-state iterations"

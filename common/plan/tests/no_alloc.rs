@@ -2,34 +2,17 @@
 //! learned ensemble and the known reward. A counting global allocator wraps the system one; this
 //! file holds one test so no other test allocates concurrently.
 
+use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use mbpo_core::stream;
 use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
 use mbpo_plan::{build, EnsembleModel, Mpc, PlannerConfig, PlannerKind, RewardSource};
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
-
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(layout)
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.realloc(ptr, layout, new_size)
-    }
-}
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn planning_steps_do_not_allocate_after_warm_up() {
+    ignore_libtest_main_thread();
     let cfg = ModelConfig {
         members: 3,
         elites: 3,
@@ -68,12 +51,12 @@ fn planning_steps_do_not_allocate_after_warm_up() {
         for _ in 0..3 {
             mpc.act(&mut model, &obs, &mut rng, &mut action).unwrap();
         }
-        let before = ALLOCS.load(Ordering::Relaxed);
+        let before = allocations();
         for i in 0..5 {
             obs[2] = i as f32 * 0.3;
             mpc.act(&mut model, &obs, &mut rng, &mut action).unwrap();
         }
-        let n = ALLOCS.load(Ordering::Relaxed) - before;
+        let n = allocations() - before;
         assert_eq!(
             n, 0,
             "{kind:?} ({source:?}): {n} allocations in 5 planning steps"

@@ -6,35 +6,18 @@
 //! A counting global allocator wraps the system one; this file holds one test so no other test
 //! allocates concurrently.
 
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use std::time::Duration;
 
 use mbpo_core::{Batch, ReplayBuffer};
 use mbpo_wire::*;
 
-struct Counting;
-static ALLOCS: AtomicUsize = AtomicUsize::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
-        System.alloc(layout)
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        System.dealloc(ptr, layout)
-    }
-}
-
 #[global_allocator]
-static GLOBAL: Counting = Counting;
-
-fn allocs() -> usize {
-    ALLOCS.load(Ordering::Relaxed)
-}
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn steady_state_receive_path_does_not_allocate() {
+    ignore_libtest_main_thread();
     let run = RunIpc::new(
         &format!("noalloc-{}", std::process::id()),
         "/tmp/mbpo-wire-test",
@@ -56,7 +39,7 @@ fn steady_state_receive_path_does_not_allocate() {
         let mut dst = vec![0.0f32; 1000];
         // (send-side, receive-side) allocations of one step.
         let mut step = |v: u64| {
-            let a0 = allocs();
+            let a0 = allocations();
             let meta = TransitionMeta {
                 policy_version: v,
                 model_version: 0,
@@ -64,13 +47,13 @@ fn steady_state_receive_path_does_not_allocate() {
             };
             tx.send_batch(&batch, meta).unwrap();
             wp.publish(&params, v, WeightsCounters::default()).unwrap();
-            let a1 = allocs();
+            let a1 = allocations();
             let b = rx.receive().unwrap().unwrap();
             b.push_into(&mut buf);
             b.to_batch(&mut out);
             drop(b);
             ws.receive_latest_into(&mut dst).unwrap().unwrap();
-            let a2 = allocs();
+            let a2 = allocations();
             (a1 - a0, a2 - a1)
         };
         for v in 1..=20 {
