@@ -131,3 +131,70 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     assert!(!empty.join("metrics.csv").exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `mbpo bench learning` output of one seed: (final return, policy hash of its run).
+fn bench_learning(out: &std::path::Path, steps: &str, extra: &[&str]) -> std::process::Output {
+    mbpo()
+        .args(["bench", "learning", "--config"])
+        .arg(config_file())
+        .args(["--seeds", "1", "--threads", "1", "--steps", steps])
+        .args(["--set", "checkpoint.every=100", "--out"])
+        .arg(out)
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn summary_of(run: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn learning_bench_continues_and_reuses_its_runs() {
+    let dir = scratch("cli-bench-resume");
+    let (split, whole) = (dir.join("split"), dir.join("whole"));
+    let run = |out: &std::path::Path| out.join("runs/mbpo-Pendulum-v1-s0");
+
+    // 300 steps, then the same command for 500: the second continues the first run.
+    let first = bench_learning(&split, "300", &[]);
+    assert!(first.status.success(), "{first:?}");
+    let second = bench_learning(&split, "500", &[]);
+    assert!(second.status.success(), "{second:?}");
+    let log = String::from_utf8_lossy(&second.stderr);
+    assert!(
+        log.contains("continuing from its newest checkpoint"),
+        "{log}"
+    );
+    let metrics = std::fs::read_to_string(run(&split).join("metrics.csv")).unwrap();
+    let steps: Vec<&str> = metrics
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    let mut unique = steps.clone();
+    unique.dedup();
+    assert_eq!(steps, unique, "a metrics row written twice");
+
+    // ... and ends where one uninterrupted 500-step benchmark run ends.
+    let uninterrupted = bench_learning(&whole, "500", &[]);
+    assert!(uninterrupted.status.success(), "{uninterrupted:?}");
+    assert_eq!(
+        summary_of(&run(&split))["policy_sha256"],
+        summary_of(&run(&whole))["policy_sha256"]
+    );
+
+    // The same command again reuses the completed run instead of training.
+    let again = bench_learning(&split, "500", &[]);
+    assert!(again.status.success(), "{again:?}");
+    assert!(String::from_utf8_lossy(&again.stderr).contains("already completed"));
+
+    // Another config over the same runs is refused, naming the run directory.
+    let other = bench_learning(&split, "500", &["--set", "sac.gamma=0.9"]);
+    assert!(!other.status.success());
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert!(
+        err.contains("mbpo-Pendulum-v1-s0") && err.contains("another config"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

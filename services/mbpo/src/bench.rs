@@ -97,11 +97,6 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
     if let Some(s) = args.steps {
         cfg.steps = s;
     }
-    let train = match cfg.algo {
-        mbpo_train::Algo::Sac => mbpo_train::train_sac,
-        mbpo_train::Algo::Mbpo => mbpo_train::train_mbpo,
-        mbpo_train::Algo::Mpc => mbpo_train::train_mpc,
-    };
     let seeds: Vec<u64> = (0..args.seeds).collect();
     let name = args.config.display().to_string();
     if let Some(&b) = args.budgets.iter().find(|&&b| b > cfg.steps) {
@@ -116,7 +111,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         &seeds,
         args.threads,
         &args.out,
-        train,
+        crate::train_cmd::bench_run,
         &args.budgets,
     )?;
     println!(

@@ -2,7 +2,10 @@
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
-use mbpo_train::{train_mbpo_with, train_mpc, train_sac_with, Algo, ExperimentConfig, RunOptions};
+use mbpo_train::{
+    train_mbpo_with, train_mpc, train_sac_with, Algo, ExperimentConfig, RunOptions, Summary,
+    TrainError,
+};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -94,6 +97,61 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     .with_context(|| format!("run {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
+}
+
+/// One seed of `mbpo bench learning`, resumable: a run directory that already holds a
+/// completed run of this config is reused, one with a checkpoint is continued from it, anything
+/// else starts fresh. So a benchmark of several hours can be stopped (Ctrl-C checkpoints) and
+/// rerun with the same command, even in another session, without losing what was done.
+pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
+    let stored = dir.join("config.toml");
+    let resume = mbpo_train::checkpoint::latest(dir)?.is_some();
+    if resume || stored.exists() {
+        if let Ok(mut before) = ExperimentConfig::load(&stored) {
+            let steps_before = before.steps;
+            before.steps = cfg.steps;
+            if &before != cfg {
+                return Err(TrainError::Config(format!(
+                    "{} holds a run of another config (see its config.toml); \
+                     delete it or pick another --out to benchmark this one",
+                    dir.display()
+                )));
+            }
+            if let Some(done) = completed_summary(dir) {
+                if steps_before == cfg.steps && done.env_steps == cfg.steps {
+                    tracing::info!(run = %dir.display(), "already completed: reusing its results");
+                    return Ok(done);
+                }
+            }
+        }
+    }
+    if resume {
+        tracing::info!(run = %dir.display(), "continuing from its newest checkpoint");
+    }
+    let opts = RunOptions {
+        resume,
+        stop: Some(stop_on_signals()),
+    };
+    let summary = match cfg.algo {
+        Algo::Sac => train_sac_with(cfg, dir, opts),
+        Algo::Mbpo => train_mbpo_with(cfg, dir, opts),
+        // MPC runs have no checkpoints: always run whole.
+        Algo::Mpc => train_mpc(cfg, dir),
+    }?;
+    if summary.status != "completed" {
+        return Err(TrainError::Config(format!(
+            "{}: stopped at {} env steps (checkpointed); rerun the same command to continue",
+            dir.display(),
+            summary.env_steps
+        )));
+    }
+    Ok(summary)
+}
+
+fn completed_summary(dir: &Path) -> Option<Summary> {
+    let text = std::fs::read_to_string(dir.join("summary.json")).ok()?;
+    let s: Summary = serde_json::from_str(&text).ok()?;
+    (s.status == "completed").then_some(s)
 }
 
 static STOP: AtomicBool = AtomicBool::new(false);
