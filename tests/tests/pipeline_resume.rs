@@ -231,3 +231,152 @@ fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
     assert!(err.contains("no complete checkpoint"), "{err}");
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// SIGKILL the process whose pid `log` (a service log) names, once the run has a checkpoint
+/// (`after_checkpoint`) or at once.
+fn crash_service(run: &Path, service: &str, after_checkpoint: bool, child: &mut Child) {
+    let t = Instant::now();
+    while after_checkpoint && checkpoints(run).is_empty() {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended first");
+        assert!(t.elapsed() < TIMEOUT, "no checkpoint within {TIMEOUT:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let log = run.join(format!("logs/{service}.log"));
+    let pid = logged_pid(&log, Duration::from_secs(30)).expect("the service's pid");
+    // SAFETY: kill(2) on a grandchild whose pid we just read; the run is still going.
+    unsafe { libc::kill(pid, libc::SIGKILL) };
+}
+
+/// Lockstep with `--restart on-failure`: the learner is killed after the first checkpoint;
+/// every process restarts from that checkpoint and the run ends exactly as the sequential
+/// reference does (the work redone after the cut is the same work).
+#[test]
+fn lockstep_crash_restarts_from_the_checkpoint_and_equals_the_uninterrupted_run() {
+    let mut cfg = tiny_config(800);
+    cfg.checkpoint.every = 100;
+    let dir = scratch("crash-lockstep");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("cl");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let seq_dir = dir.join("sequential");
+    let seq = train_mbpo(&cfg, &seq_dir).unwrap();
+    let mut child = start(
+        &input,
+        &run,
+        &root,
+        &["--mode", "lockstep", "--restart", "on-failure"],
+        &log,
+    );
+    crash_service(&run, "learner", true, &mut child);
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("learner exited with signal: 9")
+            && err.contains("restarting the pipeline from the checkpoint after step"),
+        "{err}"
+    );
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["restarts"], 1, "{s}");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "crashed, restarted from a checkpoint != uninterrupted (sequential)"
+    );
+    assert_eq!(
+        metrics_without_timing(&run),
+        metrics_without_timing(&seq_dir)
+    );
+    let left = leftovers(s["run_id"].as_str().unwrap(), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    assert!(processes_mentioning(s["run_id"].as_str().unwrap()).is_empty());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Pipelined, two actors, no checkpoints: a killed actor restarts the pipeline from step 0;
+/// the run completes with every real transition received once. A second crash past
+/// `--max-restarts` fails the run, naming the process and the restarts.
+#[test]
+fn pipelined_crash_without_checkpoint_restarts_from_the_start_then_gives_up() {
+    let mut cfg = tiny_config(600);
+    cfg.checkpoint.every = 0;
+    let dir = scratch("crash-pipelined");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("cp");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let args = [
+        "--mode",
+        "pipelined",
+        "--actors",
+        "2",
+        "--restart",
+        "on-failure",
+        "--max-restarts",
+        "1",
+    ];
+    let mut child = start(&input, &run, &root, &args, &log);
+    crash_service(&run, "actor-1", false, &mut child);
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("actor-1 exited with signal: 9")
+            && err.contains("no checkpoint yet: restarting the pipeline from step 0"),
+        "{err}"
+    );
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["restarts"], 1, "{s}");
+    let real = &s["real_transitions"];
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["received"][consumer], cfg.steps, "{consumer}: {s}");
+    }
+    assert_eq!(real["lost"], 0, "{s}");
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0)
+        .collect();
+    assert_eq!(metric_steps(&run), want);
+
+    // Twice with --max-restarts 1: the second crash fails the run.
+    let run2 = dir.join("run2");
+    let mut child = start(&input, &run2, &root, &args, &log);
+    crash_service(&run2, "actor-1", false, &mut child);
+    // The restarted actor logs its own pid below the first one's: wait for it, kill it too.
+    let log1 = run2.join("logs/actor-1.log");
+    let t = Instant::now();
+    let second = loop {
+        let text = std::fs::read_to_string(&log1).unwrap_or_default();
+        let pids: Vec<i32> = text
+            .match_indices(", pid ")
+            .filter_map(|(i, _)| {
+                let rest = &text[i + 6..];
+                rest[..rest.find(')').unwrap_or(rest.len())]
+                    .trim()
+                    .parse()
+                    .ok()
+            })
+            .collect();
+        if pids.len() >= 2 {
+            break pids[1];
+        }
+        assert!(t.elapsed() < TIMEOUT, "the actor was not restarted");
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    // SAFETY: kill(2) on the restarted grandchild whose pid it just logged.
+    unsafe { libc::kill(second, libc::SIGKILL) };
+    let (status, err) = wait_logged(child, &log);
+    assert!(!status.success());
+    assert!(
+        err.contains("actor-1 exited with signal: 9")
+            && err.contains("the run failed after 1 restart(s)"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    let s = summary(&run2);
+    assert_eq!(s["status"], "failed", "{s}");
+    assert!(processes_mentioning(s["run_id"].as_str().unwrap()).is_empty());
+    let left = leftovers(s["run_id"].as_str().unwrap(), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -238,7 +238,8 @@ pub struct PlotArgs {
 pub enum RestartPolicy {
     /// A crash fails the run.
     Never,
-    /// Restart the crashed process (fresh state) up to `--max-restarts` times, then fail.
+    /// Restart the pipeline from its newest checkpoint (every process: a consistent cut) up to
+    /// `--max-restarts` times per process, then fail.
     OnFailure,
 }
 

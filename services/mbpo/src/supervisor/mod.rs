@@ -41,7 +41,6 @@ struct Proc {
     args: Vec<String>,
     log: PathBuf,
     child: Option<Child>,
-    restarts: u32,
     exit: Option<ExitStatus>,
     cpu: Option<usize>,
 }
@@ -232,18 +231,37 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let started = now
         .checked_sub(Duration::from_secs_f64(elapsed))
         .unwrap_or(now);
-    let outcome = supervise(
-        args,
-        &cfg,
-        &ipc,
-        &run_id,
-        &out,
-        &logs,
-        &bin_dir,
-        &mut run_dir,
-        started,
-        resume,
-    );
+    let mut restarts = Restarts::default();
+    let mut resume = resume;
+    let outcome = loop {
+        let attempt = supervise(
+            args,
+            &cfg,
+            &ipc,
+            &run_id,
+            &out,
+            &logs,
+            &bin_dir,
+            &mut run_dir,
+            started,
+            resume.take(),
+            &restarts,
+        );
+        match attempt {
+            Ok(Attempt::Finished(report, err)) => break Ok((report, err)),
+            Err(e) => break Err(e),
+            Ok(Attempt::RollBack { process }) => {
+                restarts.count(&process);
+                match roll_back(&ipc, &out, &cfg) {
+                    Ok((dir, from)) => {
+                        run_dir = dir;
+                        resume = from;
+                    }
+                    Err(e) => break Err(e),
+                }
+            }
+        }
+    };
 
     // Every node of the run is gone now (children reaped, ours dropped): remove everything.
     let removed = ipc.remove_all::<ipc::Service>();
@@ -274,6 +292,66 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     outcome
 }
 
+/// How one attempt of the pipeline ended.
+enum Attempt {
+    /// The run ended: its report, and the error that failed it, if any.
+    Finished(collect::PipelineSummary, Option<anyhow::Error>),
+    /// `process` crashed and may be restarted: every process has been stopped, and the whole
+    /// pipeline starts again from the newest checkpoint (see [`roll_back`]).
+    RollBack { process: String },
+}
+
+/// Restarts so far (`--restart on-failure`), per process name.
+#[derive(Default)]
+struct Restarts {
+    per_process: std::collections::BTreeMap<String, u32>,
+}
+
+impl Restarts {
+    fn of(&self, process: &str) -> u32 {
+        self.per_process.get(process).copied().unwrap_or(0)
+    }
+    fn count(&mut self, process: &str) {
+        *self.per_process.entry(process.to_string()).or_default() += 1;
+    }
+    fn total(&self) -> u32 {
+        self.per_process.values().sum()
+    }
+}
+
+/// After a crash, restart from a consistent state: the newest complete checkpoint of the run
+/// (every process at "after step T with K model trainings"), or step 0 when there is none yet.
+///
+/// Restarting only the crashed process would not be consistent: the others have moved past
+/// any state it could restart from (an actor would produce steps the learner already has, a
+/// learner would miss the data it had consumed). So every process restarts from the same cut,
+/// as in `mbpo run --resume`; the work since the checkpoint is done again (bit for bit the
+/// same in lockstep mode), metrics rows after it are dropped, and nothing that was in the
+/// checkpoint is lost. The shared memory of the stopped attempt is removed first.
+fn roll_back(
+    ipc: &RunIpc,
+    out: &Path,
+    cfg: &mbpo_train::ExperimentConfig,
+) -> anyhow::Result<(RunDir, Option<(PathBuf, u64, SupervisorCheckpoint)>)> {
+    let removed = ipc.remove_all::<ipc::Service>()?;
+    tracing::debug!("removed {removed} iceoryx2 file(s) of the stopped attempt");
+    if mbpo_train::checkpoint::latest(out)?.is_none() {
+        tracing::warn!("no checkpoint yet: restarting the pipeline from step 0");
+        let dir =
+            RunDir::create(out, cfg).with_context(|| format!("recreating {}", out.display()))?;
+        return Ok((dir, None));
+    }
+    let (ckpt, env_steps, state) = checkpoints::latest_verified(out)
+        .with_context(|| format!("rolling {} back to its newest checkpoint", out.display()))?;
+    tracing::warn!(
+        "restarting the pipeline from the checkpoint after step {env_steps} ({})",
+        ckpt.display()
+    );
+    let dir = RunDir::reopen_with_config(out, cfg, env_steps)
+        .with_context(|| format!("reopening {}", out.display()))?;
+    Ok((dir, Some((ckpt, env_steps, state))))
+}
+
 #[allow(clippy::too_many_arguments)]
 fn supervise(
     args: &RunArgs,
@@ -286,7 +364,8 @@ fn supervise(
     run_dir: &mut RunDir,
     started: Instant,
     resume: Option<(PathBuf, u64, SupervisorCheckpoint)>,
-) -> anyhow::Result<(collect::PipelineSummary, Option<anyhow::Error>)> {
+    restarts: &Restarts,
+) -> anyhow::Result<Attempt> {
     let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
     let stats = StatsSubscriber::create(&node)?;
     let dims = mbpo_service_kit::Dims::of(cfg)?;
@@ -342,7 +421,6 @@ fn supervise(
             bin: bin_dir.join(bin),
             args: a,
             child: None,
-            restarts: 0,
             exit: None,
             cpu,
         });
@@ -377,6 +455,7 @@ fn supervise(
         col.book = state.book;
         next_checkpoint = env_steps + every;
     }
+    col.book.restarts = restarts.total();
     let mut barrier: Option<Barrier> = None;
     let mut stopped = false;
     let final_wire = if cfg.algo == Algo::Mpc {
@@ -397,6 +476,7 @@ fn supervise(
     let label = format!("mbpo run {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, display);
     let mut failure: Option<anyhow::Error> = None;
+    let mut crashed: Option<String> = None;
     let mut interrupted = false;
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
@@ -447,26 +527,26 @@ fn supervise(
                 p.name,
                 p.log.display()
             );
-            if args.restart == RestartPolicy::OnFailure && p.restarts < args.max_restarts {
-                p.restarts += 1;
+            let before = restarts.of(&p.name);
+            if args.restart == RestartPolicy::OnFailure && before < args.max_restarts {
                 tracing::warn!(
-                    "{why}\nrestarting it ({}/{}; it starts from fresh state)",
-                    p.restarts,
-                    args.max_restarts
+                    "{why}\nrestart {}/{} of {}: stopping every process to restart the pipeline from its newest checkpoint",
+                    before + 1,
+                    args.max_restarts,
+                    p.name
                 );
-                col.book.restarts += 1;
-                p.spawn()?;
+                crashed = Some(p.name.clone());
             } else {
                 let more = if args.restart == RestartPolicy::OnFailure {
-                    format!(" after {} restart(s)", p.restarts)
+                    format!(" after {before} restart(s)")
                 } else {
                     String::new()
                 };
                 failure = Some(anyhow::anyhow!("{why}\nthe run failed{more}"));
-                break;
             }
+            break;
         }
-        if failure.is_some() {
+        if failure.is_some() || crashed.is_some() {
             break;
         }
         if col.all_done(args.actors) && final_params.is_some() {
@@ -582,6 +662,10 @@ fn supervise(
         "all processes exited {:.2} s after the stop",
         stop_started.elapsed().as_secs_f64()
     );
+    drop(waiter);
+    if let Some(process) = crashed {
+        return Ok(Attempt::RollBack { process });
+    }
     for p in &procs {
         if let Some(s) = p.exit {
             if !s.success() && failure.is_none() && !interrupted {
@@ -593,7 +677,6 @@ fn supervise(
             }
         }
     }
-    drop(waiter);
     if interrupted && failure.is_none() {
         failure = Some(anyhow::anyhow!(
             "interrupted (SIGINT/SIGTERM) after {} env steps; all processes stopped",
@@ -622,7 +705,7 @@ fn supervise(
         .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
     let report = col.summary(status, sha, started);
-    Ok((report, failure))
+    Ok(Attempt::Finished(report, failure))
 }
 
 /// Broadcast the Pause that starts a checkpoint barrier.
