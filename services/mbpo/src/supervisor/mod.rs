@@ -248,7 +248,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
             &restarts,
         );
         match attempt {
-            Ok(Attempt::Finished(report, err)) => break Ok((report, err)),
+            Ok(Attempt::Finished(report, err)) => break Ok((*report, err)),
             Err(e) => break Err(e),
             Ok(Attempt::RollBack { process }) => {
                 restarts.count(&process);
@@ -292,10 +292,13 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     outcome
 }
 
+/// A checkpoint to start from: its directory, its env steps, the supervisor's state in it.
+type ResumePoint = (PathBuf, u64, SupervisorCheckpoint);
+
 /// How one attempt of the pipeline ended.
 enum Attempt {
     /// The run ended: its report, and the error that failed it, if any.
-    Finished(collect::PipelineSummary, Option<anyhow::Error>),
+    Finished(Box<collect::PipelineSummary>, Option<anyhow::Error>),
     /// `process` crashed and may be restarted: every process has been stopped, and the whole
     /// pipeline starts again from the newest checkpoint (see [`roll_back`]).
     RollBack { process: String },
@@ -332,7 +335,7 @@ fn roll_back(
     ipc: &RunIpc,
     out: &Path,
     cfg: &mbpo_train::ExperimentConfig,
-) -> anyhow::Result<(RunDir, Option<(PathBuf, u64, SupervisorCheckpoint)>)> {
+) -> anyhow::Result<(RunDir, Option<ResumePoint>)> {
     let removed = ipc.remove_all::<ipc::Service>()?;
     tracing::debug!("removed {removed} iceoryx2 file(s) of the stopped attempt");
     if mbpo_train::checkpoint::latest(out)?.is_none() {
@@ -363,7 +366,7 @@ fn supervise(
     bin_dir: &Path,
     run_dir: &mut RunDir,
     started: Instant,
-    resume: Option<(PathBuf, u64, SupervisorCheckpoint)>,
+    resume: Option<ResumePoint>,
     restarts: &Restarts,
 ) -> anyhow::Result<Attempt> {
     let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
@@ -705,7 +708,7 @@ fn supervise(
         .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
     let report = col.summary(status, sha, started);
-    Ok(Attempt::Finished(report, failure))
+    Ok(Attempt::Finished(Box::new(report), failure))
 }
 
 /// Broadcast the Pause that starts a checkpoint barrier.
