@@ -190,14 +190,27 @@ pub fn processes_mentioning(needle: &str) -> Vec<String> {
 
 /// The pid a service logged at start (`... pid N)`).
 pub fn logged_pid(log: &Path, timeout: Duration) -> Option<i32> {
+    logged_pids(log, 1, timeout).map(|pids| pids[0])
+}
+
+/// The pids a service logged at each of its starts, oldest first, once there are at least
+/// `n` (a restarted service appends to the same log).
+pub fn logged_pids(log: &Path, n: usize, timeout: Duration) -> Option<Vec<i32>> {
     let t = Instant::now();
     while t.elapsed() < timeout {
-        if let Ok(text) = std::fs::read_to_string(log) {
-            if let Some(i) = text.find(", pid ") {
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        let pids: Vec<i32> = text
+            .match_indices(", pid ")
+            .filter_map(|(i, _)| {
                 let rest = &text[i + 6..];
-                let end = rest.find(')').unwrap_or(rest.len());
-                return rest[..end].trim().parse().ok();
-            }
+                rest[..rest.find(')').unwrap_or(rest.len())]
+                    .trim()
+                    .parse()
+                    .ok()
+            })
+            .collect();
+        if pids.len() >= n {
+            return Some(pids);
         }
         std::thread::sleep(Duration::from_millis(20));
     }

@@ -232,8 +232,8 @@ fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// SIGKILL the process whose pid `log` (a service log) names, once the run has a checkpoint
-/// (`after_checkpoint`) or at once.
+/// SIGKILL `service` (its pid from its log), once the run has a checkpoint (`after_checkpoint`)
+/// or at once.
 fn crash_service(run: &Path, service: &str, after_checkpoint: bool, child: &mut Child) {
     let t = Instant::now();
     while after_checkpoint && checkpoints(run).is_empty() {
@@ -343,26 +343,8 @@ fn pipelined_crash_without_checkpoint_restarts_from_the_start_then_gives_up() {
     let mut child = start(&input, &run2, &root, &args, &log);
     crash_service(&run2, "actor-1", false, &mut child);
     // The restarted actor logs its own pid below the first one's: wait for it, kill it too.
-    let log1 = run2.join("logs/actor-1.log");
-    let t = Instant::now();
-    let second = loop {
-        let text = std::fs::read_to_string(&log1).unwrap_or_default();
-        let pids: Vec<i32> = text
-            .match_indices(", pid ")
-            .filter_map(|(i, _)| {
-                let rest = &text[i + 6..];
-                rest[..rest.find(')').unwrap_or(rest.len())]
-                    .trim()
-                    .parse()
-                    .ok()
-            })
-            .collect();
-        if pids.len() >= 2 {
-            break pids[1];
-        }
-        assert!(t.elapsed() < TIMEOUT, "the actor was not restarted");
-        std::thread::sleep(Duration::from_millis(10));
-    };
+    let second = logged_pids(&run2.join("logs/actor-1.log"), 2, TIMEOUT)
+        .expect("the actor was not restarted")[1];
     // SAFETY: kill(2) on the restarted grandchild whose pid it just logged.
     unsafe { libc::kill(second, libc::SIGKILL) };
     let (status, err) = wait_logged(child, &log);
