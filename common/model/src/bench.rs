@@ -43,9 +43,10 @@ pub struct ModelBenchReport {
     pub gflop: f64,
     /// Achieved GFLOP/s of the best repetition.
     pub gflops: f64,
-    /// Single-thread GEMM roofline (`256 x 200 x 200`) measured in the same run.
+    /// Single-thread GEMM roofline (`256 x 200 x 200`) measured in the same run (while the
+    /// other threads idle).
     pub roofline_gflops: f64,
-    /// `gflops / roofline_gflops`.
+    /// `gflops / (roofline_gflops · threads)`.
     pub fraction_of_roofline: f64,
     /// Ensemble members.
     pub members: usize,
@@ -140,12 +141,12 @@ fn report(
         gflop,
         gflops,
         roofline_gflops: roofline,
-        fraction_of_roofline: gflops / roofline,
+        fraction_of_roofline: gflops / (roofline * model.threads as f64),
         members: model.members,
         hidden: model.hidden.clone(),
         obs_dim: OBS_DIM,
         act_dim: ACT_DIM,
-        threads: 1,
+        threads: model.threads,
     }
 }
 

@@ -2,6 +2,9 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Most threads a training call may use ([`ModelConfig::threads`]).
+pub const MAX_THREADS: usize = 64;
+
 /// Hyper-parameters of the probabilistic ensemble and of its training.
 ///
 /// Defaults are those of the MBPO code (`mbpo/models/constructor.py`, `bnn.py`), identical to
@@ -49,6 +52,12 @@ pub struct ModelConfig {
     pub learn_logvar_bounds: bool,
     /// Coefficient of the bound regulariser `c · (Σ max_logvar − Σ min_logvar)` (0.01).
     pub logvar_bound_penalty: f32,
+    /// Threads a training call runs on (1). Members are independent until the shared bounds
+    /// and Adam, so each thread takes a contiguous block of members; every sum keeps member
+    /// order, so the result is bit-identical for any thread count. Not a hyper-parameter of
+    /// MBPO: a machine setting (the pipeline's model trainer can use a core the learner
+    /// leaves idle).
+    pub threads: usize,
 }
 
 impl Default for ModelConfig {
@@ -70,6 +79,7 @@ impl Default for ModelConfig {
             init_min_logvar: -10.0,
             learn_logvar_bounds: true,
             logvar_bound_penalty: 0.01,
+            threads: 1,
         }
     }
 }
@@ -166,6 +176,12 @@ impl ModelConfig {
             self.batch_size as f64,
             self.batch_size > 0,
             "> 0",
+        )?;
+        range(
+            "threads",
+            self.threads as f64,
+            (1..=MAX_THREADS).contains(&self.threads),
+            "1 to 64",
         )?;
         range(
             "holdout_ratio",

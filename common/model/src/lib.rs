@@ -47,6 +47,7 @@ mod grad;
 mod model;
 mod network;
 mod normalizer;
+mod parallel;
 mod rollout;
 mod simd;
 mod train;

@@ -6,6 +6,7 @@ use crate::network::{
     member_forward, member_loss_and_grad, members_mse, InferBuffers, Net, TrainBuffers, INFER_CHUNK,
 };
 use crate::normalizer::InputNormalizer;
+use crate::parallel::{sum_bound_slots, MemberThreads};
 use crate::rollout::RolloutBuffers;
 use crate::simd::{dispatch, fill_standard_normal};
 use mbpo_core::rng::index;
@@ -66,14 +67,15 @@ pub struct ModelState {
 /// Scratch memory (not model state: cloning or loading weights never depends on it).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Workspace {
+    /// Activations of [`ProbabilisticEnsemble::loss_and_gradient`].
     pub(crate) train: TrainBuffers,
     pub(crate) infer: InferBuffers,
-    /// Standardised inputs of one training minibatch.
-    pub(crate) x_chunk: Vec<f32>,
     /// Standardised inputs of one inference chunk.
     pub(crate) input: InputChunk,
-    /// Targets of one training minibatch.
-    pub(crate) t_chunk: Vec<f32>,
+    /// The threads of training calls, with their own minibatch and activation buffers.
+    pub(crate) threads: MemberThreads,
+    /// Per-member bound gradients of [`ProbabilisticEnsemble::loss_and_gradient`].
+    pub(crate) bound_slots: Vec<f32>,
     pub(crate) grads: Vec<f32>,
     /// Standardised inputs and targets of a whole data set (training call, evaluation).
     pub(crate) x_all: Vec<f32>,
@@ -305,9 +307,13 @@ impl ProbabilisticEnsemble {
         check_len("inputs", e_n * batch * in_dim, inputs.len())?;
         check_len("targets", e_n * batch * d, targets.len())?;
         check_len("grads", self.theta.len(), grads.len())?;
-        grads[self.net.num_net_params()..].fill(0.0);
+        let (g_net, g_bounds) = grads.split_at_mut(self.net.num_net_params());
+        let slots = &mut self.ws.bound_slots;
+        slots.resize(e_n * 2 * d, 0.0);
         let mut loss = 0.0;
-        for e in 0..e_n {
+        let members = g_net.chunks_mut(g_net.len() / e_n);
+        for ((e, g), slot) in members.enumerate().zip(slots.chunks_mut(2 * d)) {
+            slot.fill(0.0);
             loss += member_loss_and_grad(
                 &self.net,
                 &self.theta,
@@ -316,9 +322,11 @@ impl ProbabilisticEnsemble {
                 &targets[e * batch * d..(e + 1) * batch * d],
                 batch,
                 &mut self.ws.train,
-                grads,
+                g,
+                slot,
             );
         }
+        sum_bound_slots(slots, g_bounds);
         Ok(loss + self.finish_bound_grads(grads))
     }
 

@@ -157,8 +157,10 @@ fn layer_grads<'g>(mlp: &Mlp, grads: &'g mut [f32], l: usize) -> (&'g mut [f32],
 ///
 /// * `theta`: all parameters; `e`: the member; `x`: standardised inputs (`batch x in`);
 ///   `targets`: `[reward, Δobs]` rows (`batch x d`).
-/// * `grads`: θ-shaped. Member e's MLP gradient is overwritten; `∂/∂max_logvar` and
-///   `∂/∂min_logvar` are *added to* (the bounds are shared by all members).
+/// * `g_member`: member e's MLP gradient (its range of θ), overwritten.
+/// * `g_bounds`: `[∂/∂max_logvar | ∂/∂min_logvar]` (`2d`), *added to*: the bounds are shared
+///   by all members, and callers give each member its own zeroed slot and add the slots in
+///   member order, so the sum does not depend on how members are spread over threads.
 ///
 /// Returns this member's loss `mean((μ − y)²·e^(−lv)) + mean(lv)` (means over rows and dims).
 #[allow(clippy::too_many_arguments)]
@@ -170,7 +172,8 @@ pub(crate) fn member_loss_and_grad(
     targets: &[f32],
     batch: usize,
     buf: &mut TrainBuffers,
-    grads: &mut [f32],
+    g_member: &mut [f32],
+    g_bounds: &mut [f32],
 ) -> f64 {
     buf.ensure(net, batch);
     let mlp = net.mlp();
@@ -178,13 +181,12 @@ pub(crate) fn member_loss_and_grad(
     let hidden = net.hidden_layers();
     let d = net.d;
     let member = net.ensemble().member_range(e);
-    let p = &theta[member.clone()];
+    debug_assert_eq!(g_member.len(), member.len());
+    let p = &theta[member];
     let (max_lv, min_lv) = (
         &theta[net.max_logvar_range()],
         &theta[net.min_logvar_range()],
     );
-    let (g_net, g_bounds) = grads.split_at_mut(net.num_net_params());
-    let g_member = &mut g_net[member];
     let (d_max, d_min) = g_bounds.split_at_mut(d);
 
     // Forward: z_l = a_{l−1} W_l, then a_l = SiLU(z_l + b_l) with σ kept.
@@ -389,6 +391,38 @@ pub(crate) fn member_forward(
 
 /// Each member's mean-squared error of μ against `targets` (`n x d`) on standardised inputs `x`
 /// (`n x in`), written into `mse` (mean over rows and dimensions).
+/// Member e's holdout MSE of the mean prediction on `n` standardised rows `x` with `[reward,
+/// Δobs]` targets (mean over rows and dims, summed in f64 in row order).
+pub(crate) fn member_mse(
+    net: &Net,
+    theta: &[f32],
+    e: usize,
+    x: &[f32],
+    targets: &[f32],
+    n: usize,
+    buf: &mut InferBuffers,
+) -> f32 {
+    let (in_dim, d) = (net.in_dim(), net.d);
+    let mut sum = 0.0f64;
+    let mut start = 0;
+    while start < n {
+        let rows = (n - start).min(INFER_CHUNK);
+        let xs = &x[start * in_dim..(start + rows) * in_dim];
+        member_forward(net, theta, e, xs, rows, buf, false);
+        let ts = &targets[start * d..(start + rows) * d];
+        for (row, t) in buf.y.chunks_exact(2 * d).zip(ts.chunks_exact(d)) {
+            sum += row[..d]
+                .iter()
+                .zip(t)
+                .map(|(&m, &v)| ((m - v) as f64).powi(2))
+                .sum::<f64>();
+        }
+        start += rows;
+    }
+    (sum / (n * d).max(1) as f64) as f32
+}
+
+/// [`member_mse`] of every member, one after the other.
 pub(crate) fn members_mse(
     net: &Net,
     theta: &[f32],
@@ -398,25 +432,8 @@ pub(crate) fn members_mse(
     buf: &mut InferBuffers,
     mse: &mut [f32],
 ) {
-    let (in_dim, d) = (net.in_dim(), net.d);
     for (e, out) in mse.iter_mut().enumerate().take(net.members()) {
-        let mut sum = 0.0f64;
-        let mut start = 0;
-        while start < n {
-            let rows = (n - start).min(INFER_CHUNK);
-            let xs = &x[start * in_dim..(start + rows) * in_dim];
-            member_forward(net, theta, e, xs, rows, buf, false);
-            let ts = &targets[start * d..(start + rows) * d];
-            for (row, t) in buf.y.chunks_exact(2 * d).zip(ts.chunks_exact(d)) {
-                sum += row[..d]
-                    .iter()
-                    .zip(t)
-                    .map(|(&m, &v)| ((m - v) as f64).powi(2))
-                    .sum::<f64>();
-            }
-            start += rows;
-        }
-        *out = (sum / (n * d).max(1) as f64) as f32;
+        *out = member_mse(net, theta, e, x, targets, n, buf);
     }
 }
 

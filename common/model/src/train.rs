@@ -23,7 +23,7 @@
 
 use crate::error::TrainError;
 use crate::model::{standardize, ProbabilisticEnsemble, Workspace};
-use crate::network::{member_loss_and_grad, members_mse};
+use crate::parallel::{adam_step, holdout_mse, members_loss_and_grads};
 use mbpo_core::rng::{index, shuffle};
 use mbpo_core::{Batch, Rng};
 use serde::{Deserialize, Serialize};
@@ -238,7 +238,7 @@ impl ProbabilisticEnsemble {
             seconds: 0.0,
         };
         self.ws.grads.resize(self.theta.len(), 0.0);
-        self.ws.train.ensure(&self.net, batch);
+        self.ws.threads.ensure(cfg.threads, &self.net, batch);
 
         loop {
             // 4. One epoch of minibatch steps over every member's bootstrap vector.
@@ -253,13 +253,13 @@ impl ProbabilisticEnsemble {
             boot.shuffle_rows(rng);
 
             // 5. Holdout MSE, snapshots, patience.
-            members_mse(
+            holdout_mse(
+                &mut self.ws.threads,
                 &self.net,
                 &self.theta,
                 &x_hold,
                 &t_hold,
                 n_hold,
-                &mut self.ws.infer,
                 &mut mse,
             );
             let stop = stopper.update(&mse, &mut improved);
@@ -312,44 +312,29 @@ impl ProbabilisticEnsemble {
     }
 
     /// One Adam step: every member's loss gradient on rows `b0..b0 + rows` of its bootstrap
-    /// vector, the bound regulariser, then the update. Adds `loss·rows` per member to `loss`.
+    /// vector, the bound regulariser, then the update; members and Adam run on
+    /// `config.threads` threads (`parallel.rs`). Adds `loss·rows` per member to `loss`.
     fn train_step(&mut self, boot: &BootstrapIndices, b0: usize, rows: usize, loss: &mut [f64]) {
-        let (in_dim, d) = (self.net.in_dim(), self.net.d());
         let Workspace {
-            train,
+            threads,
             grads,
             x_all,
             t_all,
-            x_chunk,
-            t_chunk,
             ..
         } = &mut self.ws;
-        x_chunk.resize(self.config.batch_size * in_dim, 0.0);
-        t_chunk.resize(self.config.batch_size * d, 0.0);
-        grads[self.net.num_net_params()..].fill(0.0);
-        for (e, l) in loss.iter_mut().enumerate() {
-            let idx = &boot.member(e)[b0..b0 + rows];
-            for (r, &i) in idx.iter().enumerate() {
-                let i = i as usize;
-                x_chunk[r * in_dim..(r + 1) * in_dim]
-                    .copy_from_slice(&x_all[i * in_dim..(i + 1) * in_dim]);
-                t_chunk[r * d..(r + 1) * d].copy_from_slice(&t_all[i * d..(i + 1) * d]);
-            }
-            let member_loss = member_loss_and_grad(
-                &self.net,
-                &self.theta,
-                e,
-                x_chunk,
-                t_chunk,
-                rows,
-                train,
-                grads,
-            );
-            *l += member_loss * rows as f64;
-        }
+        members_loss_and_grads(
+            threads,
+            &self.net,
+            &self.theta,
+            x_all,
+            t_all,
+            |e| &boot.member(e)[b0..b0 + rows],
+            grads,
+            loss,
+        );
         let mut g = std::mem::take(&mut self.ws.grads);
         self.finish_bound_grads(&mut g);
-        self.adam.step(&mut self.theta, &g);
+        adam_step(&mut self.ws.threads, &mut self.adam, &mut self.theta, &g);
         self.ws.grads = g;
     }
 
@@ -406,6 +391,7 @@ impl ProbabilisticEnsemble {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::network::members_mse;
     use mbpo_core::stream;
 
     #[test]

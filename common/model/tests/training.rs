@@ -184,6 +184,46 @@ fn training_is_bit_reproducible() {
     assert_eq!(r1, r2);
 }
 
+/// Members run in blocks on `threads` threads and every sum keeps member order, so the thread
+/// count changes nothing: weights, Adam state, reports and elites are bit-identical, also when
+/// threads do not divide the members (7 on 2, 3, 4) or outnumber them (8).
+#[test]
+fn training_on_several_threads_is_bit_identical_to_one_thread() {
+    let data = pendulum_data(1000, 3);
+    let run = |threads: usize| {
+        let cfg = ModelConfig {
+            max_epochs: Some(4),
+            threads,
+            ..small_config(7, 5, &[24, 24])
+        };
+        let mut rng = stream(5, "test.model", 0);
+        let mut model = ProbabilisticEnsemble::new(3, 1, cfg, &mut rng).unwrap();
+        let mut reports = Vec::new();
+        for n in [600, 1000] {
+            let mut part = Batch::new(3, 1, n);
+            part.obs.copy_from_slice(&data.obs[..3 * n]);
+            part.act.copy_from_slice(&data.act[..n]);
+            part.reward.copy_from_slice(&data.reward[..n]);
+            part.next_obs.copy_from_slice(&data.next_obs[..3 * n]);
+            part.terminated.copy_from_slice(&data.terminated[..n]);
+            let mut r = model.train(&part, &mut rng).unwrap();
+            r.seconds = 0.0;
+            reports.push(r);
+        }
+        (model.checkpoint(), reports)
+    };
+    let (state1, reports1) = run(1);
+    assert!(reports1.iter().all(|r| r.gradient_steps > 0));
+    for threads in [2, 3, 4, 8] {
+        let (state, reports) = run(threads);
+        assert_eq!(reports, reports1, "reports differ with {threads} threads");
+        assert!(
+            state == state1,
+            "weights or Adam state differ with {threads} threads"
+        );
+    }
+}
+
 #[test]
 fn bad_training_data_is_rejected_with_typed_errors() {
     let mut model =

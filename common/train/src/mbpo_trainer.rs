@@ -136,11 +136,13 @@ impl Mbpo {
         }
         if let Some(epoch) = self.schedule.train_point(t) {
             let report = self.train_model()?;
-            tracing::debug!(
-                "model trained: {} epochs, elites {:?}, holdout mse {:?}",
+            // The same line as the pipeline's model trainer, so runs can be compared.
+            tracing::info!(
+                "model trained for step {t} on {} transitions: {} epochs, elites {:?}, {:.2} s",
+                report.n_train + report.n_holdout,
                 report.epochs,
                 report.elites,
-                report.final_holdout_mse
+                report.seconds
             );
             self.branch_rollouts(epoch)?;
         }

@@ -13,7 +13,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Learning(args) => learning(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::ModelTrain(r) => {
-            let cfg = model_bench_config(&r);
+            let mut cfg = model_bench_config(&r.reps);
+            cfg.model.threads = r.threads;
             let report = mbpo_model::bench::model_train(10_000, &cfg)?;
             println!("{}", serde_json::to_string(&report)?);
             Ok(())

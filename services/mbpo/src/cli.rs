@@ -95,7 +95,7 @@ pub enum BenchCommand {
     /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims).
     SacUpdate(SacUpdateArgs),
     /// One dynamics-model training epoch over 10k transitions (7 x 4x200, HalfCheetah dims).
-    ModelTrain(Repetitions),
+    ModelTrain(ModelTrainArgs),
     /// 100k one-step model rollouts (7 x 4x200, HalfCheetah dims).
     ModelRollout(Repetitions),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
@@ -278,6 +278,16 @@ pub struct RunArgs {
     /// No live progress bar: log a plain progress line every 10 s instead.
     #[arg(long)]
     pub quiet: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ModelTrainArgs {
+    #[command(flatten)]
+    pub reps: Repetitions,
+    /// Threads of the training call (`model.threads`; members in blocks, same result for any
+    /// count).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
 }
 
 #[derive(Debug, Args)]
