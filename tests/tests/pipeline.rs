@@ -29,6 +29,11 @@ fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
     // Two SAC threads: the learner's sharded update must be as deterministic across processes
     // as the single-threaded one (one thread is the same code with one shard).
     cfg.sac.threads = 2;
+    // Two model-training threads in the pipeline, one in the reference: the weights of a
+    // training call must not depend on the thread count at all.
+    cfg.model.threads = 2;
+    let mut reference = cfg.clone();
+    reference.model.threads = 1;
     let dir = scratch("lockstep");
     let input = write_config(&cfg, &dir);
     let root = ipc_root("lockstep");
@@ -47,7 +52,7 @@ fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
     };
     bin_dir();
     let (ca, cb) = (spawn(&a), spawn(&b));
-    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let seq = train_mbpo(&reference, &dir.join("sequential")).unwrap();
     let outputs = [wait_output(ca, TIMEOUT), wait_output(cb, TIMEOUT)];
     for (o, out) in outputs.iter().zip([&a, &b]) {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
