@@ -110,6 +110,9 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         if let Ok(mut before) = ExperimentConfig::load(&stored) {
             let steps_before = before.steps;
             before.steps = cfg.steps;
+            // The model's thread count changes no bit of the result (members train in blocks,
+            // every sum in member order): a benchmark may continue with the cores it has now.
+            before.model.threads = cfg.model.threads;
             if &before != cfg {
                 return Err(TrainError::Config(format!(
                     "{} holds a run of another config (see its config.toml); \
