@@ -7,7 +7,8 @@
 #   3. `mbpo run --mode pipelined` (all services, default slack, the config's threads),
 #   4. with --mbrl-lib: mbrl-lib 0.2.0's MBPO with the same settings (tools/mbrl_lib_pendulum.py,
 #      installed into .venv-torch from PyPI, ~5 GB; about 0.7 s per step on a 2-core machine).
-# Prints one JSON object per run and the ratios, and writes results/pipeline-speed-pendulum.json.
+# Prints one JSON object per run and the ratios, and writes results/pipeline-speed-pendulum.json
+# (results/pipeline-speed-pendulum-s<SEED>.json for SEED=... other than 0).
 #
 # "mean" is wall time per env step over steps 501..STEPS (model trainings included, read from
 # metrics.csv; mbrl-lib's mean also holds its first model training, a few seconds over ~1000
@@ -22,15 +23,22 @@
 set -euo pipefail
 
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-steps=1400
+steps=""
 mbrl=0
 for arg in "$@"; do
     case "$arg" in
         --mbrl-lib) mbrl=1 ;;
         *[!0-9]* | "") echo "usage: $0 [STEPS] [--mbrl-lib]; got '$arg'" >&2; exit 2 ;;
-        *) steps="$arg" ;;
+        *)
+            if [ -n "$steps" ]; then
+                echo "usage: $0 [STEPS] [--mbrl-lib]; STEPS given twice ($steps, $arg)" >&2
+                exit 2
+            fi
+            steps="$arg"
+            ;;
     esac
 done
+steps="${steps:-1400}"
 if [ "$steps" -le 500 ]; then
     echo "STEPS must be above 500 (the first model training is at step 401; the mean starts at 501)" >&2
     exit 2
@@ -43,10 +51,20 @@ config=deploy/configs/pendulum.toml
 out="$(mktemp -d /tmp/pipeline-speed.XXXXXX)"
 common=(--config "$config" --steps "$steps" --seed "$seed")
 echo "runs in $out" >&2
-target/release/mbpo train --mode sequential "${common[@]}" --set sac.threads=1 --set model.threads=1 \
-    --out "$out/sequential-1-thread" 2>"$out/sequential-1-thread.log"
-target/release/mbpo train --mode sequential "${common[@]}" --out "$out/sequential" 2>"$out/sequential.log"
-target/release/mbpo run --mode pipelined "${common[@]}" --quiet --out "$out/pipelined" 2>"$out/pipelined.log"
+# One run; on failure, the tail of its log and the exit.
+run() {
+    local name="$1"
+    shift
+    "$@" --out "$out/$name" 2>"$out/$name.log" >/dev/null || {
+        echo "$name failed; the end of $out/$name.log:" >&2
+        tail -n 20 "$out/$name.log" >&2
+        exit 1
+    }
+}
+run sequential-1-thread target/release/mbpo train --mode sequential "${common[@]}" \
+    --set sac.threads=1 --set model.threads=1
+run sequential target/release/mbpo train --mode sequential "${common[@]}"
+run pipelined target/release/mbpo run --mode pipelined "${common[@]}" --quiet
 
 mbrl_json="$out/mbrl-lib.json"
 if [ "$mbrl" = 1 ]; then
@@ -56,11 +74,16 @@ if [ "$mbrl" = 1 ]; then
     "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -r tools/requirements-mbrl.txt
     "$venv/bin/python" tools/mbrl_lib_pendulum.py --steps "$steps" --threads 1 --seed "$seed" \
         2>"$out/mbrl-lib.log" | tail -1 >"$mbrl_json"
+    python3 -c 'import json, sys; json.load(open(sys.argv[1]))["mean_seconds_per_env_step"]' "$mbrl_json" || {
+        echo "mbrl-lib gave no result line; the end of $out/mbrl-lib.log:" >&2
+        tail -n 20 "$out/mbrl-lib.log" >&2
+        exit 1
+    }
 fi
 
-python3 - "$out" "$steps" "$mbrl_json" <<'PY'
+python3 - "$out" "$steps" "$mbrl_json" "$seed" <<'PY'
 import csv, json, os, platform, sys
-out, steps, mbrl_json = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+out, steps, mbrl_json, seed = sys.argv[1], int(sys.argv[2]), sys.argv[3], int(sys.argv[4])
 cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), platform.machine())
 
 def ours(name):
@@ -74,7 +97,7 @@ def ours(name):
     entry = {
         "run": name,
         "wall_seconds": round(s["wall_seconds"], 1),
-        "median_seconds_per_env_step": round(s["median_seconds_per_env_step"], 4),
+        "median_seconds_per_env_step": round(s.get("median_seconds_per_env_step") or float("nan"), 4),
         "mean_seconds_per_env_step": round((wall[steps] - wall[500]) / (steps - 500), 4),
         "final_eval_return": round(s["final_eval_return"], 1),
     }
@@ -110,7 +133,10 @@ if "mbrl-lib" in by:
 for r in runs:
     print(json.dumps(r))
 print(json.dumps(ratios))
-result = {"config": "deploy/configs/pendulum.toml", "steps": steps, "cpu": cpu, "cores": os.cpu_count(),
-          "runs": runs, "ratios": ratios}
-json.dump(result, open("results/pipeline-speed-pendulum.json", "w"), indent=2)
+result = {"config": "deploy/configs/pendulum.toml", "steps": steps, "seed": seed, "cpu": cpu,
+          "cores": os.cpu_count(), "runs": runs, "ratios": ratios}
+# One file per seed (seed 0 keeps the plain name), so repeats over seeds do not overwrite.
+name = "results/pipeline-speed-pendulum.json" if seed == 0 else f"results/pipeline-speed-pendulum-s{seed}.json"
+json.dump(result, open(name, "w"), indent=2)
+print(f"wrote {name}", file=sys.stderr)
 PY

@@ -1,7 +1,8 @@
 //! Benchmarks of the model's two hot paths, for `mbpo bench model-train` / `model-rollout`.
 //!
 //! Both run the MBPO-sized model (7 members, 4 x 200 SiLU) at HalfCheetah's dimensions
-//! (obs 17, act 6) on one thread, and compare the achieved GEMM throughput with the roofline
+//! (obs 17, act 6), the rollouts on one thread and the training on `model.threads` (members in
+//! blocks, `mbpo bench model-train --threads N`), and compare the achieved GEMM throughput with the roofline
 //! measured in the same run: [`mbpo_nn::bench::gemm_gflops`] on the model's hidden-layer shape
 //! `256 x 200 x 200`. Only GEMM flops are counted (2 per multiply-add): a forward pass costs
 //! `2·rows·in·out` per layer, a training step adds the weight gradient of every layer and the
@@ -129,6 +130,7 @@ fn report(
     flops: u64,
     roofline: f64,
     model: &ModelConfig,
+    threads: usize,
 ) -> ModelBenchReport {
     let seconds = seconds_all.iter().copied().fold(f64::INFINITY, f64::min);
     let gflop = flops as f64 / 1e9;
@@ -141,12 +143,12 @@ fn report(
         gflop,
         gflops,
         roofline_gflops: roofline,
-        fraction_of_roofline: gflops / (roofline * model.threads as f64),
+        fraction_of_roofline: gflops / (roofline * threads as f64),
         members: model.members,
         hidden: model.hidden.clone(),
         obs_dim: OBS_DIM,
         act_dim: ACT_DIM,
-        threads: model.threads,
+        threads,
     }
 }
 
@@ -196,6 +198,8 @@ pub fn model_train(
         flops,
         roofline,
         &model_cfg,
+        // Threads beyond the members have no block to run.
+        model_cfg.threads.min(model_cfg.members),
     ))
 }
 
@@ -240,5 +244,6 @@ pub fn model_rollout(
         flops,
         roofline,
         &cfg.model,
+        1,
     ))
 }

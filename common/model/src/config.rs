@@ -54,7 +54,8 @@ pub struct ModelConfig {
     pub logvar_bound_penalty: f32,
     /// Threads a training call runs on (1). Members are independent until the shared bounds
     /// and Adam, so each thread takes a contiguous block of members; every sum keeps member
-    /// order, so the result is bit-identical for any thread count. Not a hyper-parameter of
+    /// order, so the result is bit-identical for any thread count; threads beyond the number of
+    /// members would have no block and are not started. Not a hyper-parameter of
     /// MBPO: a machine setting (the pipeline's model trainer can use a core the learner
     /// leaves idle).
     pub threads: usize,

@@ -389,8 +389,6 @@ pub(crate) fn member_forward(
     }
 }
 
-/// Each member's mean-squared error of μ against `targets` (`n x d`) on standardised inputs `x`
-/// (`n x in`), written into `mse` (mean over rows and dimensions).
 /// Member e's holdout MSE of the mean prediction on `n` standardised rows `x` with `[reward,
 /// Δobs]` targets (mean over rows and dims, summed in f64 in row order).
 pub(crate) fn member_mse(

@@ -17,7 +17,8 @@
 //! thread everything runs inline on the caller.
 //!
 //! Load balance is by members: 7 members on 2 threads are blocks of 4 and 3, so the second
-//! thread idles for one member's work per step (at most a 1.75x speed-up on two cores).
+//! thread idles for one member's work per step (about 1.75x on two cores: the gradient work
+//! splits 4 : 3, Adam and the holdout pass split evenly).
 
 use crate::config::MAX_THREADS;
 use crate::network::{member_loss_and_grad, member_mse, InferBuffers, Net, TrainBuffers};

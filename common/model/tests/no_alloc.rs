@@ -25,26 +25,41 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
     ignore_libtest_main_thread();
     let data = pendulum_data(3000, 1); // 2400 training rows: 10 steps per epoch
     let mut rng = stream(0, "alloc", 0);
-    let train_for = |epochs: usize| ModelConfig {
-        max_epochs: Some(epochs),
-        max_epochs_since_update: 100,
-        ..small_config(3, 2, &[32, 32])
-    };
-    let mut model = ProbabilisticEnsemble::new(3, 1, train_for(1), &mut rng).unwrap();
-    model.train(&data, &mut rng).unwrap(); // warm-up: buffers and faer's packing memory
-    let one = count(|| {
-        model.train(&data, &mut rng).unwrap();
-    });
-    let mut longer = ProbabilisticEnsemble::new(3, 1, train_for(6), &mut rng).unwrap();
-    longer.train(&data, &mut rng).unwrap();
-    let six = count(|| {
+    // One thread runs inline; two run members in blocks on a pool (spawned in the warm-up).
+    for threads in [1, 2] {
+        let train_for = |epochs: usize| ModelConfig {
+            max_epochs: Some(epochs),
+            max_epochs_since_update: 100,
+            threads,
+            ..small_config(3, 2, &[32, 32])
+        };
+        let mut model = ProbabilisticEnsemble::new(3, 1, train_for(1), &mut rng).unwrap();
+        model.train(&data, &mut rng).unwrap(); // warm-up: buffers and faer's packing memory
+        let one = count(|| {
+            model.train(&data, &mut rng).unwrap();
+        });
+        let mut longer = ProbabilisticEnsemble::new(3, 1, train_for(6), &mut rng).unwrap();
         longer.train(&data, &mut rng).unwrap();
-    });
-    // 50 more gradient steps; only the per-epoch report rows (and their Vec's growth) may add.
-    assert!(
-        six - one <= 5 * 3,
-        "1 epoch: {one} allocations, 6 epochs: {six}"
-    );
+        let six = count(|| {
+            longer.train(&data, &mut rng).unwrap();
+        });
+        // 50 more gradient steps; only the per-epoch report rows (and their Vec's growth) may add.
+        assert!(
+            six - one <= 5 * 3,
+            "{threads} thread(s): 1 epoch: {one} allocations, 6 epochs: {six}"
+        );
+    }
+    let mut model = ProbabilisticEnsemble::new(
+        3,
+        1,
+        ModelConfig {
+            max_epochs: Some(1),
+            ..small_config(3, 2, &[32, 32])
+        },
+        &mut rng,
+    )
+    .unwrap();
+    model.train(&data, &mut rng).unwrap();
 
     let n = 1500;
     let obs = vec![0.1f32; n * 3];
