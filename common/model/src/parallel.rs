@@ -90,10 +90,13 @@ impl MemberThreads {
         members.div_ceil(self.threads().max(1))
     }
 
-    fn pool(&mut self) -> &mut WorkerPool {
-        self.pool
+    /// The pool, the threads' scratch memory and the bound slots, borrowed together.
+    fn parts(&mut self) -> (&mut WorkerPool, &mut [MemberWorker], &mut [f32]) {
+        let pool = self
+            .pool
             .as_mut()
-            .expect("MemberThreads::ensure runs before any training step")
+            .expect("MemberThreads::ensure runs before any training step");
+        (pool, &mut self.workers, &mut self.bound_slots)
     }
 }
 
@@ -126,11 +129,7 @@ pub(crate) fn members_loss_and_grads<'r>(
     let block = threads.block(members);
     let per_member = net.ensemble().mlp().num_params();
     let (g_net, g_bounds) = grads.split_at_mut(net.num_net_params());
-    let MemberThreads {
-        pool,
-        workers,
-        bound_slots,
-    } = threads;
+    let (pool, workers, bound_slots) = threads.parts();
     let mut items: [Option<MemberBlock>; MAX_THREADS] = std::array::from_fn(|_| None);
     let blocks = workers
         .iter_mut()
@@ -150,9 +149,6 @@ pub(crate) fn members_loss_and_grads<'r>(
         });
         used += 1;
     }
-    let pool = pool
-        .as_mut()
-        .expect("MemberThreads::ensure runs before any training step");
     pool.for_each_mut(&mut items[..used], |_, item| {
         let Some(b) = item.take() else { return };
         let w = b.worker;
@@ -206,12 +202,15 @@ pub(crate) fn adam_step(
     for (slot, part) in items.iter_mut().zip(adam.step_parts(theta, parts)) {
         *slot = Some(part);
     }
-    threads.pool().for_each_mut(&mut items[..parts], |_, item| {
-        if let Some(part) = item.take() {
-            let range = part.range();
-            part.apply(&grads[range]);
-        }
-    });
+    threads
+        .parts()
+        .0
+        .for_each_mut(&mut items[..parts], |_, item| {
+            if let Some(part) = item.take() {
+                let range = part.range();
+                part.apply(&grads[range]);
+            }
+        });
 }
 
 /// Every member's holdout MSE ([`member_mse`]) on `n` standardised rows, a block of members
@@ -226,7 +225,7 @@ pub(crate) fn holdout_mse(
     mse: &mut [f32],
 ) {
     let block = threads.block(net.members());
-    let MemberThreads { pool, workers, .. } = threads;
+    let (pool, workers, _) = threads.parts();
     let mut items: [Option<(usize, &mut MemberWorker, &mut [f32])>; MAX_THREADS] =
         std::array::from_fn(|_| None);
     let mut used = 0;
@@ -237,9 +236,6 @@ pub(crate) fn holdout_mse(
         *slot = Some((i * block, worker, out));
         used += 1;
     }
-    let pool = pool
-        .as_mut()
-        .expect("MemberThreads::ensure runs before any training step");
     pool.for_each_mut(&mut items[..used], |_, item| {
         let Some((first, worker, out)) = item.take() else {
             return;
