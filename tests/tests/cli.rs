@@ -188,6 +188,24 @@ fn learning_bench_continues_and_reuses_its_runs() {
     let again = bench_learning(&split, "500", &[]);
     assert!(again.status.success(), "{again:?}");
     assert!(String::from_utf8_lossy(&again.stderr).contains("already completed"));
+    let report: serde_json::Value = serde_json::from_slice(&again.stdout).unwrap();
+    assert_eq!(report["target_return"], -200.0, "{report}");
+    let summary = summary_of(&run(&split));
+    assert_eq!(summary["target_return"], -200.0, "{summary}");
+    assert_eq!(
+        report["env_steps_to_target"][0], summary["env_steps_to_target"],
+        "the benchmark and the run disagree on when -200 was reached: {report} {summary}"
+    );
+
+    // A target return changes no bit of training: another one reuses the run too, and the
+    // steps to reach it are read off its curve (here a target every evaluation reaches: the
+    // first evaluation: pendulum-tiny.toml evaluates every 200 steps).
+    let lower = bench_learning(&split, "500", &["--set", "eval.target_return=-1e9"]);
+    assert!(lower.status.success(), "{lower:?}");
+    assert!(String::from_utf8_lossy(&lower.stderr).contains("already completed"));
+    let report: serde_json::Value = serde_json::from_slice(&lower.stdout).unwrap();
+    assert_eq!(report["target_return"], -1e9, "{report}");
+    assert_eq!(report["env_steps_to_target"][0], 200, "{report}");
 
     // Another config over the same runs is refused, naming the run directory.
     let other = bench_learning(&split, "500", &["--set", "sac.gamma=0.9"]);

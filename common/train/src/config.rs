@@ -38,6 +38,11 @@ pub struct EvalConfig {
     pub every: u64,
     /// Deterministic episodes per evaluation.
     pub episodes: usize,
+    /// The eval return that counts as solving the task, for "env steps to reach the target"
+    /// in summaries and learning benchmarks. Unset: the task's own ([`mbpo_envs::target_return`]:
+    /// Gymnasium's `reward_threshold`, −200 for Pendulum). It changes no bit of training.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_return: Option<f64>,
 }
 
 impl Default for EvalConfig {
@@ -45,6 +50,7 @@ impl Default for EvalConfig {
         Self {
             every: 1000,
             episodes: 1,
+            target_return: None,
         }
     }
 }
@@ -326,6 +332,14 @@ impl ExperimentConfig {
         Ok(cfg)
     }
 
+    /// The eval return the run's "env steps to target" refers to: `eval.target_return`, else the
+    /// task's own (`None` when the task has none and the config sets none).
+    pub fn target_return(&self) -> Option<f64> {
+        self.eval
+            .target_return
+            .or_else(|| mbpo_envs::target_return(&self.env))
+    }
+
     /// The config as TOML (the run directory keeps this resolved copy).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("a config always serializes")
@@ -374,6 +388,9 @@ impl ExperimentConfig {
             if !(v > 0.0 && v.is_finite()) {
                 return Err(bad(key, "a positive number", v.to_string()));
             }
+        }
+        if let Some(t) = self.eval.target_return.filter(|t| !t.is_finite()) {
+            return Err(bad("eval.target_return", "a finite number", t.to_string()));
         }
         let m = &self.mbpo;
         let positive_mbpo = [
@@ -660,5 +677,26 @@ mod tests {
         let cfg = ExperimentConfig::default();
         let back: ExperimentConfig = toml::from_str(&cfg.to_toml()).unwrap();
         assert_eq!(back, cfg);
+    }
+
+    #[test]
+    fn the_target_return_is_the_tasks_unless_the_config_sets_one() {
+        let cfg = parse("env = \"Pendulum-v1\"\n").unwrap();
+        assert_eq!(cfg.target_return(), Some(-200.0));
+        let cfg = parse("env = \"MountainCarContinuous-v0\"\n").unwrap();
+        assert_eq!(cfg.target_return(), Some(90.0));
+        let cfg = parse("[eval]\ntarget_return = -150\n").unwrap();
+        assert_eq!(cfg.target_return(), Some(-150.0));
+        // Unset, it stays out of the resolved TOML (run directories of older builds compare equal).
+        assert!(!ExperimentConfig::default()
+            .to_toml()
+            .contains("target_return"));
+        let err = parse("[eval]\ntarget_return = nan\n")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("eval.target_return") && err.contains("finite"),
+            "{err}"
+        );
     }
 }

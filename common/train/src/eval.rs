@@ -2,7 +2,7 @@
 
 use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
-use crate::run_dir::{policy_sha256, MetricsRow, Summary};
+use crate::run_dir::{policy_sha256, reaches_target, MetricsRow, Summary};
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
@@ -38,7 +38,8 @@ pub fn evaluate(
     total / episodes as f64
 }
 
-/// Periodic evaluation and the bookkeeping around it (best return, first time ≥ −200, rates).
+/// Periodic evaluation and the bookkeeping around it (best return, first time at the task's
+/// target return, rates).
 pub struct Evaluator {
     env: Box<dyn Env>,
     rng: Rng,
@@ -52,7 +53,8 @@ pub struct Evaluator {
     env_steps: u64,
     final_return: f64,
     best_return: f64,
-    to_minus_200: Option<u64>,
+    target_return: Option<f64>,
+    to_target: Option<u64>,
 }
 
 /// What a checkpoint keeps of an [`Evaluator`]: its stream and the run's bookkeeping.
@@ -70,8 +72,10 @@ pub struct EvaluatorState {
     pub final_return: f64,
     /// Best evaluation return.
     pub best_return: f64,
-    /// First evaluation point with return ≥ −200.
-    pub to_minus_200: Option<u64>,
+    /// First evaluation point with return ≥ the target return (field name of old checkpoints:
+    /// `to_minus_200`, Pendulum's target then).
+    #[serde(alias = "to_minus_200")]
+    pub to_target: Option<u64>,
 }
 
 impl Evaluator {
@@ -84,7 +88,7 @@ impl Evaluator {
             last_steps: self.last_steps,
             final_return: self.final_return,
             best_return: self.best_return,
-            to_minus_200: self.to_minus_200,
+            to_target: self.to_target,
         }
     }
 
@@ -99,7 +103,7 @@ impl Evaluator {
         self.env_steps = s.last_steps;
         self.final_return = s.final_return;
         self.best_return = s.best_return;
-        self.to_minus_200 = s.to_minus_200;
+        self.to_target = s.to_target;
     }
 
     /// An evaluator with its own environment and stream (`eval.env`).
@@ -117,7 +121,8 @@ impl Evaluator {
             env_steps: 0,
             final_return: f64::NAN,
             best_return: f64::NEG_INFINITY,
-            to_minus_200: None,
+            target_return: cfg.target_return(),
+            to_target: None,
         })
     }
 
@@ -134,8 +139,8 @@ impl Evaluator {
         let ret = evaluate(&mut policy, self.env.as_mut(), self.episodes, &mut self.rng);
         self.final_return = ret;
         self.best_return = self.best_return.max(ret);
-        if ret >= -200.0 && self.to_minus_200.is_none() {
-            self.to_minus_200 = Some(env_steps);
+        if reaches_target(self.target_return, ret) && self.to_target.is_none() {
+            self.to_target = Some(env_steps);
         }
         let now = self.start.elapsed().as_secs_f64();
         let dt = (now - self.last_time).max(1e-9);
@@ -187,7 +192,8 @@ impl Evaluator {
             sac_updates: sac.updates(),
             final_eval_return: self.final_return,
             best_eval_return: self.best_return,
-            env_steps_to_minus_200: self.to_minus_200,
+            target_return: self.target_return,
+            env_steps_to_target: self.to_target,
             policy_sha256: policy_sha256(&sac.actor_params),
             wall_seconds: self.start.elapsed().as_secs_f64(),
             median_seconds_per_env_step: seconds_per_env_step,

@@ -1,8 +1,9 @@
 //! Learning benchmarks: one config over several seeds, summarised into one results file.
 //!
 //! `results/learning-<env>.json` holds one entry per algorithm (SAC, MBPO, ...), each with
-//! every seed's evaluation curve, final return and env steps to reach −200, so sample
-//! efficiency is compared in one place. Seeds run in parallel threads (each run is
+//! every seed's evaluation curve, final return and env steps to reach the task's target return
+//! ([`ExperimentConfig::target_return`]: −200 for Pendulum, Gymnasium's `reward_threshold` for
+//! the MuJoCo tasks), so sample efficiency is compared in one place. Seeds run in parallel threads (each run is
 //! single-threaded and deterministic, so parallelism does not change any result).
 //!
 //! Fixed env-step budgets (e.g. the MBPO paper's "return at 20k and 50k steps") are read off
@@ -10,7 +11,7 @@
 //! the run had spent by then ([`BudgetPoint`], [`BudgetSummary`]).
 
 use crate::config::{Algo, ExperimentConfig};
-use crate::run_dir::{read_eval_curve, read_metric_curve, Summary};
+use crate::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
 use crate::sac_trainer::TrainError;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -25,8 +26,11 @@ pub struct SeedResult {
     pub curve: Vec<(u64, f64)>,
     /// Last evaluation return.
     pub final_return: f64,
-    /// First evaluation point with return ≥ −200.
-    pub env_steps_to_minus_200: Option<u64>,
+    /// First evaluation point with return ≥ the entry's `target_return` (read off the curve, so
+    /// a run reused from an older build gets the same figure). Files written before targets
+    /// were per task call it `env_steps_to_minus_200`.
+    #[serde(alias = "env_steps_to_minus_200")]
+    pub env_steps_to_target: Option<u64>,
     /// Wall-clock seconds of the run.
     pub wall_seconds: f64,
     /// Eval return and wall-clock at each requested env-step budget.
@@ -132,14 +136,24 @@ pub struct AlgoResult {
     pub steps: u64,
     /// Median over seeds of the final return.
     pub median_final_return: f64,
-    /// Median over seeds of env steps to reach −200 (a seed that never did counts as +∞;
-    /// `None` when more than half never did).
-    pub median_env_steps_to_minus_200: Option<u64>,
+    /// The eval return counted as solving the task (`null`: the task has none). Entries
+    /// written before targets were per task lack it: their target was −200.
+    #[serde(default = "minus_200")]
+    pub target_return: Option<f64>,
+    /// Median over seeds of env steps to reach `target_return` (a seed that never did counts as
+    /// +∞; `None` when more than half never did).
+    #[serde(alias = "median_env_steps_to_minus_200")]
+    pub median_env_steps_to_target: Option<u64>,
     /// Eval return and wall-clock at the requested env-step budgets, over seeds.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub budgets: Vec<BudgetSummary>,
     /// Per-seed results.
     pub seeds: Vec<SeedResult>,
+}
+
+/// The target of entries written before targets were per task.
+fn minus_200() -> Option<f64> {
+    Some(-200.0)
 }
 
 /// Median of a sorted slice of options where `None` sorts last (+∞).
@@ -178,6 +192,20 @@ pub fn learning_benchmark_at(
         Algo::Mpc => format!("mpc-{}", cfg.mpc.planner.kind.name()),
         other => other.name().to_string(),
     };
+    let target = cfg.target_return();
+    let file = out.join(format!("learning-{}.json", cfg.env));
+    // Read the other algorithms' entries first: a file that cannot be read must stop the
+    // benchmark before hours of work, not be overwritten at the end.
+    let mut all: BTreeMap<String, AlgoResult> = match std::fs::read_to_string(&file) {
+        Ok(text) => serde_json::from_str(&text).map_err(|e| {
+            TrainError::Config(format!(
+                "{}: not a learning-benchmark results file ({e}); move it away or pass another --out",
+                file.display()
+            ))
+        })?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
+        Err(e) => return Err(e.into()),
+    };
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -196,9 +224,9 @@ pub fn learning_benchmark_at(
                     Ok(SeedResult {
                         seed,
                         at_budgets: budget_points(&curve, &wall, budgets),
+                        env_steps_to_target: env_steps_to_target(&curve, target),
                         curve,
                         final_return: summary.final_eval_return,
-                        env_steps_to_minus_200: summary.env_steps_to_minus_200,
                         wall_seconds: summary.wall_seconds,
                         run_dir: dir,
                     })
@@ -219,20 +247,16 @@ pub fn learning_benchmark_at(
         config: config_name.to_string(),
         steps: cfg.steps,
         median_final_return: finals[(finals.len() - 1) / 2],
-        median_env_steps_to_minus_200: median_steps(
+        target_return: target,
+        median_env_steps_to_target: median_steps(
             &per_seed
                 .iter()
-                .map(|r| r.env_steps_to_minus_200)
+                .map(|r| r.env_steps_to_target)
                 .collect::<Vec<_>>(),
         ),
         budgets: summarize_budgets(&per_seed, budgets),
         seeds: per_seed,
     };
-    let file = out.join(format!("learning-{}.json", cfg.env));
-    let mut all: BTreeMap<String, AlgoResult> = std::fs::read_to_string(&file)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or_default();
     all.insert(algo.clone(), entry.clone());
     std::fs::create_dir_all(out)?;
     std::fs::write(&file, serde_json::to_string_pretty(&all)? + "\n")?;
@@ -270,7 +294,7 @@ mod tests {
             seed: s,
             curve: vec![],
             final_return: 0.0,
-            env_steps_to_minus_200: None,
+            env_steps_to_target: None,
             wall_seconds: 0.0,
             at_budgets: vec![BudgetPoint {
                 env_steps: 5000,
@@ -303,5 +327,106 @@ mod tests {
             Some(3)
         );
         assert_eq!(median_steps(&[None, None, Some(1)]), None);
+    }
+
+    /// A stand-in for a training run: seed s evaluates −1000 + 300·s·k at 100·k env steps.
+    fn fake_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
+        let mut run = crate::run_dir::RunDir::create(dir, cfg)?;
+        for k in 1..=4u64 {
+            run.write_metrics(&crate::run_dir::MetricsRow {
+                env_steps: 100 * k,
+                eval_return: -1000.0 + 300.0 * (cfg.seed * k) as f64,
+                wall_seconds: k as f64,
+                ..Default::default()
+            })?;
+        }
+        Ok(Summary {
+            algo: "sac".into(),
+            env: cfg.env.clone(),
+            seed: cfg.seed,
+            env_steps: 400,
+            sac_updates: 0,
+            final_eval_return: -1000.0 + 1200.0 * cfg.seed as f64,
+            best_eval_return: 0.0,
+            target_return: None,
+            env_steps_to_target: None,
+            policy_sha256: String::new(),
+            wall_seconds: 4.0,
+            median_seconds_per_env_step: None,
+            status: "completed".into(),
+        })
+    }
+
+    fn temp_out(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("mbpo-lb-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        dir
+    }
+
+    #[test]
+    fn steps_to_target_are_read_off_the_curve_at_the_tasks_target() {
+        let out = temp_out("target");
+        let cfg = ExperimentConfig {
+            algo: Algo::Sac,
+            ..Default::default()
+        };
+        assert_eq!(cfg.env, "Pendulum-v1");
+        // Pendulum's target is −200: seed 1 gets there at 300 (−100), seed 2 at 200 (200),
+        // seed 0 never (−1000 throughout).
+        let r = learning_benchmark(&cfg, "c.toml", &[0, 1, 2], 2, &out, fake_run).unwrap();
+        assert_eq!(r.target_return, Some(-200.0));
+        let got: Vec<_> = r.seeds.iter().map(|s| s.env_steps_to_target).collect();
+        assert_eq!(got, vec![None, Some(300), Some(200)]);
+        assert_eq!(r.median_env_steps_to_target, Some(300));
+        // A config's own target wins over the task's.
+        let mut high = cfg.clone();
+        high.eval.target_return = Some(500.0);
+        let r = learning_benchmark(&high, "c.toml", &[2], 1, &out, fake_run).unwrap();
+        assert_eq!(r.target_return, Some(500.0));
+        assert_eq!(r.seeds[0].env_steps_to_target, Some(300));
+        std::fs::remove_dir_all(out).unwrap();
+    }
+
+    #[test]
+    fn results_files_from_before_per_task_targets_still_merge() {
+        let out = temp_out("old");
+        std::fs::create_dir_all(&out).unwrap();
+        let old = r#"{"mbpo": {"config": "old.toml", "steps": 400, "median_final_return": -150.0,
+            "median_env_steps_to_minus_200": 250, "seeds": [{"seed": 0, "curve": [[250, -150.0]],
+            "final_return": -150.0, "env_steps_to_minus_200": 250, "wall_seconds": 9.0,
+            "run_dir": "runs/x"}]}}"#;
+        std::fs::write(out.join("learning-Pendulum-v1.json"), old).unwrap();
+        let cfg = ExperimentConfig {
+            algo: Algo::Sac,
+            ..Default::default()
+        };
+        learning_benchmark(&cfg, "c.toml", &[1], 1, &out, fake_run).unwrap();
+        let text = std::fs::read_to_string(out.join("learning-Pendulum-v1.json")).unwrap();
+        let all: BTreeMap<String, AlgoResult> = serde_json::from_str(&text).unwrap();
+        let kept = &all["mbpo"];
+        assert_eq!(kept.target_return, Some(-200.0));
+        assert_eq!(kept.median_env_steps_to_target, Some(250));
+        assert_eq!(kept.seeds[0].env_steps_to_target, Some(250));
+        assert_eq!(all["sac"].median_env_steps_to_target, Some(300));
+        std::fs::remove_dir_all(out).unwrap();
+    }
+
+    #[test]
+    fn an_unreadable_results_file_stops_the_benchmark_before_it_runs() {
+        fn must_not_run(_: &ExperimentConfig, _: &Path) -> Result<Summary, TrainError> {
+            panic!("the benchmark ran although its results file cannot be merged into");
+        }
+        let out = temp_out("bad");
+        std::fs::create_dir_all(&out).unwrap();
+        let file = out.join("learning-Pendulum-v1.json");
+        std::fs::write(&file, "{ not json").unwrap();
+        let cfg = ExperimentConfig::default();
+        let err = learning_benchmark(&cfg, "c.toml", &[0], 1, &out, must_not_run)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("learning-Pendulum-v1.json"), "{err}");
+        assert!(err.contains("move it away"), "{err}");
+        assert_eq!(std::fs::read_to_string(&file).unwrap(), "{ not json");
+        std::fs::remove_dir_all(out).unwrap();
     }
 }

@@ -18,7 +18,7 @@
 use crate::actor::{Behaviour, EnvActor};
 use crate::config::{ExperimentConfig, PlanReward};
 use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
-use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::run_dir::{policy_sha256, reaches_target, MetricsRow, RunDir, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
@@ -319,7 +319,8 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
     let mut mpc = MpcRun::new(cfg)?;
     let started = Instant::now();
     let (mut last_time, mut last_steps) = (0.0, 0);
-    let (mut final_return, mut best_return, mut to_minus_200) = (f64::NAN, f64::NEG_INFINITY, None);
+    let target_return = cfg.target_return();
+    let (mut final_return, mut best_return, mut to_target) = (f64::NAN, f64::NEG_INFINITY, None);
     let mut plan_seconds = Vec::with_capacity(cfg.steps as usize);
     for t in 1..=cfg.steps {
         mpc.step(t)?;
@@ -335,8 +336,8 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
             if ret.is_finite() {
                 final_return = ret;
                 best_return = best_return.max(ret);
-                if ret >= -200.0 && to_minus_200.is_none() {
-                    to_minus_200 = Some(t);
+                if reaches_target(target_return, ret) && to_target.is_none() {
+                    to_target = Some(t);
                 }
             }
             let now = started.elapsed().as_secs_f64();
@@ -372,7 +373,8 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
         sac_updates: 0,
         final_eval_return: final_return,
         best_eval_return: best_return,
-        env_steps_to_minus_200: to_minus_200,
+        target_return,
+        env_steps_to_target: to_target,
         policy_sha256: policy_sha256(&mpc.model_params),
         wall_seconds: started.elapsed().as_secs_f64(),
         median_seconds_per_env_step: plan_seconds.get(plan_seconds.len() / 2).copied(),

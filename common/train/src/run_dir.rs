@@ -161,8 +161,12 @@ pub struct Summary {
     pub final_eval_return: f64,
     /// Best evaluation return.
     pub best_eval_return: f64,
-    /// First evaluation point (env steps) with return ≥ −200 (Pendulum's "solved" line), if any.
-    pub env_steps_to_minus_200: Option<u64>,
+    /// The eval return counted as solving the task ([`ExperimentConfig::target_return`]).
+    #[serde(default)]
+    pub target_return: Option<f64>,
+    /// First evaluation point (env steps) with return ≥ `target_return`, if any.
+    #[serde(default)]
+    pub env_steps_to_target: Option<u64>,
     /// SHA-256 of the final policy parameters (flattened, little-endian f32).
     pub policy_sha256: String,
     /// Wall-clock seconds.
@@ -177,6 +181,19 @@ pub struct Summary {
 
 fn completed() -> String {
     "completed".into()
+}
+
+/// Whether an evaluation return reaches `target` (never, when there is no target).
+pub fn reaches_target(target: Option<f64>, eval_return: f64) -> bool {
+    target.is_some_and(|t| eval_return >= t)
+}
+
+/// The first evaluation point of `curve` (env steps, return) whose return reaches `target`.
+pub fn env_steps_to_target(curve: &[(u64, f64)], target: Option<f64>) -> Option<u64> {
+    curve
+        .iter()
+        .find(|&&(_, r)| reaches_target(target, r))
+        .map(|&(s, _)| s)
 }
 
 /// SHA-256 of parameters as little-endian f32 bytes, hex.

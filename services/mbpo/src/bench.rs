@@ -119,9 +119,10 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         "{}",
         json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
                "median_final_return": r.median_final_return,
-               "median_env_steps_to_minus_200": r.median_env_steps_to_minus_200,
+               "target_return": r.target_return,
+               "median_env_steps_to_target": r.median_env_steps_to_target,
                "final_returns": r.seeds.iter().map(|s| s.final_return).collect::<Vec<_>>(),
-               "env_steps_to_minus_200": r.seeds.iter().map(|s| s.env_steps_to_minus_200).collect::<Vec<_>>(),
+               "env_steps_to_target": r.seeds.iter().map(|s| s.env_steps_to_target).collect::<Vec<_>>(),
                "budgets": r.budgets,
                "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                "results": args.out.join(format!("learning-{}.json", cfg.env))})

@@ -113,6 +113,8 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
             // The model's thread count changes no bit of the result (members train in blocks,
             // every sum in member order): a benchmark may continue with the cores it has now.
             before.model.threads = cfg.model.threads;
+            // Nor does the target return (the benchmark reads steps-to-target off the curve).
+            before.eval.target_return = cfg.eval.target_return;
             if &before != cfg {
                 return Err(TrainError::Config(format!(
                     "{} holds a run of another config (see its config.toml); \

@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use mbpo_service_kit::stats::{Done, LearnerRow};
 use mbpo_train::progress::Progress;
-use mbpo_train::run_dir::MetricsRow;
+use mbpo_train::run_dir::{reaches_target, MetricsRow};
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
 use serde::{Deserialize, Serialize};
@@ -111,7 +111,9 @@ pub struct CollectorBook {
     last_row_updates: u64,
     final_return: f64,
     best_return: f64,
-    to_minus_200: Option<u64>,
+    /// First evaluation point at the task's target return (`to_minus_200` in old checkpoints).
+    #[serde(alias = "to_minus_200")]
+    to_target: Option<u64>,
     last_eval: Option<f64>,
     /// Process restarts.
     pub restarts: u32,
@@ -159,7 +161,7 @@ impl Collector {
                 last_row_updates: 0,
                 final_return: f64::NAN,
                 best_return: f64::NEG_INFINITY,
-                to_minus_200: None,
+                to_target: None,
                 last_eval: None,
                 restarts: 0,
             },
@@ -307,8 +309,8 @@ impl Collector {
             );
             self.book.final_return = ret;
             self.book.best_return = self.book.best_return.max(ret);
-            if ret >= -200.0 && self.book.to_minus_200.is_none() {
-                self.book.to_minus_200 = Some(t);
+            if reaches_target(self.cfg.target_return(), ret) && self.book.to_target.is_none() {
+                self.book.to_target = Some(t);
             }
             self.book.last_eval = Some(ret);
             self.book.next_row += 1;
@@ -428,7 +430,8 @@ impl Collector {
                 sac_updates,
                 final_eval_return: self.book.final_return,
                 best_eval_return: self.book.best_return,
-                env_steps_to_minus_200: self.book.to_minus_200,
+                target_return: self.cfg.target_return(),
+                env_steps_to_target: self.book.to_target,
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
                 median_seconds_per_env_step: median,
