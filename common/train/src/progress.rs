@@ -91,6 +91,12 @@ pub struct Progress {
     window: Option<(Instant, u64, u64)>,
     /// (env steps/s, updates/s) over the last finished window.
     rates: Option<(f64, f64)>,
+    /// Time and env steps at the first update: the ETA uses the mean rate since then, because
+    /// MBPO's rate swings between SAC updates and model trainings (a 10 s window during a
+    /// training would put the ETA at hours, the next one at minutes).
+    origin: Option<(Instant, u64)>,
+    /// (seconds, env steps) since `origin`, as of the last finished window.
+    since_origin: Option<(f64, u64)>,
     steps: u64,
     updates: u64,
     eval: Option<f64>,
@@ -130,6 +136,8 @@ impl Progress {
             last_emit: now,
             window: None,
             rates: None,
+            origin: None,
+            since_origin: None,
             steps: 0,
             updates: 0,
             eval: None,
@@ -155,6 +163,7 @@ impl Progress {
         }
         if self.window.is_none() {
             self.window = Some((now, steps, updates));
+            self.origin = Some((now, steps));
             if let Some(bar) = &self.bar {
                 bar.reset_eta();
             }
@@ -196,13 +205,17 @@ impl Progress {
                 self.updates.saturating_sub(u0) as f64 / dt,
             ));
             self.window = Some((now, self.steps, self.updates));
+            if let Some((start, s_start)) = self.origin {
+                let elapsed = now.duration_since(start).as_secs_f64();
+                self.since_origin = Some((elapsed, self.steps.saturating_sub(s_start)));
+            }
         }
     }
 
-    /// Seconds left at the last measured rate.
+    /// Seconds left at the mean rate since the first update.
     fn eta_seconds(&self) -> Option<f64> {
-        let (sps, _) = self.rates?;
-        (sps > 0.0).then(|| self.total.saturating_sub(self.steps) as f64 / sps)
+        let (seconds, steps) = self.since_origin?;
+        (steps > 0).then(|| self.total.saturating_sub(self.steps) as f64 * seconds / steps as f64)
     }
 
     /// Rates, evaluation and model version, e.g.
@@ -292,7 +305,7 @@ mod tests {
     }
 
     #[test]
-    fn rates_and_eta_come_from_the_last_window() {
+    fn rates_come_from_the_last_window_and_the_eta_from_the_mean_rate() {
         let t0 = Instant::now();
         let mut p = Progress::new_at("sac P s0".into(), 1000, lines(10), t0);
         assert_eq!(p.status(), "- env steps/s | eval -");
@@ -314,10 +327,16 @@ mod tests {
             p.line(t0 + Duration::from_secs(10)),
             "sac P s0: [10 s] step 100/1000 (10 %) | 10.0 env steps/s | 200 updates/s | eval -151.2 | model v3 | ETA 90 s"
         );
-        // The next window only counts its own steps: 400 steps in 20 s.
+        // The next window only counts its own steps: 400 steps in 20 s. The ETA goes by all
+        // 500 steps in 30 s: 500 left take 30 s.
         p.update_at(500, 2000, t0 + Duration::from_secs(30));
         assert_eq!(p.rates, Some((20.0, 0.0)));
-        assert_eq!(p.eta_seconds(), Some(25.0));
+        assert_eq!(p.eta_seconds(), Some(30.0));
+        // A window without progress (a model training) lengthens the ETA, it does not void it:
+        // 500 steps in 50 s, 500 left.
+        p.update_at(500, 2000, t0 + Duration::from_secs(50));
+        assert_eq!(p.rates, Some((0.0, 0.0)));
+        assert_eq!(p.eta_seconds(), Some(50.0));
     }
 
     #[test]
