@@ -156,8 +156,11 @@ fn learning_bench_continues_and_reuses_its_runs() {
     let run = |out: &std::path::Path| out.join("runs/mbpo-Pendulum-v1-s0");
 
     // 300 steps, then the same command for 500: the second continues the first run, here with
-    // another model thread count (a machine setting that changes no bit of the result).
-    let first = bench_learning(&split, "300", &[]);
+    // another model thread count (a machine setting that changes no bit of the result) and
+    // another target return (neither does that: the first run counts every evaluation as at
+    // its target of -1e9, the continued one must recount for -200).
+    let low_target = ["--set", "eval.target_return=-1e9"];
+    let first = bench_learning(&split, "300", &low_target);
     assert!(first.status.success(), "{first:?}");
     let second = bench_learning(&split, "500", &["--set", "model.threads=2"]);
     assert!(second.status.success(), "{second:?}");
@@ -175,32 +178,34 @@ fn learning_bench_continues_and_reuses_its_runs() {
     let mut unique = steps.clone();
     unique.dedup();
     assert_eq!(steps, unique, "a metrics row written twice");
+    // The run's summary and the benchmark agree on the (recounted) steps to -200.
+    let report: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
+    let summary = summary_of(&run(&split));
+    assert_eq!(report["target_return"], -200.0, "{report}");
+    assert_eq!(summary["target_return"], -200.0, "{summary}");
+    assert_eq!(
+        report["env_steps_to_target"][0], summary["env_steps_to_target"],
+        "the benchmark and the resumed run disagree on when -200 was reached: {report} {summary}"
+    );
 
-    // ... and ends where one uninterrupted 500-step benchmark run ends.
-    let uninterrupted = bench_learning(&whole, "500", &[]);
+    // ... and ends where one uninterrupted 500-step benchmark run ends (its target every
+    // evaluation reaches: the first, pendulum-tiny.toml evaluates every 200 steps).
+    let uninterrupted = bench_learning(&whole, "500", &low_target);
     assert!(uninterrupted.status.success(), "{uninterrupted:?}");
     assert_eq!(
         summary_of(&run(&split))["policy_sha256"],
         summary_of(&run(&whole))["policy_sha256"]
     );
+    let report: serde_json::Value = serde_json::from_slice(&uninterrupted.stdout).unwrap();
+    assert_eq!(report["env_steps_to_target"][0], 200, "{report}");
+    assert_eq!(summary_of(&run(&whole))["env_steps_to_target"], 200);
 
-    // The same command again reuses the completed run instead of training.
+    // The same command again reuses the completed run instead of training; with another
+    // target too, reading the steps to it off the run's curve.
     let again = bench_learning(&split, "500", &[]);
     assert!(again.status.success(), "{again:?}");
     assert!(String::from_utf8_lossy(&again.stderr).contains("already completed"));
-    let report: serde_json::Value = serde_json::from_slice(&again.stdout).unwrap();
-    assert_eq!(report["target_return"], -200.0, "{report}");
-    let summary = summary_of(&run(&split));
-    assert_eq!(summary["target_return"], -200.0, "{summary}");
-    assert_eq!(
-        report["env_steps_to_target"][0], summary["env_steps_to_target"],
-        "the benchmark and the run disagree on when -200 was reached: {report} {summary}"
-    );
-
-    // A target return changes no bit of training: another one reuses the run too, and the
-    // steps to reach it are read off its curve (here a target every evaluation reaches: the
-    // first evaluation: pendulum-tiny.toml evaluates every 200 steps).
-    let lower = bench_learning(&split, "500", &["--set", "eval.target_return=-1e9"]);
+    let lower = bench_learning(&split, "500", &low_target);
     assert!(lower.status.success(), "{lower:?}");
     assert!(String::from_utf8_lossy(&lower.stderr).contains("already completed"));
     let report: serde_json::Value = serde_json::from_slice(&lower.stdout).unwrap();

@@ -2,7 +2,7 @@
 
 use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
-use crate::run_dir::{policy_sha256, reaches_target, MetricsRow, Summary};
+use crate::run_dir::{env_steps_to_target, policy_sha256, reaches_target, MetricsRow, Summary};
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
@@ -72,9 +72,9 @@ pub struct EvaluatorState {
     pub final_return: f64,
     /// Best evaluation return.
     pub best_return: f64,
-    /// First evaluation point with return ≥ the target return (field name of old checkpoints:
-    /// `to_minus_200`, Pendulum's target then).
-    #[serde(alias = "to_minus_200")]
+    /// First evaluation point with return ≥ the target return. Checkpoints of older builds
+    /// hold the first one ≥ −200 here (same position, bincode); a resumed run recounts it from
+    /// its metrics ([`Evaluator::recount_target`]).
     pub to_target: Option<u64>,
 }
 
@@ -104,6 +104,13 @@ impl Evaluator {
         self.final_return = s.final_return;
         self.best_return = s.best_return;
         self.to_target = s.to_target;
+    }
+
+    /// Recount the first evaluation at the target from the run's curve so far: after a resume
+    /// the checkpoint's figure may belong to another target (an older build's −200, or a
+    /// benchmark continued with another `eval.target_return`).
+    pub fn recount_target(&mut self, curve: &[(u64, f64)]) {
+        self.to_target = env_steps_to_target(curve, self.target_return);
     }
 
     /// An evaluator with its own environment and stream (`eval.env`).

@@ -164,6 +164,21 @@ fn median_steps(values: &[Option<u64>]) -> Option<u64> {
     (m != u64::MAX).then_some(m)
 }
 
+/// The entries of a results file (none if it does not exist yet).
+fn read_results(file: &Path) -> Result<BTreeMap<String, AlgoResult>, TrainError> {
+    let text = match std::fs::read_to_string(file) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(BTreeMap::new()),
+        Err(e) => return Err(TrainError::Config(format!("{}: {e}", file.display()))),
+    };
+    serde_json::from_str(&text).map_err(|e| {
+        TrainError::Config(format!(
+            "{}: not a learning-benchmark results file ({e}); move it away or pass another --out",
+            file.display()
+        ))
+    })
+}
+
 /// Run `cfg` for `seeds` on `threads` threads, with run directories under `out/runs/`, and
 /// merge the algorithm's entry into `out/learning-<env>.json`. Returns that entry.
 pub fn learning_benchmark(
@@ -194,18 +209,9 @@ pub fn learning_benchmark_at(
     };
     let target = cfg.target_return();
     let file = out.join(format!("learning-{}.json", cfg.env));
-    // Read the other algorithms' entries first: a file that cannot be read must stop the
-    // benchmark before hours of work, not be overwritten at the end.
-    let mut all: BTreeMap<String, AlgoResult> = match std::fs::read_to_string(&file) {
-        Ok(text) => serde_json::from_str(&text).map_err(|e| {
-            TrainError::Config(format!(
-                "{}: not a learning-benchmark results file ({e}); move it away or pass another --out",
-                file.display()
-            ))
-        })?,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => BTreeMap::new(),
-        Err(e) => return Err(e.into()),
-    };
+    // A results file that cannot be merged into must stop the benchmark before hours of work,
+    // not be found unreadable at the end.
+    read_results(&file)?;
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -257,9 +263,14 @@ pub fn learning_benchmark_at(
         budgets: summarize_budgets(&per_seed, budgets),
         seeds: per_seed,
     };
+    // Read again just before writing: another benchmark (another algorithm on this task) may
+    // have written its entry while these seeds ran.
+    let mut all = read_results(&file)?;
     all.insert(algo.clone(), entry.clone());
     std::fs::create_dir_all(out)?;
-    std::fs::write(&file, serde_json::to_string_pretty(&all)? + "\n")?;
+    let tmp = file.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string_pretty(&all)? + "\n")?;
+    std::fs::rename(&tmp, &file)?;
     Ok(entry)
 }
 
@@ -427,6 +438,33 @@ mod tests {
         assert!(err.contains("learning-Pendulum-v1.json"), "{err}");
         assert!(err.contains("move it away"), "{err}");
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "{ not json");
+        std::fs::remove_dir_all(out).unwrap();
+    }
+
+    #[test]
+    fn an_entry_written_while_the_seeds_ran_is_kept() {
+        /// A run during which another benchmark finishes and writes its own entry.
+        fn run_beside_another(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
+            let file = dir
+                .parent()
+                .unwrap()
+                .parent()
+                .unwrap()
+                .join("learning-Pendulum-v1.json");
+            let other = r#"{"mbpo": {"config": "mbpo.toml", "steps": 400, "median_final_return": 1.0,
+                "target_return": -200.0, "median_env_steps_to_target": null, "seeds": []}}"#;
+            let summary = fake_run(cfg, dir)?;
+            std::fs::write(file, other).unwrap();
+            Ok(summary)
+        }
+        let out = temp_out("beside");
+        let cfg = ExperimentConfig::default();
+        learning_benchmark(&cfg, "c.toml", &[1], 1, &out, run_beside_another).unwrap();
+        let text = std::fs::read_to_string(out.join("learning-Pendulum-v1.json")).unwrap();
+        let all: BTreeMap<String, AlgoResult> = serde_json::from_str(&text).unwrap();
+        assert_eq!(all.keys().collect::<Vec<_>>(), ["mbpo", "sac"]);
+        assert_eq!(all["mbpo"].config, "mbpo.toml");
+        assert_eq!(all["sac"].config, "c.toml");
         std::fs::remove_dir_all(out).unwrap();
     }
 }

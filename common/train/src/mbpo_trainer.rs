@@ -270,10 +270,9 @@ pub fn train_mbpo_with(
             out.display(),
             manifest.env_steps
         );
-        (
-            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
-            manifest.env_steps,
-        )
+        let mut run = RunDir::reopen_with_config(out, cfg, manifest.env_steps)?;
+        evaluator.recount_target(&run.eval_curve()?);
+        (run, manifest.env_steps)
     } else {
         (RunDir::create(out, cfg)?, 0)
     };

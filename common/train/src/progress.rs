@@ -91,10 +91,16 @@ pub struct Progress {
     window: Option<(Instant, u64, u64)>,
     /// (env steps/s, updates/s) over the last finished window.
     rates: Option<(f64, f64)>,
-    /// Time and env steps at the first update: the ETA uses the mean rate since then, because
-    /// MBPO's rate swings between SAC updates and model trainings (a 10 s window during a
-    /// training would put the ETA at hours, the next one at minutes).
+    /// (time, env steps) where the ETA's mean rate starts: the first update, moved to where
+    /// SAC updates began if there were none yet (a random warm-up runs many times faster than
+    /// learning). A mean, because MBPO's rate swings between SAC updates and model trainings:
+    /// a 10 s window during a training would put the ETA at hours, the next one at minutes.
     origin: Option<(Instant, u64)>,
+    /// Whether SAC updates have begun (then `origin` stays where it is).
+    learning: bool,
+    /// (time, env steps) of the previous update: where learning began when this one is the
+    /// first with SAC updates.
+    previous: Option<(Instant, u64)>,
     /// (seconds, env steps) since `origin`, as of the last finished window.
     since_origin: Option<(f64, u64)>,
     steps: u64,
@@ -116,7 +122,7 @@ impl Progress {
                 let bar = BARS.add(ProgressBar::new(total));
                 bar.set_style(
                     ProgressStyle::with_template(
-                        "{prefix} {elapsed_precise} [{bar:30.cyan/blue}] {pos}/{len} steps | {msg} | ETA {eta}",
+                        "{prefix} {elapsed_precise} [{bar:30.cyan/blue}] {pos}/{len} steps | {msg}",
                     )
                     .expect("the template is valid")
                     .progress_chars("=> "),
@@ -137,6 +143,8 @@ impl Progress {
             window: None,
             rates: None,
             origin: None,
+            learning: false,
+            previous: None,
             since_origin: None,
             steps: 0,
             updates: 0,
@@ -161,9 +169,19 @@ impl Progress {
         if let Some(bar) = &self.bar {
             bar.set_position(steps);
         }
+        if self.origin.is_none() {
+            self.origin = Some((now, steps));
+        }
+        if !self.learning && updates > 0 {
+            self.learning = true;
+            if let Some(began) = self.previous {
+                self.origin = Some(began);
+                self.since_origin = None;
+            }
+        }
+        self.previous = Some((now, steps));
         if self.window.is_none() {
             self.window = Some((now, steps, updates));
-            self.origin = Some((now, steps));
             if let Some(bar) = &self.bar {
                 bar.reset_eta();
             }
@@ -239,26 +257,32 @@ impl Progress {
         parts.join(" | ")
     }
 
+    /// `ETA 123 s`, or `ETA ?` before a rate is known.
+    fn eta(&self) -> String {
+        match self.eta_seconds() {
+            Some(s) => format!("ETA {s:.0} s"),
+            None => "ETA ?".into(),
+        }
+    }
+
     /// The plain progress line at `now`.
     fn line(&self, now: Instant) -> String {
-        let eta = match self.eta_seconds() {
-            Some(s) => format!("{s:.0} s"),
-            None => "?".into(),
-        };
         format!(
-            "{}: [{:.0} s] step {}/{} ({:.0} %) | {} | ETA {eta}",
+            "{}: [{:.0} s] step {}/{} ({:.0} %) | {} | {}",
             self.label,
             now.duration_since(self.started).as_secs_f64(),
             self.steps,
             self.total,
             100.0 * self.steps as f64 / self.total.max(1) as f64,
-            self.status()
+            self.status(),
+            self.eta()
         )
     }
 
     fn refresh_bar(&self) {
         if let Some(bar) = &self.bar {
-            bar.set_message(self.status());
+            // The bar's own `{eta}` would follow the last seconds' rate: ours is the mean.
+            bar.set_message(format!("{} | {}", self.status(), self.eta()));
         }
     }
 
@@ -311,7 +335,7 @@ mod tests {
         assert_eq!(p.status(), "- env steps/s | eval -");
         p.update_at(0, 0, t0);
         // Before the interval nothing is recomputed.
-        p.update_at(50, 0, t0 + Duration::from_secs(5));
+        p.update_at(50, 1000, t0 + Duration::from_secs(5));
         assert_eq!(p.rates, None);
         // 100 steps and 2000 updates in 10 s.
         p.update_at(100, 2000, t0 + Duration::from_secs(10));
@@ -337,6 +361,20 @@ mod tests {
         p.update_at(500, 2000, t0 + Duration::from_secs(50));
         assert_eq!(p.rates, Some((0.0, 0.0)));
         assert_eq!(p.eta_seconds(), Some(50.0));
+    }
+
+    #[test]
+    fn the_eta_starts_counting_when_learning_starts() {
+        let t0 = Instant::now();
+        let mut p = Progress::new_at("x".into(), 10_000, lines(10), t0);
+        // A random warm-up: 5000 steps in 10 s without SAC updates ...
+        p.update_at(0, 0, t0);
+        p.update_at(5000, 0, t0 + Duration::from_secs(10));
+        assert_eq!(p.eta_seconds(), Some(10.0));
+        // ... then learning at 10 steps/s: the ETA goes by that alone.
+        p.update_at(5001, 20, t0 + Duration::from_secs(11));
+        p.update_at(5200, 4000, t0 + Duration::from_secs(30));
+        assert_eq!(p.eta_seconds(), Some(480.0));
     }
 
     #[test]

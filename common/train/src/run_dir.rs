@@ -311,6 +311,12 @@ impl RunDir {
         Ok(run)
     }
 
+    /// The evaluation curve written so far, (env steps, eval return) per row.
+    pub fn eval_curve(&mut self) -> std::io::Result<Vec<(u64, f64)>> {
+        self.metrics.flush()?;
+        read_eval_curve(&self.path.join("metrics.csv"))
+    }
+
     /// The directory.
     pub fn path(&self) -> &Path {
         &self.path

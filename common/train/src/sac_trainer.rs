@@ -97,10 +97,9 @@ pub fn train_sac_with(
             .map_err(|e| bad(e.to_string()))?;
         (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
         evaluator.restore(state.evaluator);
-        (
-            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
-            manifest.env_steps,
-        )
+        let mut run = RunDir::reopen_with_config(out, cfg, manifest.env_steps)?;
+        evaluator.recount_target(&run.eval_curve()?);
+        (run, manifest.env_steps)
     } else {
         (RunDir::create(out, cfg)?, 0)
     };

@@ -107,26 +107,32 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
     let stored = dir.join("config.toml");
     let resume = mbpo_train::checkpoint::latest(dir)?.is_some();
     if resume || stored.exists() {
-        if let Ok(mut before) = ExperimentConfig::load(&stored) {
-            let steps_before = before.steps;
-            before.steps = cfg.steps;
-            // The model's thread count changes no bit of the result (members train in blocks,
-            // every sum in member order): a benchmark may continue with the cores it has now.
-            before.model.threads = cfg.model.threads;
-            // Nor does the target return (the benchmark reads steps-to-target off the curve).
-            before.eval.target_return = cfg.eval.target_return;
-            if &before != cfg {
-                return Err(TrainError::Config(format!(
-                    "{} holds a run of another config (see its config.toml); \
-                     delete it or pick another --out to benchmark this one",
-                    dir.display()
-                )));
-            }
-            if let Some(done) = completed_summary(dir) {
-                if steps_before == cfg.steps && done.env_steps == cfg.steps {
-                    tracing::info!(run = %dir.display(), "already completed: reusing its results");
-                    return Ok(done);
-                }
+        // A run directory this build cannot read is not reused or overwritten blindly (it may
+        // hold hours of work, e.g. from a newer build with config keys this one does not know).
+        let mut before = ExperimentConfig::load(&stored).map_err(|e| {
+            TrainError::Config(format!(
+                "{e}; {} cannot be checked against this config: delete it or pick another --out",
+                dir.display()
+            ))
+        })?;
+        let steps_before = before.steps;
+        before.steps = cfg.steps;
+        // The model's thread count changes no bit of the result (members train in blocks,
+        // every sum in member order): a benchmark may continue with the cores it has now.
+        before.model.threads = cfg.model.threads;
+        // Nor does the target return (the benchmark reads steps-to-target off the curve).
+        before.eval.target_return = cfg.eval.target_return;
+        if &before != cfg {
+            return Err(TrainError::Config(format!(
+                "{} holds a run of another config (see its config.toml); \
+                 delete it or pick another --out to benchmark this one",
+                dir.display()
+            )));
+        }
+        if let Some(done) = completed_summary(dir) {
+            if steps_before == cfg.steps && done.env_steps == cfg.steps {
+                tracing::info!(run = %dir.display(), "already completed: reusing its results");
+                return Ok(done);
             }
         }
     }

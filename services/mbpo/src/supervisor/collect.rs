@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use mbpo_service_kit::stats::{Done, LearnerRow};
 use mbpo_train::progress::Progress;
-use mbpo_train::run_dir::{reaches_target, MetricsRow};
+use mbpo_train::run_dir::{env_steps_to_target, reaches_target, MetricsRow};
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
 use serde::{Deserialize, Serialize};
@@ -111,8 +111,8 @@ pub struct CollectorBook {
     last_row_updates: u64,
     final_return: f64,
     best_return: f64,
-    /// First evaluation point at the task's target return (`to_minus_200` in old checkpoints).
-    #[serde(alias = "to_minus_200")]
+    /// First evaluation point at the task's target return (older builds' checkpoints hold the
+    /// first one at −200 here: see [`Collector::resume`]).
     to_target: Option<u64>,
     last_eval: Option<f64>,
     /// Process restarts.
@@ -166,6 +166,14 @@ impl Collector {
                 restarts: 0,
             },
         }
+    }
+
+    /// Continue from a checkpoint's bookkeeping; the first evaluation at the target is recounted
+    /// from the run's curve so far (`curve`, the metrics rows up to the checkpoint), since the
+    /// checkpoint's figure may belong to another target (an older build's −200).
+    pub fn resume(&mut self, book: CollectorBook, curve: &[(u64, f64)]) {
+        self.book = book;
+        self.book.to_target = env_steps_to_target(curve, self.cfg.target_return());
     }
 
     /// Eval points ≤ `t` whose row is not written yet.

@@ -455,7 +455,7 @@ fn supervise(
     let every = cfg.checkpoint.every;
     let mut next_checkpoint = every;
     if let Some((_, env_steps, state)) = resume {
-        col.book = state.book;
+        col.resume(state.book, &run_dir.eval_curve()?);
         next_checkpoint = env_steps + every;
     }
     col.book.restarts = restarts.total();
