@@ -11,4 +11,4 @@ cd "$(dirname "$0")/.."
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
 cargo test --locked -p mbpo-envs --features mujoco "$@"
-cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks "$@"
+cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume "$@"

@@ -105,6 +105,24 @@ pub trait Env: Send {
     fn elapsed_steps(&self) -> usize;
     /// Set the episode's step count (checkpoint restore, after [`Env::reset_to`]).
     fn set_elapsed_steps(&mut self, steps: usize);
+    /// What the next steps depend on beyond [`Env::state`], so a checkpoint taken mid-episode
+    /// resumes it bit for bit; empty (the default) where `state` is all of it.
+    fn resume_state(&self) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Restore [`Env::resume_state`] (checkpoint restore, after [`Env::reset_to`] with the
+    /// checkpoint's `state`).
+    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
+        if extra.is_empty() {
+            return Ok(());
+        }
+        Err(EnvError::StateDim {
+            env: self.id(),
+            expected: 0,
+            found: extra.len(),
+            layout: "no resume state (this environment's state is all of it)",
+        })
+    }
     /// Advance one step with `action` (length `act_dim`) and write the next observation.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
 

@@ -44,6 +44,9 @@ pub struct EnvActorState {
     pub env_state: Vec<f64>,
     /// Steps taken in that episode (the time limit's count).
     pub elapsed_steps: usize,
+    /// `Env::resume_state()`: what the episode's next steps depend on beyond `env_state`
+    /// (MuJoCo's solver warm start, ...), so the resumed episode is the same bit for bit.
+    pub env_resume_state: Vec<f64>,
     /// The `actor.env` stream (start states).
     pub env_rng: Rng,
     /// The `actor.policy` stream (action noise).
@@ -66,6 +69,7 @@ impl EnvActor {
         EnvActorState {
             env_state: self.env.state(),
             elapsed_steps: self.env.elapsed_steps(),
+            env_resume_state: self.env.resume_state(),
             env_rng: self.env_rng.clone(),
             policy_rng: self.policy_rng.clone(),
             obs: self.obs.clone(),
@@ -89,6 +93,7 @@ impl EnvActor {
         let mut scratch = vec![0.0; self.obs.len()];
         self.env.reset_to(&s.env_state, &mut scratch)?;
         self.env.set_elapsed_steps(s.elapsed_steps);
+        self.env.set_resume_state(&s.env_resume_state)?;
         self.env_rng = s.env_rng;
         self.policy_rng = s.policy_rng;
         self.obs = s.obs;

@@ -26,8 +26,9 @@ use std::path::{Path, PathBuf};
 
 const MAGIC: &[u8; 8] = b"MBPOCKPT";
 
-/// Version of the file layout and of the role states inside; bump on any change to either.
-pub const FORMAT_VERSION: u32 = 1;
+/// Version of the file layout and of the role states inside; bump on any change to either
+/// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start).
+pub const FORMAT_VERSION: u32 = 2;
 
 /// Name of the marker that makes a checkpoint directory resumable.
 pub const COMPLETE: &str = "COMPLETE";

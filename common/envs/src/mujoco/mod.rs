@@ -10,7 +10,9 @@
 //! Observations are float64 in Gymnasium; [`Env::step`] writes them rounded to f32 and
 //! [`Env::observation_f64`] gives the float64 values. The physical state for [`Env::reset_to`] is
 //! qpos followed by qvel; a reset clears MuJoCo's data first (`mj_resetData`, so warm starts and
-//! time are those of a fresh episode), as Gymnasium's `reset` does.
+//! time are those of a fresh episode), as Gymnasium's `reset` does. A checkpoint taken
+//! mid-episode also keeps [`Env::resume_state`] (MuJoCo's integration state with the solver's warm
+//! start), so the resumed episode continues bit for bit (`tests/mujoco_resume.rs`).
 
 mod model;
 mod task;
@@ -20,7 +22,11 @@ pub use task::{ant_is_healthy, hopper_is_healthy, walker2d_is_healthy, Task, MAX
 
 use mbpo_core::rng::{normal_f64, uniform_range_f64};
 use mbpo_core::Rng;
-use mujoco_rs::prelude::{MjData, MjModel};
+use mujoco_rs::prelude::{MjData, MjModel, MjtState};
+
+/// MuJoCo's state that `mj_step` integrates from: time, qpos, qvel, actuator activations, the
+/// solver's warm start (`qacc_warmstart`), ... (`mjSTATE_INTEGRATION`).
+const INTEGRATION_STATE: u32 = MjtState::mjSTATE_INTEGRATION as u32;
 
 use crate::{BoxSpace, Env, EnvError, Step};
 use task::{StepState, VelocityNoise};
@@ -38,6 +44,9 @@ pub struct MujocoEnv {
     /// Scratch for the contact cost (nbody × 6).
     scratch: Vec<f64>,
     steps: usize,
+    /// The x position the next step measures its forward velocity from, when restored from a
+    /// checkpoint (see [`Env::resume_state`]); `None`: read it from `data`.
+    restored_x_before: Option<f64>,
     observation_space: BoxSpace,
     action_space: BoxSpace,
 }
@@ -73,6 +82,7 @@ impl MujocoEnv {
             obs64: vec![0.0; obs_dim],
             scratch,
             steps: 0,
+            restored_x_before: None,
             observation_space: BoxSpace::new(
                 vec![f32::NEG_INFINITY; obs_dim],
                 vec![f32::INFINITY; obs_dim],
@@ -114,6 +124,7 @@ impl MujocoEnv {
         self.data.qvel_mut().copy_from_slice(qvel);
         self.data.forward();
         self.steps = 0;
+        self.restored_x_before = None;
     }
 
     fn write_obs(&mut self, obs: &mut [f32]) {
@@ -193,11 +204,37 @@ impl Env for MujocoEnv {
         self.steps
     }
 
-    /// Restores only the step count: a checkpoint's `reset_to(qpos ++ qvel)` starts from a fresh
-    /// `mjData`, so MuJoCo's solver warm start differs from the uninterrupted episode and the
-    /// continuation is close to, not bit-identical with, the original.
+    /// Restores only the step count; `reset_to(qpos ++ qvel)` starts from a fresh `mjData`, so
+    /// without [`Env::set_resume_state`] the solver's warm start differs from the uninterrupted
+    /// episode and the continuation is close to, not bit-identical with, the original.
     fn set_elapsed_steps(&mut self, steps: usize) {
         self.steps = steps;
+    }
+
+    /// MuJoCo's integration state (`mjSTATE_INTEGRATION`, with the solver's warm start) and the
+    /// x position the next step's forward velocity starts from: Ant reads it from `xpos`, which
+    /// after a step holds the last sub-step's kinematics, not those of `qpos`.
+    fn resume_state(&self) -> Vec<f64> {
+        let mut extra = self.data.state(INTEGRATION_STATE).into_vec();
+        extra.push(self.restored_x_before.unwrap_or_else(|| self.x_position()));
+        extra
+    }
+
+    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
+        let n = self.data.model().state_size(INTEGRATION_STATE);
+        if extra.len() != n + 1 {
+            return Err(EnvError::StateDim {
+                env: self.task.id(),
+                expected: n + 1,
+                found: extra.len(),
+                layout: "MuJoCo's integration state (mjSTATE_INTEGRATION), then the x position",
+            });
+        }
+        self.data.set_state(&extra[..n], INTEGRATION_STATE).expect(
+            "a state of the right length that this model wrote (checkpoints are checksummed)",
+        );
+        self.restored_x_before = Some(extra[n]);
+        Ok(())
     }
 
     fn state(&self) -> Vec<f64> {
@@ -208,7 +245,10 @@ impl Env for MujocoEnv {
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
         debug_assert_eq!(action.len(), self.act_dim(), "{}: action length", self.id());
-        let x_before = self.x_position();
+        let x_before = self
+            .restored_x_before
+            .take()
+            .unwrap_or_else(|| self.x_position());
         for (c, &a) in self.data.ctrl_mut().iter_mut().zip(action) {
             *c = a as f64;
         }
