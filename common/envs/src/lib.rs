@@ -71,6 +71,14 @@ pub enum EnvError {
          then build with `--features mujoco`"
     )]
     MujocoNotBuilt(String),
+    /// MuJoCo refused a checkpoint's resume state (one written for another model).
+    #[error("{env}: cannot restore the checkpoint's MuJoCo state: {message}")]
+    ResumeState {
+        /// Environment id.
+        env: &'static str,
+        /// What MuJoCo reported.
+        message: String,
+    },
     /// A MuJoCo model could not be loaded.
     #[error("{env}: cannot load the MuJoCo model: {message}")]
     Model {

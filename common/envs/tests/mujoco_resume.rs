@@ -85,6 +85,10 @@ fn a_mujoco_episode_resumed_mid_way_continues_bit_for_bit() {
         resumed.reset_to(&state, &mut obs).unwrap();
         resumed.set_elapsed_steps(steps);
         resumed.set_resume_state(&extra).unwrap();
+        // A checkpoint of the restored env before it steps (a resumed run stopped again at
+        // once) carries the same state on.
+        let (state2, extra2) = (resumed.state(), resumed.resume_state());
+        assert_eq!((&state2, &extra2), (&state, &extra), "{id}");
         assert_eq!(rollout(resumed.as_mut(), &after), want, "{id}");
 
         // Without the resume state the continuation drifts (what checkpoints did before).
