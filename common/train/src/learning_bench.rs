@@ -51,7 +51,15 @@ pub struct BudgetPoint {
     pub evaluated_at: Option<u64>,
     /// Wall-clock seconds of the run at that evaluation.
     pub wall_seconds: Option<f64>,
+    /// Mean return of the last [`RECENT_EVALUATIONS`] evaluations at or before the budget: one
+    /// evaluation episode swings widely (HalfCheetah: 5161 at 19k, 696 at 20k), the mean of a
+    /// few says more about the policy of that time.
+    #[serde(default)]
+    pub recent_mean_return: Option<f64>,
 }
+
+/// How many evaluations up to a budget [`BudgetPoint::recent_mean_return`] averages.
+pub const RECENT_EVALUATIONS: usize = 5;
 
 /// All seeds at one env-step budget.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -66,6 +74,9 @@ pub struct BudgetSummary {
     pub mean_eval_return: Option<f64>,
     /// Median over those seeds of the wall-clock seconds to get there.
     pub median_wall_seconds: Option<f64>,
+    /// Median over those seeds of [`BudgetPoint::recent_mean_return`].
+    #[serde(default)]
+    pub median_recent_mean_return: Option<f64>,
 }
 
 /// The last row with env steps ≤ `budget` of a curve sorted by env steps.
@@ -86,11 +97,15 @@ pub fn budget_points(
         .iter()
         .map(|&b| {
             let hit = (last >= b).then(|| at_or_before(eval, b)).flatten();
+            let upto = eval.partition_point(|(s, _)| *s <= b);
+            let recent = &eval[upto.saturating_sub(RECENT_EVALUATIONS)..upto];
             BudgetPoint {
                 env_steps: b,
                 eval_return: hit.map(|(_, r)| r),
                 evaluated_at: hit.map(|(s, _)| s),
                 wall_seconds: hit.and_then(|(s, _)| at_or_before(wall, s).map(|(_, w)| w)),
+                recent_mean_return: hit
+                    .map(|_| recent.iter().map(|(_, r)| r).sum::<f64>() / recent.len() as f64),
             }
         })
         .collect()
@@ -115,6 +130,7 @@ pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSum
                 .collect();
             let returns: Vec<f64> = points.iter().filter_map(|p| p.eval_return).collect();
             let walls: Vec<f64> = points.iter().filter_map(|p| p.wall_seconds).collect();
+            let recent: Vec<f64> = points.iter().filter_map(|p| p.recent_mean_return).collect();
             BudgetSummary {
                 env_steps: b,
                 seeds_reached: returns.len(),
@@ -122,6 +138,7 @@ pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSum
                 mean_eval_return: (!returns.is_empty())
                     .then(|| returns.iter().sum::<f64>() / returns.len() as f64),
                 median_wall_seconds: (!walls.is_empty()).then(|| median(walls)),
+                median_recent_mean_return: (!recent.is_empty()).then(|| median(recent)),
             }
         })
         .collect()
@@ -287,6 +304,9 @@ mod tests {
             .iter()
             .map(|b| (b.env_steps, b.eval_return, b.evaluated_at, b.wall_seconds))
             .collect();
+        let recent: Vec<_> = p.iter().map(|b| b.recent_mean_return).collect();
+        // 500: the mean of 10 and 20; 1000: of all four evaluations (fewer than 5 so far).
+        assert_eq!(recent, vec![Some(15.0), Some(15.0), Some(25.0), None]);
         assert_eq!(
             got,
             vec![
@@ -297,6 +317,17 @@ mod tests {
                 (2000, None, None, None),
             ]
         );
+    }
+
+    #[test]
+    fn the_recent_mean_takes_the_last_five_evaluations_up_to_the_budget() {
+        let eval: Vec<(u64, f64)> = (1..=8).map(|k| (100 * k, k as f64)).collect();
+        let wall: Vec<(u64, f64)> = eval.clone();
+        let p = budget_points(&eval, &wall, &[700, 750]);
+        // 300..=700: returns 3..=7.
+        assert_eq!(p[0].recent_mean_return, Some(5.0));
+        assert_eq!(p[1].recent_mean_return, Some(5.0));
+        assert_eq!(p[1].eval_return, Some(7.0));
     }
 
     #[test]
@@ -312,6 +343,7 @@ mod tests {
                 eval_return: r,
                 evaluated_at: r.map(|_| 5000),
                 wall_seconds: w,
+                recent_mean_return: r.map(|r| r / 2.0),
             }],
             run_dir: PathBuf::new(),
         };
@@ -326,6 +358,7 @@ mod tests {
         assert_eq!(s.median_eval_return, Some(900.0));
         assert_eq!(s.mean_eval_return, Some(700.0));
         assert_eq!(s.median_wall_seconds, Some(70.0));
+        assert_eq!(s.median_recent_mean_return, Some(450.0));
         let none = &summarize_budgets(&seeds[2..3], &[5000])[0];
         assert_eq!((none.seeds_reached, none.median_eval_return), (0, None));
     }
