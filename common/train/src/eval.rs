@@ -2,7 +2,7 @@
 
 use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
-use crate::run_dir::{env_steps_to_target, policy_sha256, reaches_target, MetricsRow, Summary};
+use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
@@ -38,8 +38,7 @@ pub fn evaluate(
     total / episodes as f64
 }
 
-/// Periodic evaluation and the bookkeeping around it (best return, first time at the task's
-/// target return, rates).
+/// Periodic evaluation and the bookkeeping around it (best return, rates).
 pub struct Evaluator {
     env: Box<dyn Env>,
     rng: Rng,
@@ -53,8 +52,6 @@ pub struct Evaluator {
     env_steps: u64,
     final_return: f64,
     best_return: f64,
-    target_return: Option<f64>,
-    to_target: Option<u64>,
 }
 
 /// What a checkpoint keeps of an [`Evaluator`]: its stream and the run's bookkeeping.
@@ -72,10 +69,6 @@ pub struct EvaluatorState {
     pub final_return: f64,
     /// Best evaluation return.
     pub best_return: f64,
-    /// First evaluation point with return ≥ the target return. Checkpoints of older builds
-    /// hold the first one ≥ −200 here (same position, bincode); a resumed run recounts it from
-    /// its metrics ([`Evaluator::recount_target`]).
-    pub to_target: Option<u64>,
 }
 
 impl Evaluator {
@@ -88,7 +81,6 @@ impl Evaluator {
             last_steps: self.last_steps,
             final_return: self.final_return,
             best_return: self.best_return,
-            to_target: self.to_target,
         }
     }
 
@@ -103,14 +95,6 @@ impl Evaluator {
         self.env_steps = s.last_steps;
         self.final_return = s.final_return;
         self.best_return = s.best_return;
-        self.to_target = s.to_target;
-    }
-
-    /// Recount the first evaluation at the target from the run's curve so far: after a resume
-    /// the checkpoint's figure may belong to another target (an older build's −200, or a
-    /// benchmark continued with another `eval.target_return`).
-    pub fn recount_target(&mut self, curve: &[(u64, f64)]) {
-        self.to_target = env_steps_to_target(curve, self.target_return);
     }
 
     /// An evaluator with its own environment and stream (`eval.env`).
@@ -128,8 +112,6 @@ impl Evaluator {
             env_steps: 0,
             final_return: f64::NAN,
             best_return: f64::NEG_INFINITY,
-            target_return: cfg.target_return(),
-            to_target: None,
         })
     }
 
@@ -146,9 +128,6 @@ impl Evaluator {
         let ret = evaluate(&mut policy, self.env.as_mut(), self.episodes, &mut self.rng);
         self.final_return = ret;
         self.best_return = self.best_return.max(ret);
-        if reaches_target(self.target_return, ret) && self.to_target.is_none() {
-            self.to_target = Some(env_steps);
-        }
         let now = self.start.elapsed().as_secs_f64();
         let dt = (now - self.last_time).max(1e-9);
         let sps = (env_steps - self.last_steps) as f64 / dt;
@@ -189,8 +168,15 @@ impl Evaluator {
         );
     }
 
-    /// The run summary after the last evaluation.
-    pub fn summary(&self, algo: &str, sac: &Sac, seconds_per_env_step: Option<f64>) -> Summary {
+    /// The run summary after the last evaluation; `target` is the task's target return and the
+    /// first evaluation at it ([`crate::RunDir::env_steps_to_target`]).
+    pub fn summary(
+        &self,
+        algo: &str,
+        sac: &Sac,
+        seconds_per_env_step: Option<f64>,
+        target: (Option<f64>, Option<u64>),
+    ) -> Summary {
         Summary {
             algo: algo.into(),
             env: self.env_id.clone(),
@@ -199,8 +185,8 @@ impl Evaluator {
             sac_updates: sac.updates(),
             final_eval_return: self.final_return,
             best_eval_return: self.best_return,
-            target_return: self.target_return,
-            env_steps_to_target: self.to_target,
+            target_return: target.0,
+            env_steps_to_target: target.1,
             policy_sha256: policy_sha256(&sac.actor_params),
             wall_seconds: self.start.elapsed().as_secs_f64(),
             median_seconds_per_env_step: seconds_per_env_step,

@@ -270,9 +270,10 @@ pub fn train_mbpo_with(
             out.display(),
             manifest.env_steps
         );
-        let mut run = RunDir::reopen_with_config(out, cfg, manifest.env_steps)?;
-        evaluator.recount_target(&run.eval_curve()?);
-        (run, manifest.env_steps)
+        (
+            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
+            manifest.env_steps,
+        )
     } else {
         (RunDir::create(out, cfg)?, 0)
     };
@@ -322,7 +323,9 @@ pub fn train_mbpo_with(
     let mut sorted = step_seconds.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted.get(sorted.len() / 2).copied();
-    let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median);
+    let target = cfg.target_return();
+    let target = (target, run.env_steps_to_target(target)?);
+    let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median, target);
     summary.env_steps = mbpo.env_steps();
     summary.status = status.into();
     run.write_summary(&summary)?;

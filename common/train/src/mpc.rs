@@ -18,7 +18,7 @@
 use crate::actor::{Behaviour, EnvActor};
 use crate::config::{ExperimentConfig, PlanReward};
 use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
-use crate::run_dir::{policy_sha256, reaches_target, MetricsRow, RunDir, Summary};
+use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
@@ -319,8 +319,7 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
     let mut mpc = MpcRun::new(cfg)?;
     let started = Instant::now();
     let (mut last_time, mut last_steps) = (0.0, 0);
-    let target_return = cfg.target_return();
-    let (mut final_return, mut best_return, mut to_target) = (f64::NAN, f64::NEG_INFINITY, None);
+    let (mut final_return, mut best_return) = (f64::NAN, f64::NEG_INFINITY);
     let mut plan_seconds = Vec::with_capacity(cfg.steps as usize);
     for t in 1..=cfg.steps {
         mpc.step(t)?;
@@ -336,9 +335,6 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
             if ret.is_finite() {
                 final_return = ret;
                 best_return = best_return.max(ret);
-                if reaches_target(target_return, ret) && to_target.is_none() {
-                    to_target = Some(t);
-                }
             }
             let now = started.elapsed().as_secs_f64();
             let actor = mpc.actor.env_actor();
@@ -365,6 +361,7 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
         }
     }
     plan_seconds.sort_by(f64::total_cmp);
+    let target_return = cfg.target_return();
     let summary = Summary {
         algo: "mpc".into(),
         env: cfg.env.clone(),
@@ -374,7 +371,7 @@ pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainErr
         final_eval_return: final_return,
         best_eval_return: best_return,
         target_return,
-        env_steps_to_target: to_target,
+        env_steps_to_target: run.env_steps_to_target(target_return)?,
         policy_sha256: policy_sha256(&mpc.model_params),
         wall_seconds: started.elapsed().as_secs_f64(),
         median_seconds_per_env_step: plan_seconds.get(plan_seconds.len() / 2).copied(),

@@ -183,17 +183,11 @@ fn completed() -> String {
     "completed".into()
 }
 
-/// Whether an evaluation return reaches `target` (never, when there is no target).
-pub fn reaches_target(target: Option<f64>, eval_return: f64) -> bool {
-    target.is_some_and(|t| eval_return >= t)
-}
-
-/// The first evaluation point of `curve` (env steps, return) whose return reaches `target`.
+/// The first evaluation point of `curve` (env steps, return) whose return reaches `target`
+/// (never, when there is no target).
 pub fn env_steps_to_target(curve: &[(u64, f64)], target: Option<f64>) -> Option<u64> {
-    curve
-        .iter()
-        .find(|&&(_, r)| reaches_target(target, r))
-        .map(|&(s, _)| s)
+    let target = target?;
+    curve.iter().find(|&&(_, r)| r >= target).map(|&(s, _)| s)
 }
 
 /// SHA-256 of parameters as little-endian f32 bytes, hex.
@@ -311,10 +305,12 @@ impl RunDir {
         Ok(run)
     }
 
-    /// The evaluation curve written so far, (env steps, eval return) per row.
-    pub fn eval_curve(&mut self) -> std::io::Result<Vec<(u64, f64)>> {
+    /// The first evaluation of this run at `target`, read off its metrics rows: derived rather
+    /// than tracked, so a resumed run counts the rows of every attempt alike.
+    pub fn env_steps_to_target(&mut self, target: Option<f64>) -> std::io::Result<Option<u64>> {
         self.metrics.flush()?;
-        read_eval_curve(&self.path.join("metrics.csv"))
+        let curve = read_eval_curve(&self.path.join("metrics.csv"))?;
+        Ok(env_steps_to_target(&curve, target))
     }
 
     /// The directory.

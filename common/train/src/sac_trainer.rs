@@ -97,9 +97,10 @@ pub fn train_sac_with(
             .map_err(|e| bad(e.to_string()))?;
         (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
         evaluator.restore(state.evaluator);
-        let mut run = RunDir::reopen_with_config(out, cfg, manifest.env_steps)?;
-        evaluator.recount_target(&run.eval_curve()?);
-        (run, manifest.env_steps)
+        (
+            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
+            manifest.env_steps,
+        )
     } else {
         (RunDir::create(out, cfg)?, 0)
     };
@@ -166,7 +167,9 @@ pub fn train_sac_with(
     }
     progress.finish();
 
-    let mut summary = evaluator.summary("sac", &sac, None);
+    let target = cfg.target_return();
+    let target = (target, run.env_steps_to_target(target)?);
+    let mut summary = evaluator.summary("sac", &sac, None, target);
     summary.env_steps = actor.steps;
     summary.status = status.into();
     run.write_summary(&summary)?;

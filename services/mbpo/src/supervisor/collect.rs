@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use mbpo_service_kit::stats::{Done, LearnerRow};
 use mbpo_train::progress::Progress;
-use mbpo_train::run_dir::{env_steps_to_target, reaches_target, MetricsRow};
+use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
 use serde::{Deserialize, Serialize};
@@ -111,9 +111,6 @@ pub struct CollectorBook {
     last_row_updates: u64,
     final_return: f64,
     best_return: f64,
-    /// First evaluation point at the task's target return (older builds' checkpoints hold the
-    /// first one at −200 here: see [`Collector::resume`]).
-    to_target: Option<u64>,
     last_eval: Option<f64>,
     /// Process restarts.
     pub restarts: u32,
@@ -161,19 +158,10 @@ impl Collector {
                 last_row_updates: 0,
                 final_return: f64::NAN,
                 best_return: f64::NEG_INFINITY,
-                to_target: None,
                 last_eval: None,
                 restarts: 0,
             },
         }
-    }
-
-    /// Continue from a checkpoint's bookkeeping; the first evaluation at the target is recounted
-    /// from the run's curve so far (`curve`, the metrics rows up to the checkpoint), since the
-    /// checkpoint's figure may belong to another target (an older build's −200).
-    pub fn resume(&mut self, book: CollectorBook, curve: &[(u64, f64)]) {
-        self.book = book;
-        self.book.to_target = env_steps_to_target(curve, self.cfg.target_return());
     }
 
     /// Eval points ≤ `t` whose row is not written yet.
@@ -317,9 +305,6 @@ impl Collector {
             );
             self.book.final_return = ret;
             self.book.best_return = self.book.best_return.max(ret);
-            if reaches_target(self.cfg.target_return(), ret) && self.book.to_target.is_none() {
-                self.book.to_target = Some(t);
-            }
             self.book.last_eval = Some(ret);
             self.book.next_row += 1;
         }
@@ -336,12 +321,14 @@ impl Collector {
         progress.update(steps, updates);
     }
 
-    /// The summary.
+    /// The summary; `env_steps_to_target` is read off the run's metrics
+    /// (`RunDir::env_steps_to_target`).
     pub fn summary(
         &self,
         status: &str,
         policy_sha256: String,
         started: Instant,
+        env_steps_to_target: Option<u64>,
     ) -> PipelineSummary {
         let mut real = RealCounts::default();
         let mut ratios = Ratios {
@@ -439,7 +426,7 @@ impl Collector {
                 final_eval_return: self.book.final_return,
                 best_eval_return: self.book.best_return,
                 target_return: self.cfg.target_return(),
-                env_steps_to_target: self.book.to_target,
+                env_steps_to_target,
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
                 median_seconds_per_env_step: median,

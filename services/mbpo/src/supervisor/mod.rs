@@ -455,7 +455,7 @@ fn supervise(
     let every = cfg.checkpoint.every;
     let mut next_checkpoint = every;
     if let Some((_, env_steps, state)) = resume {
-        col.resume(state.book, &run_dir.eval_curve()?);
+        col.book = state.book;
         next_checkpoint = env_steps + every;
     }
     col.book.restarts = restarts.total();
@@ -707,7 +707,8 @@ fn supervise(
         .as_deref()
         .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
-    let report = col.summary(status, sha, started);
+    let to_target = run_dir.env_steps_to_target(cfg.target_return())?;
+    let report = col.summary(status, sha, started, to_target);
     Ok(Attempt::Finished(Box::new(report), failure))
 }
 
