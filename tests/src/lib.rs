@@ -119,6 +119,23 @@ pub fn wait_output(mut child: Child, timeout: Duration) -> Output {
     }
 }
 
+/// `mbpo eval <run> --episodes <episodes>`: its JSON report (panics with stderr on failure).
+pub fn eval_run(run: &Path, episodes: usize) -> serde_json::Value {
+    let out = Command::new(bin_dir().join("mbpo"))
+        .arg("eval")
+        .arg(run)
+        .args(["--episodes", &episodes.to_string()])
+        .output()
+        .expect("running mbpo eval");
+    assert!(
+        out.status.success(),
+        "mbpo eval {}: {}",
+        run.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// `<dir>/summary.json`.
 pub fn summary(dir: &Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("summary.json"))

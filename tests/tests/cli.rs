@@ -108,7 +108,11 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
         String::from_utf8_lossy(&out.stderr)
     );
     let eval: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(eval["checkpoint_env_steps"].as_u64(), Some(end));
+    assert_eq!(eval["policy_env_steps"].as_u64(), Some(end));
+    assert_eq!(
+        eval["policy_file"].as_str().unwrap(),
+        run.join("policy.ckpt").display().to_string()
+    );
     assert_eq!(eval["returns"].as_array().unwrap().len(), 3);
     let mean = eval["mean_return"].as_f64().unwrap();
     assert!(
@@ -129,6 +133,24 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(err.contains("no complete checkpoint"), "{err}");
     assert!(!empty.join("metrics.csv").exists());
+    // ... and so is evaluating it, with what would have held a policy.
+    let out = mbpo().arg("eval").arg(&empty).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("has no policy yet"), "{err}");
+
+    // A damaged run: the error names the missing file and says why once.
+    std::fs::remove_file(run.join("policy.ckpt")).unwrap();
+    let (newest, _) = mbpo_train::checkpoint::latest(&run).unwrap().unwrap();
+    std::fs::remove_file(newest.join("learner.ckpt")).unwrap();
+    let out = mbpo().arg("eval").arg(&run).output().unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains(&newest.join("learner.ckpt").display().to_string()),
+        "{err}"
+    );
+    assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -3,7 +3,8 @@
 use std::time::{Duration, Instant};
 
 use mbpo_integration_tests::*;
-use mbpo_train::train_mbpo;
+use mbpo_train::policy_file::{newest_policy, FINAL_POLICY_FILE};
+use mbpo_train::{policy_sha256, train_mbpo};
 
 const TIMEOUT: Duration = Duration::from_secs(120);
 
@@ -53,6 +54,15 @@ fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
     bin_dir();
     let (ca, cb) = (spawn(&a), spawn(&b));
     let seq = train_mbpo(&reference, &dir.join("sequential")).unwrap();
+    let seq_policy = newest_policy(&dir.join("sequential")).unwrap();
+    assert_eq!(
+        seq_policy.file,
+        dir.join("sequential").join(FINAL_POLICY_FILE)
+    );
+    assert_eq!(
+        policy_sha256(&seq_policy.policy.actor_params),
+        seq.policy_sha256
+    );
     let outputs = [wait_output(ca, TIMEOUT), wait_output(cb, TIMEOUT)];
     for (o, out) in outputs.iter().zip([&a, &b]) {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -65,6 +75,18 @@ fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
         );
         assert_eq!(s["final_eval_return"], seq.final_eval_return);
         assert_eq!(s["sac_updates"], seq.sac_updates);
+        // The policy the run ended with is kept (the last checkpoint is long before the end),
+        // the same bits as the sequential run's, and it is what `mbpo eval` evaluates.
+        let kept = newest_policy(out).unwrap();
+        assert_eq!(kept.file, out.join(FINAL_POLICY_FILE));
+        assert_eq!(kept.policy.env_steps, 500);
+        assert_eq!(policy_sha256(&kept.policy.actor_params), seq.policy_sha256);
+        let eval = eval_run(out, 1);
+        assert_eq!(eval["policy_env_steps"], 500);
+        assert!(eval["policy_file"]
+            .as_str()
+            .unwrap()
+            .ends_with(FINAL_POLICY_FILE));
         assert_eq!(
             metrics_without_timing(out),
             metrics_without_timing(&dir.join("sequential")),
@@ -168,9 +190,16 @@ fn sigint_stops_the_run_cleanly() {
     assert!(took < Duration::from_secs(10), "stop took {took:?}");
     let s = summary(&out);
     assert_eq!(s["status"], "stopped");
-    assert!(
-        mbpo_train::checkpoint::latest(&out).unwrap().is_some(),
-        "no complete checkpoint after the stop"
+    let (ckpt, manifest) = mbpo_train::checkpoint::latest(&out)
+        .unwrap()
+        .expect("no complete checkpoint after the stop");
+    // A stopped run has no final policy; `mbpo eval` reads the learner's checkpoint file.
+    assert!(!out.join(FINAL_POLICY_FILE).exists());
+    let eval = eval_run(&out, 1);
+    assert_eq!(eval["policy_env_steps"], manifest.env_steps);
+    assert_eq!(
+        eval["policy_file"].as_str().unwrap(),
+        ckpt.join("learner").display().to_string()
     );
     let left = leftovers(&run_id(&s), &root);
     assert!(left.is_empty(), "shared-memory leftovers: {left:?}");

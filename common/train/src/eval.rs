@@ -202,8 +202,10 @@ pub struct EvalReport {
     pub run: String,
     /// Environment id.
     pub env: String,
-    /// Env steps of the checkpoint whose policy was evaluated.
-    pub checkpoint_env_steps: u64,
+    /// Env steps of the policy evaluated (the run's final policy or its newest checkpoint's).
+    pub policy_env_steps: u64,
+    /// The file the policy was read from.
+    pub policy_file: String,
     /// Episodes run.
     pub episodes: usize,
     /// Mean return.
@@ -214,9 +216,10 @@ pub struct EvalReport {
     pub returns: Vec<f64>,
 }
 
-/// Evaluate the policy of the newest complete checkpoint of `run` (config from its
-/// `config.toml`) over `episodes` deterministic episodes with start states from
-/// stream `eval.cli` of `seed`.
+/// Evaluate the newest policy of `run` (its final policy, or its newest complete checkpoint's
+/// while it has not completed: [`crate::policy_file::newest_policy`]; architecture from its
+/// `config.toml`) over `episodes` deterministic episodes with start states from stream
+/// `eval.cli` of `seed`.
 pub fn evaluate_run(
     run: &std::path::Path,
     episodes: usize,
@@ -229,16 +232,15 @@ pub fn evaluate_run(
     let cfg = ExperimentConfig::load(&run.join("config.toml")).map_err(|e| {
         TrainError::Config(format!("{} is not a run directory: {e}", run.display()))
     })?;
-    let (dir, manifest) = crate::mbpo_trainer::latest_checkpoint(run)?;
-    let params = if manifest.files.iter().any(|f| f == "learner.ckpt") {
-        let learner: crate::roles::LearnerState = crate::checkpoint::read(
-            &dir.join("learner.ckpt"),
-            crate::roles::checkpoint_kind::LEARNER,
-        )?;
-        learner.sac.actor_params
-    } else {
-        crate::sac_trainer::checkpointed_actor_params(&dir)?
-    };
+    if cfg.algo == crate::Algo::Mpc {
+        return Err(TrainError::Config(format!(
+            "{} is an MPC run: it plans with its model and has no policy network to evaluate \
+             (its evaluations are in metrics.csv)",
+            run.display()
+        )));
+    }
+    let found = crate::policy_file::newest_policy(run)?;
+    let params = found.policy.actor_params;
     let mut env = make(&cfg.env)?;
     let net = mbpo_sac::TanhGaussianActor::new(
         env.obs_dim(),
@@ -250,7 +252,7 @@ pub fn evaluate_run(
     if params.len() != net.num_params() {
         return Err(TrainError::Config(format!(
             "{}: the policy has {} parameters, the config's actor needs {}",
-            dir.display(),
+            found.file.display(),
             params.len(),
             net.num_params()
         )));
@@ -265,7 +267,8 @@ pub fn evaluate_run(
     Ok(EvalReport {
         run: run.display().to_string(),
         env: cfg.env.clone(),
-        checkpoint_env_steps: manifest.env_steps,
+        policy_env_steps: found.policy.env_steps,
+        policy_file: found.file.display().to_string(),
         episodes,
         mean_return: mean,
         std_return: var.sqrt(),

@@ -4,6 +4,7 @@
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
+//! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
 //! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
 //! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
@@ -18,6 +19,7 @@ pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
 pub mod mpc;
+pub mod policy_file;
 pub mod progress;
 pub mod roles;
 pub mod run_dir;

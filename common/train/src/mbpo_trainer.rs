@@ -328,6 +328,10 @@ pub fn train_mbpo_with(
     let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median, target);
     summary.env_steps = mbpo.env_steps();
     summary.status = status.into();
+    if status == "completed" {
+        let actor = &mbpo.learner.sac().actor_params;
+        crate::policy_file::write_final_policy(out, summary.env_steps, actor)?;
+    }
     run.write_summary(&summary)?;
     Ok(summary)
 }

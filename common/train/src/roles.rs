@@ -106,6 +106,31 @@ pub struct LearnerState {
     pub rollout_length: usize,
 }
 
+/// The pipeline learner's checkpoint file (`mbpo run`): the role plus the service's loop
+/// counters. It lives here, next to the role, so that tools reading a run's policy
+/// ([`crate::policy_file`]) need not depend on the services.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LearnerCheckpoint {
+    /// The role (SAC, D_env, D_model, streams).
+    pub role: LearnerState,
+    /// Env steps consumed and published (= T).
+    pub consumed: u64,
+    /// SAC updates done.
+    pub updates: u64,
+    /// Imagined batches received (= K).
+    pub model_batches: u64,
+    /// Model version of the newest imagined batch.
+    pub model_version: u64,
+}
+
+/// File name and kind of [`LearnerCheckpoint`] in a pipeline checkpoint directory.
+pub mod pipeline_learner {
+    /// The file name.
+    pub const FILE: &str = "learner";
+    /// The checkpoint kind.
+    pub const KIND: &str = "mbpo.pipeline.learner";
+}
+
 /// When the model-based steps happen, as a pure function of the env step `t` (1-based).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Schedule {

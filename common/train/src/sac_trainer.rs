@@ -172,6 +172,9 @@ pub fn train_sac_with(
     let mut summary = evaluator.summary("sac", &sac, None, target);
     summary.env_steps = actor.steps;
     summary.status = status.into();
+    if status == "completed" {
+        crate::policy_file::write_final_policy(out, summary.env_steps, &sac.actor_params)?;
+    }
     run.write_summary(&summary)?;
     Ok(summary)
 }

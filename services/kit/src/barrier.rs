@@ -29,7 +29,7 @@ use std::path::Path;
 
 use mbpo_core::Rng;
 use mbpo_train::checkpoint;
-use mbpo_train::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
+use mbpo_train::roles::{ActorState, ModelTrainerState, RolloutState};
 use mbpo_wire::{ipc, StatsPublisher, Waiter};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
@@ -58,7 +58,7 @@ pub mod kind {
     /// [`super::RolloutCheckpoint`].
     pub const ROLLOUT: &str = "mbpo.pipeline.rollout-generator";
     /// [`super::LearnerCheckpoint`].
-    pub const LEARNER: &str = "mbpo.pipeline.learner";
+    pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::KIND;
     /// The supervisor's bookkeeping (metrics rows, counters).
     pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor";
 }
@@ -101,25 +101,13 @@ pub struct RolloutCheckpoint {
     pub branches: u64,
 }
 
-/// The learner at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LearnerCheckpoint {
-    /// The role (SAC, D_env, D_model, streams).
-    pub role: LearnerState,
-    /// Env steps consumed and published (= T).
-    pub consumed: u64,
-    /// SAC updates done.
-    pub updates: u64,
-    /// Imagined batches received (= K).
-    pub model_batches: u64,
-    /// Model version of the newest imagined batch.
-    pub model_version: u64,
-}
+/// The learner at the cut (defined next to its role: `mbpo eval` reads it too).
+pub use mbpo_train::roles::LearnerCheckpoint;
 
 /// File names in a checkpoint directory of the pipeline (actors: [`actor_file`]).
 pub mod file {
     /// The learner's.
-    pub const LEARNER: &str = "learner";
+    pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::FILE;
     /// The model trainer's.
     pub const MODEL_TRAINER: &str = "model-trainer";
     /// The rollout generator's.

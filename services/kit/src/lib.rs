@@ -583,15 +583,48 @@ pub fn exit_code(result: anyhow::Result<()>) -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!("{e:#}");
+            tracing::error!("{}", error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
 }
 
+/// `err` and its causes joined by ": ", like anyhow's `{:#}`, but without a cause whose text
+/// the message already ends with: many errors print their source themselves (`"checkpoint
+/// <path>: {source}"`), and `{:#}` would then say "No such file or directory" twice.
+pub fn error_chain(err: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in err.chain() {
+        let part = cause.to_string();
+        if text.ends_with(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let err = anyhow::Error::new(mbpo_train::checkpoint::CheckpointError::Io {
+            path: "run/checkpoints/1/learner".into(),
+            source: io,
+        })
+        .context("evaluating run");
+        assert_eq!(
+            error_chain(&err),
+            "evaluating run: checkpoint run/checkpoints/1/learner: no such file"
+        );
+        assert_eq!(format!("{err:#}").matches("no such file").count(), 2);
+    }
 
     #[test]
     fn model_weights_round_trip_through_the_flat_layout() {

@@ -707,6 +707,11 @@ fn supervise(
         .as_deref()
         .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
         .unwrap_or_default();
+    // The policy the run ended with: periodic checkpoints rarely fall on the last step.
+    if let (Some(p), "completed", false) = (&final_params, status, cfg.algo == Algo::Mpc) {
+        let actor = &p[..hashed.min(p.len())];
+        mbpo_train::policy_file::write_final_policy(out, col.env_steps(), actor)?;
+    }
     let to_target = run_dir.env_steps_to_target(cfg.target_return())?;
     let report = col.summary(status, sha, started, to_target);
     Ok(Attempt::Finished(Box::new(report), failure))

@@ -1,0 +1,145 @@
+//! A run's trained policy: where it is and how to read it.
+//!
+//! Every run that completes writes its final actor to `<run>/policy.ckpt`, whichever command
+//! ran it (`mbpo train` for SAC or MBPO, `mbpo run` for the pipeline): the pipeline's periodic
+//! checkpoints rarely fall on the last step, so without this file the policy a completed run
+//! ended with would be lost. A run that was stopped, crashed or is still running has its
+//! policy only in its newest checkpoint, in one of three layouts ([`newest_policy`] reads all
+//! of them and takes whichever of the two is newer).
+
+use crate::checkpoint::{self, CheckpointError};
+use crate::roles::{checkpoint_kind, pipeline_learner, LearnerCheckpoint, LearnerState};
+use crate::sac_trainer::{checkpointed_actor_params, TrainError, SAC_CHECKPOINT_FILE};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// File name of the final policy in a run directory.
+pub const FINAL_POLICY_FILE: &str = "policy.ckpt";
+
+/// Checkpoint kind of [`FinalPolicy`].
+const FINAL_POLICY_KIND: &str = "mbpo.policy";
+
+/// The actor a run ended with.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FinalPolicy {
+    /// Real env steps the run had taken.
+    pub env_steps: u64,
+    /// The SAC actor's parameters θ_π (architecture: the run's `config.toml`, `[sac] hidden`).
+    pub actor_params: Vec<f32>,
+}
+
+/// Write `<run>/policy.ckpt` (atomically, in the checkpoint file format).
+pub fn write_final_policy(
+    run: &Path,
+    env_steps: u64,
+    actor_params: &[f32],
+) -> Result<(), CheckpointError> {
+    let policy = FinalPolicy {
+        env_steps,
+        actor_params: actor_params.to_vec(),
+    };
+    checkpoint::write(&run.join(FINAL_POLICY_FILE), FINAL_POLICY_KIND, &policy)
+}
+
+/// A policy found in a run directory, and the file it came from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FoundPolicy {
+    /// The policy.
+    pub policy: FinalPolicy,
+    /// The file it was read from.
+    pub file: PathBuf,
+}
+
+/// The newest policy of `run`: its final policy or the actor of its newest complete
+/// checkpoint, whichever is after more env steps (the final policy on a tie). A run with
+/// neither is an error that says when each is written.
+pub fn newest_policy(run: &Path) -> Result<FoundPolicy, TrainError> {
+    let final_path = run.join(FINAL_POLICY_FILE);
+    let final_policy = if final_path.exists() {
+        let policy: FinalPolicy = checkpoint::read(&final_path, FINAL_POLICY_KIND)?;
+        Some(FoundPolicy {
+            policy,
+            file: final_path,
+        })
+    } else {
+        None
+    };
+    let from_checkpoint = match checkpoint::latest(run)? {
+        Some((dir, manifest)) => Some(checkpointed_policy(&dir, &manifest)?),
+        None => None,
+    };
+    match (final_policy, from_checkpoint) {
+        (Some(f), Some(c)) if c.policy.env_steps > f.policy.env_steps => Ok(c),
+        (Some(f), _) => Ok(f),
+        (None, Some(c)) => Ok(c),
+        (None, None) => Err(TrainError::Config(format!(
+            "{} has no policy yet: {FINAL_POLICY_FILE} is written when a run completes, and \
+             checkpoints (in {}) every `[checkpoint] every` env steps",
+            run.display(),
+            checkpoint::root(run).display()
+        ))),
+    }
+}
+
+/// The actor of the checkpoint in `dir`, from whichever trainer's layout it is.
+fn checkpointed_policy(
+    dir: &Path,
+    manifest: &checkpoint::Manifest,
+) -> Result<FoundPolicy, TrainError> {
+    let has = |name: &str| manifest.files.iter().any(|f| f == name);
+    let sequential_learner = crate::mbpo_trainer::CHECKPOINT_FILES[3];
+    let (file, actor_params) = if has(sequential_learner) {
+        let path = dir.join(sequential_learner);
+        let learner: LearnerState = checkpoint::read(&path, checkpoint_kind::LEARNER)?;
+        (path, learner.sac.actor_params)
+    } else if has(pipeline_learner::FILE) {
+        let path = dir.join(pipeline_learner::FILE);
+        let learner: LearnerCheckpoint = checkpoint::read(&path, pipeline_learner::KIND)?;
+        (path, learner.role.sac.actor_params)
+    } else if has(SAC_CHECKPOINT_FILE) {
+        (
+            dir.join(SAC_CHECKPOINT_FILE),
+            checkpointed_actor_params(dir)?,
+        )
+    } else {
+        return Err(TrainError::Config(format!(
+            "checkpoint {} holds no policy (files: {}); MPC runs plan with the model and have none",
+            dir.display(),
+            manifest.files.join(", ")
+        )));
+    };
+    Ok(FoundPolicy {
+        policy: FinalPolicy {
+            env_steps: manifest.env_steps,
+            actor_params,
+        },
+        file,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_run(name: &str) -> PathBuf {
+        let dir =
+            std::env::temp_dir().join(format!("mbpo-policy-file-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn the_final_policy_reads_back_and_an_empty_run_says_what_is_missing() {
+        let run = temp_run("roundtrip");
+        let err = newest_policy(&run).unwrap_err().to_string();
+        assert!(err.contains("has no policy yet"), "{err}");
+        assert!(err.contains(FINAL_POLICY_FILE), "{err}");
+        write_final_policy(&run, 500, &[1.0, -2.5, 3.25]).unwrap();
+        let found = newest_policy(&run).unwrap();
+        assert_eq!(found.file, run.join(FINAL_POLICY_FILE));
+        assert_eq!(found.policy.env_steps, 500);
+        assert_eq!(found.policy.actor_params, vec![1.0, -2.5, 3.25]);
+        let _ = std::fs::remove_dir_all(&run);
+    }
+}
