@@ -19,7 +19,7 @@
 use crate::config::{CemConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::{shift_sequence, Planner};
+use crate::planner::{restore_sequence, shift_sequence, Planner};
 use crate::sampler::TrajectorySampler;
 use mbpo_core::rng::normal_f32;
 use mbpo_core::Rng;
@@ -179,5 +179,13 @@ impl Planner for Cem {
 
     fn reset(&mut self) {
         self.mean.fill(0.0);
+    }
+
+    fn warm_start(&self) -> Option<&[f32]> {
+        Some(&self.mean)
+    }
+
+    fn set_warm_start(&mut self, warm: Option<&[f32]>) -> Result<(), PlanError> {
+        restore_sequence(&mut self.mean, warm)
     }
 }

@@ -26,7 +26,7 @@
 use crate::config::{GradConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::{argmax, shift_sequence, Planner};
+use crate::planner::{argmax, restore_sequence, shift_sequence, Planner};
 use crate::sampler::deal_members;
 use mbpo_core::rng::uniform_range_f32;
 use mbpo_core::Rng;
@@ -324,5 +324,17 @@ impl Planner for GradientPlanner {
 
     fn reset(&mut self) {
         self.has_warm = false;
+    }
+
+    fn warm_start(&self) -> Option<&[f32]> {
+        self.has_warm.then_some(&self.warm[..])
+    }
+
+    fn set_warm_start(&mut self, warm: Option<&[f32]>) -> Result<(), PlanError> {
+        self.has_warm = warm.is_some();
+        match warm {
+            Some(_) => restore_sequence(&mut self.warm, warm),
+            None => Ok(()),
+        }
     }
 }

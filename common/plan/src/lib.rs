@@ -33,7 +33,7 @@ pub use config::{CemConfig, GradConfig, MppiConfig, PlannerConfig, PlannerKind, 
 pub use error::PlanError;
 pub use grad::GradientPlanner;
 pub use model::{EnsembleModel, PlanningModel, RewardSource};
-pub use mpc::Mpc;
+pub use mpc::{Mpc, MpcState};
 pub use mppi::Mppi;
 pub use planner::{build, Planner};
 pub use random::RandomShooting;

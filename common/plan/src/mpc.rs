@@ -9,6 +9,21 @@ use crate::error::PlanError;
 use crate::model::PlanningModel;
 use crate::planner::Planner;
 use mbpo_core::Rng;
+use serde::{Deserialize, Serialize};
+
+/// Everything of an [`Mpc`] that carries from one env step to the next: what a checkpoint
+/// keeps so that a resumed run plans exactly as an uninterrupted one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MpcState {
+    /// The planner's warm start ([`Planner::warm_start`]).
+    pub warm_start: Option<Vec<f32>>,
+    /// The open-loop plan being executed (open loop only; `H x A`).
+    pub plan: Vec<f32>,
+    /// Index of the open-loop plan's next action (H: plan anew).
+    pub cursor: usize,
+    /// Plans made so far.
+    pub plans: u64,
+}
 
 /// A planner run as a controller.
 pub struct Mpc {
@@ -87,5 +102,35 @@ impl Mpc {
     pub fn reset(&mut self) {
         self.planner.reset();
         self.cursor = self.planner.horizon();
+    }
+
+    /// The state a checkpoint keeps (allocates).
+    pub fn state(&self) -> MpcState {
+        MpcState {
+            warm_start: self.planner.warm_start().map(<[f32]>::to_vec),
+            plan: self.plan.clone(),
+            cursor: self.cursor,
+            plans: self.plans,
+        }
+    }
+
+    /// Continue from the [`Mpc::state`] of a controller of the same config; a state of another
+    /// shape is an error naming what does not fit.
+    pub fn restore(&mut self, state: MpcState) -> Result<(), PlanError> {
+        if state.plan.len() != self.plan.len() || state.cursor > self.planner.horizon() {
+            return Err(PlanError::Dims(format!(
+                "mpc state: a plan of {} values at action {}, this controller plans {} values \
+                 over {} steps",
+                state.plan.len(),
+                state.cursor,
+                self.plan.len(),
+                self.planner.horizon()
+            )));
+        }
+        self.planner.set_warm_start(state.warm_start.as_deref())?;
+        self.plan = state.plan;
+        self.cursor = state.cursor;
+        self.plans = state.plans;
+        Ok(())
     }
 }

@@ -21,7 +21,7 @@
 use crate::config::{MppiConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::Planner;
+use crate::planner::{restore_sequence, Planner};
 use crate::sampler::TrajectorySampler;
 use mbpo_core::rng::normal_f32;
 use mbpo_core::Rng;
@@ -182,5 +182,13 @@ impl Planner for Mppi {
 
     fn reset(&mut self) {
         self.mean.fill(0.0);
+    }
+
+    fn warm_start(&self) -> Option<&[f32]> {
+        Some(&self.mean)
+    }
+
+    fn set_warm_start(&mut self, warm: Option<&[f32]>) -> Result<(), PlanError> {
+        restore_sequence(&mut self.mean, warm)
     }
 }

@@ -38,6 +38,32 @@ pub trait Planner: Send {
 
     /// Forget the last solution (a new episode, or open-loop replanning from scratch).
     fn reset(&mut self);
+
+    /// What carries from one plan to the next (the warm start, as [`Planner::shift`] or
+    /// [`Planner::reset`] left it), `None` when nothing does: all a checkpoint needs to
+    /// continue planning exactly (everything else is rebuilt by each plan).
+    fn warm_start(&self) -> Option<&[f32]>;
+
+    /// Continue from a [`Planner::warm_start`] of a planner of the same config.
+    fn set_warm_start(&mut self, warm: Option<&[f32]>) -> Result<(), PlanError>;
+}
+
+/// Copy a restored warm start `src` into `dst`, which must be as long.
+pub(crate) fn restore_sequence(dst: &mut [f32], src: Option<&[f32]>) -> Result<(), PlanError> {
+    match src {
+        Some(s) if s.len() == dst.len() => {
+            dst.copy_from_slice(s);
+            Ok(())
+        }
+        Some(s) => Err(PlanError::Dims(format!(
+            "planner warm start: {} values, this planner's horizon x actions is {}",
+            s.len(),
+            dst.len()
+        ))),
+        None => Err(PlanError::Dims(
+            "planner warm start: missing (this planner always carries one)".into(),
+        )),
+    }
 }
 
 /// The planner `cfg.kind` for actions of width `act_dim`.

@@ -93,4 +93,17 @@ impl Planner for RandomShooting {
     fn shift(&mut self, _k: usize) {}
 
     fn reset(&mut self) {}
+
+    fn warm_start(&self) -> Option<&[f32]> {
+        None
+    }
+
+    fn set_warm_start(&mut self, warm: Option<&[f32]>) -> Result<(), PlanError> {
+        match warm {
+            None => Ok(()),
+            Some(_) => Err(PlanError::Dims(
+                "planner warm start: random shooting carries none".into(),
+            )),
+        }
+    }
 }

@@ -28,6 +28,6 @@ pub mod tensorboard;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo, RunOptions};
-pub use mpc::train_mpc;
+pub use mpc::{train_mpc, train_mpc_with};
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, train_sac_with, TrainError};

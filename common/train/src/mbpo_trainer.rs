@@ -228,7 +228,7 @@ pub struct RunOptions<'a> {
 }
 
 impl RunOptions<'_> {
-    fn stop_requested(&self) -> bool {
+    pub(crate) fn stop_requested(&self) -> bool {
         self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
     }
 }

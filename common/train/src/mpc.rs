@@ -15,19 +15,23 @@
 //! streams in both: `actor.env` / `actor.policy` (planning noise) of the actor, `model.*` of
 //! the trainer, `eval.env` / `eval.plan` of the evaluator.
 
-use crate::actor::{Behaviour, EnvActor};
+use crate::actor::{Behaviour, EnvActor, EnvActorState};
+use crate::checkpoint::{self, CheckpointError};
 use crate::config::{ExperimentConfig, PlanReward};
-use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
+use crate::mbpo_trainer::{latest_checkpoint, RunOptions};
+use crate::progress::{Display, Progress};
+use crate::roles::{checkpoint_kind, ModelSnapshot, ModelTrainerRole, ModelTrainerState, Schedule};
 use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
 use mbpo_envs::{make, termination_fn, Env};
 use mbpo_model::{ProbabilisticEnsemble, TrainReport};
-use mbpo_plan::{build, EnsembleModel, Mpc, PlanError, RewardSource};
+use mbpo_plan::{build, EnsembleModel, Mpc, MpcState, PlanError, RewardSource};
 use mbpo_sac::ActionScale;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 fn plan_err(e: PlanError) -> TrainError {
     TrainError::Config(format!("planning: {e}"))
@@ -115,6 +119,15 @@ impl VersionedModel {
     }
 }
 
+/// A checkpointed [`PlanningActorRole`] (its model is the model trainer's current one).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanningActorState {
+    /// The env actor (episode in progress, `actor.env` / `actor.policy` streams, counters).
+    pub actor: EnvActorState,
+    /// The controller's warm start and open-loop plan.
+    pub mpc: MpcState,
+}
+
 /// Acting in the real environment with MPC on the newest model it was given.
 pub struct PlanningActorRole {
     actor: EnvActor,
@@ -154,6 +167,19 @@ impl PlanningActorRole {
     pub fn plans(&self) -> u64 {
         self.mpc.plans()
     }
+    /// The role's state (for checkpoints; the model is not in it).
+    pub fn checkpoint(&self) -> PlanningActorState {
+        PlanningActorState {
+            actor: self.actor.checkpoint(),
+            mpc: self.mpc.state(),
+        }
+    }
+    /// Continue from [`PlanningActorRole::checkpoint`] (then give it the model with
+    /// [`PlanningActorRole::set_model`]).
+    pub fn restore(&mut self, s: PlanningActorState) -> Result<(), TrainError> {
+        self.actor.restore(s.actor)?;
+        self.mpc.restore(s.mpc).map_err(plan_err)
+    }
     /// One real env step (uniform, or the planner's action); returns the transition. The
     /// planner's warm start is dropped at every episode end.
     pub fn act(&mut self, behaviour: Behaviour) -> Result<Batch, TrainError> {
@@ -174,6 +200,16 @@ impl PlanningActorRole {
         }
         Ok(self.staged.to_batch())
     }
+}
+
+/// A checkpointed [`PlanningEvaluator`]: its streams (each evaluation episode starts with a
+/// reset planner, and the model is the trainer's).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanningEvaluatorState {
+    /// The `eval.env` stream.
+    pub env_rng: Rng,
+    /// The `eval.plan` stream.
+    pub plan_rng: Rng,
 }
 
 /// Evaluation episodes with the planner: own environment (`eval.env`), own planning noise
@@ -207,6 +243,18 @@ impl PlanningEvaluator {
     /// Version of the model evaluated.
     pub fn model_version(&self) -> u64 {
         self.model.version
+    }
+    /// The evaluator's state (for checkpoints).
+    pub fn checkpoint(&self) -> PlanningEvaluatorState {
+        PlanningEvaluatorState {
+            env_rng: self.env_rng.clone(),
+            plan_rng: self.plan_rng.clone(),
+        }
+    }
+    /// Continue from [`PlanningEvaluator::checkpoint`].
+    pub fn restore(&mut self, s: PlanningEvaluatorState) {
+        self.env_rng = s.env_rng;
+        self.plan_rng = s.plan_rng;
     }
     /// Mean undiscounted return of `episodes` MPC episodes (the warm start reset per episode).
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
@@ -309,74 +357,223 @@ pub fn elite_holdout_mse(r: &TrainReport) -> f64 {
         / r.elites.len().max(1) as f64
 }
 
+/// Role files of a checkpoint of a single-process MPC run.
+pub const CHECKPOINT_FILES: [&str; 3] = ["actor-0.ckpt", "model-trainer.ckpt", "evaluator.ckpt"];
+
+/// Checkpoint kinds of [`PlanningActorState`] and [`MpcBook`].
+pub mod kind {
+    /// [`super::PlanningActorState`].
+    pub const PLANNING_ACTOR: &str = "mbpo.planning-actor";
+    /// [`super::MpcBook`].
+    pub const BOOK: &str = "mbpo.mpc-run";
+}
+
+/// What the run itself keeps besides the roles: the evaluator's streams and the run's
+/// bookkeeping (returns, rates, planning times, the last model report).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MpcBook {
+    /// The evaluator.
+    pub evaluator: PlanningEvaluatorState,
+    /// Wall seconds of the run so far (the clock continues from here).
+    pub elapsed_seconds: f64,
+    /// Wall seconds and env steps at the last evaluation (for the rate column).
+    pub last_eval: (f64, u64),
+    /// Last and best evaluation return.
+    pub final_return: f64,
+    /// Best evaluation return.
+    pub best_return: f64,
+    /// Wall seconds of each planning step so far (the summary's median).
+    pub plan_seconds: Vec<f64>,
+    /// The last model training's report.
+    pub last_model_report: Option<TrainReport>,
+}
+
+impl MpcRun {
+    /// Write every role's state and `book` into the checkpoint directory `dir`.
+    fn write_checkpoint(&self, dir: &Path, book: &MpcBook) -> Result<(), CheckpointError> {
+        std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let [actor, trainer, evaluator] = CHECKPOINT_FILES;
+        checkpoint::write(
+            &dir.join(actor),
+            kind::PLANNING_ACTOR,
+            &self.actor.checkpoint(),
+        )?;
+        checkpoint::write(
+            &dir.join(trainer),
+            checkpoint_kind::MODEL_TRAINER,
+            &self.model_trainer.checkpoint(),
+        )?;
+        checkpoint::write(&dir.join(evaluator), kind::BOOK, book)
+    }
+
+    /// Restore every role from the checkpoint directory `dir`; returns the run's book. The
+    /// actor and the evaluator get the trainer's current model, the one they had.
+    fn restore_checkpoint(&mut self, dir: &Path) -> Result<MpcBook, TrainError> {
+        let [actor, trainer, evaluator] = CHECKPOINT_FILES;
+        let trainer: ModelTrainerState =
+            checkpoint::read(&dir.join(trainer), checkpoint_kind::MODEL_TRAINER)?;
+        self.model_trainer.restore(trainer)?;
+        let actor: PlanningActorState = checkpoint::read(&dir.join(actor), kind::PLANNING_ACTOR)?;
+        self.actor.restore(actor)?;
+        let book: MpcBook = checkpoint::read(&dir.join(evaluator), kind::BOOK)?;
+        self.evaluator.restore(book.evaluator.clone());
+        if self.model_trainer.version() > 0 {
+            let snapshot = self.model_trainer.snapshot();
+            self.actor.set_model(&snapshot)?;
+            self.evaluator.set_model(&snapshot)?;
+            self.model_params = snapshot.weights.params;
+        }
+        self.last_model_report = book.last_model_report.clone();
+        Ok(book)
+    }
+}
+
 /// Run MPC per `cfg`, writing the run directory `out`; returns the summary.
+pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
+    train_mpc_with(cfg, out, RunOptions::default())
+}
+
+/// [`train_mpc`] with resume and stop control, as [`crate::train_mbpo_with`]: checkpoints every
+/// `checkpoint.every` env steps, at the end and when stopped; a resumed run plans exactly as
+/// an uninterrupted one (the controller's warm start is in the checkpoint).
 ///
 /// `metrics.csv` has the usual columns (SAC's empty); `summary.json`'s `policy_sha256` is the
 /// SHA-256 of the final model's parameters and `median_seconds_per_env_step` the median wall
 /// time of a planning step.
-pub fn train_mpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
-    let mut run = RunDir::create(out, cfg)?;
+pub fn train_mpc_with(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+) -> Result<Summary, TrainError> {
     let mut mpc = MpcRun::new(cfg)?;
-    let started = Instant::now();
-    let (mut last_time, mut last_steps) = (0.0, 0);
-    let (mut final_return, mut best_return) = (f64::NAN, f64::NEG_INFINITY);
-    let mut plan_seconds = Vec::with_capacity(cfg.steps as usize);
-    for t in 1..=cfg.steps {
+    let mut book = MpcBook {
+        evaluator: mpc.evaluator.checkpoint(),
+        elapsed_seconds: 0.0,
+        last_eval: (0.0, 0),
+        final_return: f64::NAN,
+        best_return: f64::NEG_INFINITY,
+        plan_seconds: Vec::with_capacity(cfg.steps as usize),
+        last_model_report: None,
+    };
+    let (mut run, done) = if opts.resume {
+        let (dir, manifest) = latest_checkpoint(out)?;
+        book = mpc.restore_checkpoint(&dir)?;
+        tracing::info!(
+            "resuming {} from its checkpoint after {} env steps",
+            out.display(),
+            manifest.env_steps
+        );
+        (
+            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
+            manifest.env_steps,
+        )
+    } else {
+        (RunDir::create(out, cfg)?, 0)
+    };
+    // The clock continues from the checkpoint's.
+    let started = Instant::now()
+        .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
+        .unwrap_or_else(Instant::now);
+    let save = |mpc: &MpcRun, book: &mut MpcBook, t: u64| -> Result<(), TrainError> {
+        let dir = checkpoint::dir_for(out, t);
+        book.evaluator = mpc.evaluator.checkpoint();
+        book.elapsed_seconds = started.elapsed().as_secs_f64();
+        book.last_model_report = mpc.last_model_report.clone();
+        mpc.write_checkpoint(&dir, book)?;
+        checkpoint::mark_complete(&dir, t, &CHECKPOINT_FILES)?;
+        Ok(checkpoint::prune(out, cfg.checkpoint.keep)?)
+    };
+    let mut status = "completed";
+    let label = format!("mpc {} s{}", cfg.env, cfg.seed);
+    let mut progress = Progress::new(label, cfg.steps, Display::auto()).counting("plans");
+    for t in done + 1..=cfg.steps {
         mpc.step(t)?;
         if !mpc.schedule.is_warm_up(t) {
-            plan_seconds.push(mpc.actor.last_plan_seconds);
+            book.plan_seconds.push(mpc.actor.last_plan_seconds);
         }
-        if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
-            if mpc.actor.model_version() == 0 {
-                // Still warming up: there is no model to plan with yet, so nothing to evaluate.
-                continue;
-            }
-            let ret = mpc.evaluate(cfg.eval.episodes)?;
-            if ret.is_finite() {
-                final_return = ret;
-                best_return = best_return.max(ret);
-            }
-            let now = started.elapsed().as_secs_f64();
-            let actor = mpc.actor.env_actor();
-            let row = MetricsRow {
-                env_steps: t,
-                episodes: actor.episodes,
-                eval_return: ret,
-                train_return: actor.last_return,
-                model_holdout_mse: mpc.last_model_report.as_ref().map(elite_holdout_mse),
-                wall_seconds: now,
-                env_steps_per_sec: (t - last_steps) as f64 / (now - last_time).max(1e-9),
-                ..Default::default()
-            };
-            (last_time, last_steps) = (now, t);
+        if (t.is_multiple_of(cfg.eval.every) || t == cfg.steps) && mpc.actor.model_version() > 0 {
+            // (While warming up there is no model to plan with, so nothing to evaluate.)
+            let row = evaluate_at(&mut mpc, &mut book, t, started, cfg.eval.episodes)?;
             run.write_metrics(&row)?;
+            progress.set_eval(row.eval_return);
             tracing::info!(
-                "mpc {} seed {}: step {t} eval {ret:.1} best {best_return:.1} train episode {:.1} model v{} ({:.2} steps/s)",
+                "mpc {} seed {}: step {t} eval {:.1} best {:.1} train episode {:.1} model v{} ({:.2} steps/s)",
                 cfg.env,
                 cfg.seed,
-                actor.last_return.unwrap_or(f64::NAN),
+                row.eval_return,
+                book.best_return,
+                row.train_return.unwrap_or(f64::NAN),
                 mpc.actor.model_version(),
                 row.env_steps_per_sec
             );
         }
+        progress.set_model_version(mpc.actor.model_version());
+        progress.update(t, mpc.actor.plans());
+        let stopping = opts.stop_requested() && t < cfg.steps;
+        let every = cfg.checkpoint.every;
+        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+            save(&mpc, &mut book, t)?;
+        }
+        if stopping {
+            tracing::info!(
+                "stopped after {t} env steps; continue with --resume {}",
+                out.display()
+            );
+            status = "stopped";
+            break;
+        }
     }
-    plan_seconds.sort_by(f64::total_cmp);
+    progress.finish();
+    let mut sorted = book.plan_seconds.clone();
+    sorted.sort_by(f64::total_cmp);
     let target_return = cfg.target_return();
     let summary = Summary {
         algo: "mpc".into(),
         env: cfg.env.clone(),
         seed: cfg.seed,
-        env_steps: cfg.steps,
+        env_steps: mpc.actor.env_actor().steps,
         sac_updates: 0,
-        final_eval_return: final_return,
-        best_eval_return: best_return,
+        final_eval_return: book.final_return,
+        best_eval_return: book.best_return,
         target_return,
         env_steps_to_target: run.env_steps_to_target(target_return)?,
         policy_sha256: policy_sha256(&mpc.model_params),
         wall_seconds: started.elapsed().as_secs_f64(),
-        median_seconds_per_env_step: plan_seconds.get(plan_seconds.len() / 2).copied(),
-        status: "completed".into(),
+        median_seconds_per_env_step: sorted.get(sorted.len() / 2).copied(),
+        status: status.into(),
     };
     run.write_summary(&summary)?;
     Ok(summary)
+}
+
+/// Evaluate the planner on the current model at env step `t` and build the metrics row.
+fn evaluate_at(
+    mpc: &mut MpcRun,
+    book: &mut MpcBook,
+    t: u64,
+    started: Instant,
+    episodes: usize,
+) -> Result<MetricsRow, TrainError> {
+    let ret = mpc.evaluate(episodes)?;
+    if ret.is_finite() {
+        book.final_return = ret;
+        book.best_return = book.best_return.max(ret);
+    }
+    let now = started.elapsed().as_secs_f64();
+    let (last_time, last_steps) = book.last_eval;
+    book.last_eval = (now, t);
+    let actor = mpc.actor.env_actor();
+    Ok(MetricsRow {
+        env_steps: t,
+        episodes: actor.episodes,
+        eval_return: ret,
+        train_return: actor.last_return,
+        model_holdout_mse: mpc.last_model_report.as_ref().map(elite_holdout_mse),
+        wall_seconds: now,
+        env_steps_per_sec: (t - last_steps) as f64 / (now - last_time).max(1e-9),
+        ..Default::default()
+    })
 }

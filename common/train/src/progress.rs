@@ -107,6 +107,8 @@ pub struct Progress {
     updates: u64,
     eval: Option<f64>,
     model_version: Option<u64>,
+    /// What the second counter counts (`updates`: SAC updates; MPC runs count `plans`).
+    units: &'static str,
     finished: bool,
 }
 
@@ -150,10 +152,20 @@ impl Progress {
             updates: 0,
             eval: None,
             model_version: None,
+            units: "updates",
             finished: false,
         };
         p.refresh_bar();
         p
+    }
+
+    /// Name what the second counter of [`Progress::update`] counts (default `updates`, SAC
+    /// updates): its rate is shown as `<units>/s`, and the ETA's mean rate starts where it
+    /// first grows (the expensive phase after a fast warm-up).
+    pub fn counting(mut self, units: &'static str) -> Self {
+        self.units = units;
+        self.refresh_bar();
+        self
     }
 
     /// Env steps and SAC updates so far. Cheap enough to call every env step: the bar is
@@ -243,7 +255,7 @@ impl Progress {
         match self.rates {
             Some((sps, ups)) => {
                 parts.push(format!("{sps:.1} env steps/s"));
-                parts.push(format!("{ups:.0} updates/s"));
+                parts.push(format!("{ups:.0} {}/s", self.units));
             }
             None => parts.push("- env steps/s".into()),
         }
@@ -361,6 +373,10 @@ mod tests {
         p.update_at(500, 2000, t0 + Duration::from_secs(50));
         assert_eq!(p.rates, Some((0.0, 0.0)));
         assert_eq!(p.eta_seconds(), Some(50.0));
+        // An MPC run counts plans.
+        let mut p = p.counting("plans");
+        p.update_at(600, 2100, t0 + Duration::from_secs(60));
+        assert!(p.status().contains("| 10 plans/s |"), "{}", p.status());
     }
 
     #[test]

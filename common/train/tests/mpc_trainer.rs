@@ -3,8 +3,11 @@
 
 use mbpo_plan::PlannerKind;
 use mbpo_train::run_dir::read_eval_curve;
-use mbpo_train::{train_mpc, Algo, ExperimentConfig, PlanReward};
-use std::path::PathBuf;
+use mbpo_train::{
+    checkpoint, train_mpc, train_mpc_with, Algo, ExperimentConfig, PlanReward, RunOptions,
+};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 
 /// MPC-CEM on Pendulum with a small model and planner.
 fn small_config(steps: u64) -> ExperimentConfig {
@@ -88,4 +91,91 @@ fn mpc_config_errors_name_the_key() {
     cfg.mpc.planner.horizon = 0;
     let err = cfg.validate("test").unwrap_err().to_string();
     assert!(err.contains("mpc.planner.horizon"), "{err}");
+}
+
+/// metrics.csv without the timing columns (wall_seconds onwards).
+fn metrics_without_timings(run: &Path) -> Vec<String> {
+    std::fs::read_to_string(run.join("metrics.csv"))
+        .unwrap()
+        .lines()
+        .map(|l| l.split(',').take(13).collect::<Vec<_>>().join(","))
+        .collect()
+}
+
+/// A crash right after the checkpoint of `at`: later checkpoints and the summary are gone.
+fn crash_copy_after(full: &Path, at: u64, name: &str) -> PathBuf {
+    let crashed = temp_dir(name);
+    let _ = std::fs::remove_dir_all(&crashed);
+    let status = std::process::Command::new("cp")
+        .arg("-r")
+        .arg(full)
+        .arg(&crashed)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    for entry in std::fs::read_dir(checkpoint::root(&crashed)).unwrap() {
+        let dir = entry.unwrap().path();
+        let steps: u64 = dir.file_name().unwrap().to_str().unwrap().parse().unwrap();
+        if steps > at {
+            std::fs::remove_dir_all(dir).unwrap();
+        }
+    }
+    std::fs::remove_file(crashed.join("summary.json")).unwrap();
+    crashed
+}
+
+/// An MPC run resumed from a checkpoint -- mid-episode, where the planner's warm start carries
+/// over; at the end of the warm-up; mid warm-up; after a clean stop -- ends with the final
+/// model and the metrics of the uninterrupted run.
+#[test]
+fn mpc_resumed_from_a_checkpoint_equals_the_uninterrupted_run() {
+    let mut cfg = small_config(500);
+    cfg.eval.every = 250;
+    cfg.checkpoint.every = 100;
+    cfg.checkpoint.keep = 10;
+    let full = temp_dir("mpc-resume-full");
+    let _ = std::fs::remove_dir_all(&full);
+    let reference = train_mpc(&cfg, &full).unwrap();
+    assert_eq!(reference.status, "completed");
+    let resume = RunOptions {
+        resume: true,
+        ..Default::default()
+    };
+    // 300: mid-episode (Pendulum episodes are 200 steps), planning with a warm start;
+    // 200: the last warm-up step (the next one trains the first model); 100: mid warm-up.
+    for at in [300, 200, 100] {
+        let crashed = crash_copy_after(&full, at, &format!("mpc-crash-{at}"));
+        let resumed = train_mpc_with(&cfg, &crashed, resume).unwrap();
+        assert_eq!(
+            resumed.policy_sha256, reference.policy_sha256,
+            "crash at {at}"
+        );
+        assert_eq!(resumed.env_steps, 500);
+        assert_eq!(
+            metrics_without_timings(&crashed),
+            metrics_without_timings(&full),
+            "crash at {at}"
+        );
+        std::fs::remove_dir_all(crashed).unwrap();
+    }
+    // A clean stop checkpoints off the periodic schedule and resumes from there.
+    let run = temp_dir("mpc-stop");
+    let _ = std::fs::remove_dir_all(&run);
+    let stop = AtomicBool::new(true);
+    let opts = RunOptions {
+        resume: false,
+        stop: Some(&stop),
+    };
+    let stopped = train_mpc_with(&cfg, &run, opts).unwrap();
+    assert_eq!((stopped.status.as_str(), stopped.env_steps), ("stopped", 1));
+    let done = train_mpc_with(&cfg, &run, resume).unwrap();
+    assert_eq!(done.status, "completed");
+    assert_eq!(done.policy_sha256, reference.policy_sha256);
+    assert_eq!(
+        metrics_without_timings(&run),
+        metrics_without_timings(&full)
+    );
+    for d in [full, run] {
+        std::fs::remove_dir_all(d).unwrap();
+    }
 }

@@ -3,7 +3,7 @@
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
 use mbpo_train::{
-    train_mbpo_with, train_mpc, train_sac_with, Algo, ExperimentConfig, RunOptions, Summary,
+    train_mbpo_with, train_mpc_with, train_sac_with, Algo, ExperimentConfig, RunOptions, Summary,
     TrainError,
 };
 use std::path::{Path, PathBuf};
@@ -72,27 +72,14 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         }
     };
     crate::logging::also_to_file(&out.join("logs").join("train.log"))?;
-    if cfg.algo == Algo::Mpc && resume {
-        anyhow::bail!(
-            "{}: MPC runs (algo = \"mpc\") have no checkpoints yet, so they cannot be resumed; \
-             start a new run instead",
-            out.display()
-        );
-    }
+    let opts = RunOptions {
+        resume,
+        stop: Some(stop_on_signals()),
+    };
     let summary = match cfg.algo {
-        // MPC runs have no checkpoints: SIGINT keeps its default (the run ends at once).
-        Algo::Mpc => train_mpc(&cfg, &out),
-        Algo::Sac | Algo::Mbpo => {
-            let opts = RunOptions {
-                resume,
-                stop: Some(stop_on_signals()),
-            };
-            if cfg.algo == Algo::Sac {
-                train_sac_with(&cfg, &out, opts)
-            } else {
-                train_mbpo_with(&cfg, &out, opts)
-            }
-        }
+        Algo::Sac => train_sac_with(&cfg, &out, opts),
+        Algo::Mbpo => train_mbpo_with(&cfg, &out, opts),
+        Algo::Mpc => train_mpc_with(&cfg, &out, opts),
     }
     .with_context(|| format!("run {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);
@@ -146,8 +133,7 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
     let summary = match cfg.algo {
         Algo::Sac => train_sac_with(cfg, dir, opts),
         Algo::Mbpo => train_mbpo_with(cfg, dir, opts),
-        // MPC runs have no checkpoints: always run whole.
-        Algo::Mpc => train_mpc(cfg, dir),
+        Algo::Mpc => train_mpc_with(cfg, dir, opts),
     }?;
     if summary.status != "completed" {
         return Err(TrainError::Config(format!(
