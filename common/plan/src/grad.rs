@@ -302,6 +302,10 @@ impl Planner for GradientPlanner {
         self.bind_particles(model.members(), rng);
         self.initialise(rng);
         self.best_return = f32::NEG_INFINITY;
+        // If every return diverges, the plan is the first starting sequence, never a leftover
+        // of the previous plan (which no checkpoint keeps).
+        let len = self.horizon * self.act_dim;
+        self.best.copy_from_slice(&self.seqs[..len]);
         for k in 1..=self.cfg.iterations {
             self.evaluate(model, obs)?;
             self.keep_best();

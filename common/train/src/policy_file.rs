@@ -64,14 +64,18 @@ pub fn newest_policy(run: &Path) -> Result<FoundPolicy, TrainError> {
     } else {
         None
     };
+    // A checkpoint is read only when it is newer than the final policy: its learner file
+    // holds the replay buffers too, and a damaged older one must not hide a good final policy.
+    let final_steps = final_policy.as_ref().map(|f| f.policy.env_steps);
     let from_checkpoint = match checkpoint::latest(run)? {
-        Some((dir, manifest)) => Some(checkpointed_policy(&dir, &manifest)?),
-        None => None,
+        Some((dir, manifest)) if final_steps.is_none_or(|s| manifest.env_steps > s) => {
+            Some(checkpointed_policy(&dir, &manifest)?)
+        }
+        _ => None,
     };
     match (final_policy, from_checkpoint) {
-        (Some(f), Some(c)) if c.policy.env_steps > f.policy.env_steps => Ok(c),
-        (Some(f), _) => Ok(f),
-        (None, Some(c)) => Ok(c),
+        (_, Some(c)) => Ok(c),
+        (Some(f), None) => Ok(f),
         (None, None) => Err(TrainError::Config(format!(
             "{} has no policy yet: {FINAL_POLICY_FILE} is written when a run completes, and \
              checkpoints (in {}) every `[checkpoint] every` env steps",
@@ -140,6 +144,19 @@ mod tests {
         assert_eq!(found.file, run.join(FINAL_POLICY_FILE));
         assert_eq!(found.policy.env_steps, 500);
         assert_eq!(found.policy.actor_params, vec![1.0, -2.5, 3.25]);
+        // An older checkpoint is not even read: a damaged one cannot hide the final policy.
+        let older = checkpoint::dir_for(&run, 400);
+        std::fs::create_dir_all(&older).unwrap();
+        std::fs::write(older.join("learner.ckpt"), b"damaged").unwrap();
+        checkpoint::mark_complete(&older, 400, &["learner.ckpt"]).unwrap();
+        assert_eq!(newest_policy(&run).unwrap().policy.env_steps, 500);
+        // A newer one is, and its damage is reported.
+        let newer = checkpoint::dir_for(&run, 600);
+        std::fs::create_dir_all(&newer).unwrap();
+        std::fs::write(newer.join("learner.ckpt"), b"damaged").unwrap();
+        checkpoint::mark_complete(&newer, 600, &["learner.ckpt"]).unwrap();
+        let err = newest_policy(&run).unwrap_err().to_string();
+        assert!(err.contains("learner.ckpt"), "{err}");
         let _ = std::fs::remove_dir_all(&run);
     }
 }

@@ -234,6 +234,11 @@ impl RunDir {
     /// event file in `path/tb/` that begins with a session start.
     pub fn create(path: &Path, config: &ExperimentConfig) -> std::io::Result<Self> {
         std::fs::create_dir_all(path)?;
+        // An earlier run's final policy would pass for this run's (`mbpo eval`).
+        match std::fs::remove_file(path.join(crate::policy_file::FINAL_POLICY_FILE)) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+            _ => {}
+        }
         std::fs::write(path.join("config.toml"), config.to_toml())?;
         let mut metrics = BufWriter::new(File::create(path.join("metrics.csv"))?);
         writeln!(metrics, "{}", METRIC_COLUMNS.join(","))?;

@@ -596,7 +596,7 @@ pub fn error_chain(err: &anyhow::Error) -> String {
     let mut text = String::new();
     for cause in err.chain() {
         let part = cause.to_string();
-        if text.ends_with(&part) {
+        if text == part || text.ends_with(&format!(": {part}")) {
             continue;
         }
         if !text.is_empty() {
@@ -624,6 +624,9 @@ mod tests {
             "evaluating run: checkpoint run/checkpoints/1/learner: no such file"
         );
         assert_eq!(format!("{err:#}").matches("no such file").count(), 2);
+        // A cause that merely ends the message's last word is still said.
+        let err = anyhow::anyhow!("found").context("not found");
+        assert_eq!(error_chain(&err), "not found: found");
     }
 
     #[test]

@@ -153,13 +153,22 @@ fn completed_summary(dir: &Path) -> Option<Summary> {
 
 static STOP: AtomicBool = AtomicBool::new(false);
 
-extern "C" fn request_stop(_signal: libc::c_int) {
-    // Only an atomic store: async-signal-safe.
-    STOP.store(true, Ordering::Relaxed);
+extern "C" fn request_stop(signal: libc::c_int) {
+    // Only an atomic swap, signal(2) and raise(3): async-signal-safe.
+    if STOP.swap(true, Ordering::Relaxed) {
+        // A second signal: the user does not want to wait for the step under way (an MPC
+        // evaluation can take minutes) -- die of it, without a checkpoint.
+        // SAFETY: restoring the default disposition and re-raising are async-signal-safe.
+        unsafe {
+            libc::signal(signal, libc::SIG_DFL);
+            libc::raise(signal);
+        }
+    }
 }
 
 /// SIGINT/SIGTERM set a flag the trainer checks after each env step: it then writes a
 /// checkpoint and the summary (status `stopped`) and returns, so `--resume` continues the run.
+/// A second signal stops the process at once (no checkpoint).
 fn stop_on_signals() -> &'static AtomicBool {
     let handler = request_stop as extern "C" fn(libc::c_int) as libc::sighandler_t;
     // SAFETY: installs a handler that only stores to an atomic.
