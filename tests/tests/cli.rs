@@ -96,6 +96,27 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     assert_eq!(steps, unique, "no metrics row written twice");
     assert_eq!(steps.last(), Some(&end));
 
+    // Resuming with fewer steps than the checkpoint holds is refused, and the run is untouched.
+    let out = mbpo()
+        .args(["train", "--resume"])
+        .arg(&run)
+        .args(["--steps", &(end - 10).to_string()])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains(&format!(
+            "the checkpoint is after step {end}, past the run's {} steps; give --steps N with N > {end}",
+            end - 10
+        )),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(run.join("metrics.csv")).unwrap(),
+        metrics
+    );
+
     let out = mbpo()
         .arg("eval")
         .arg(&run)
@@ -151,6 +172,77 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
         "{err}"
     );
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// `mbpo train --steps <steps>` with the tiny config, run in `cwd`, plus `extra` arguments.
+fn tiny_train(cwd: &std::path::Path, steps: u64, extra: &[&str]) -> std::process::Output {
+    mbpo()
+        .current_dir(cwd)
+        .args(["train", "--config"])
+        .arg(config_file())
+        .args(["--steps", &steps.to_string()])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_fresh_run_never_writes_over_an_earlier_one() {
+    let dir = scratch("cli-fresh-dirs");
+    std::fs::create_dir_all(&dir).unwrap();
+    // The same command twice: the second run takes the next free default directory.
+    let first = tiny_train(&dir, 300, &[]);
+    let second = tiny_train(&dir, 300, &[]);
+    assert!(first.status.success() && second.status.success());
+    let runs = dir.join("runs");
+    let (a, b) = (
+        runs.join("mbpo-Pendulum-v1-s0"),
+        runs.join("mbpo-Pendulum-v1-s0-2"),
+    );
+    let hash = |run: &std::path::Path| summary_of(run)["policy_sha256"].clone();
+    assert_eq!(hash(&a), hash(&b), "same seed, same run");
+    assert!(String::from_utf8_lossy(&second.stderr).contains("holds an earlier run: writing"));
+
+    // An explicit --out holding a run is refused, naming the ways on, and left as it was.
+    let metrics = std::fs::read_to_string(a.join("metrics.csv")).unwrap();
+    for cmd in ["train", "run"] {
+        let out = mbpo()
+            .current_dir(&dir)
+            .args([cmd, "--config"])
+            .arg(config_file())
+            .args(["--out", "runs/mbpo-Pendulum-v1-s0"])
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{cmd}");
+        let err = String::from_utf8(out.stderr).unwrap();
+        assert!(
+            err.contains("runs/mbpo-Pendulum-v1-s0 holds an earlier run (newest checkpoint after 300 env steps)")
+                && err.contains("--resume runs/mbpo-Pendulum-v1-s0")
+                && err.contains("--overwrite"),
+            "{cmd}: {err}"
+        );
+    }
+    assert_eq!(
+        std::fs::read_to_string(a.join("metrics.csv")).unwrap(),
+        metrics
+    );
+
+    // --overwrite replaces it: none of the earlier run's checkpoints survive.
+    let out = tiny_train(
+        &dir,
+        250,
+        &["--out", "runs/mbpo-Pendulum-v1-s0", "--overwrite"],
+    );
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(summary_of(&a)["env_steps"].as_u64(), Some(250));
+    let (newest, manifest) = mbpo_train::checkpoint::latest(&a).unwrap().unwrap();
+    assert_eq!(manifest.env_steps, 250, "{}", newest.display());
+    assert!(!mbpo_train::checkpoint::dir_for(&a, 300).exists());
     std::fs::remove_dir_all(dir).unwrap();
 }
 

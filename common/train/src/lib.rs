@@ -2,6 +2,7 @@
 //!
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
+//! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
@@ -22,12 +23,14 @@ pub mod mpc;
 pub mod policy_file;
 pub mod progress;
 pub mod roles;
+pub mod run_control;
 pub mod run_dir;
 pub mod sac_trainer;
 pub mod tensorboard;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
-pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo, RunOptions};
+pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};
 pub use mpc::{train_mpc, train_mpc_with};
+pub use run_control::RunOptions;
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, train_sac_with, TrainError};

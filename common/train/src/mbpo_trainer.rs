@@ -26,14 +26,15 @@ use crate::eval::{Evaluator, EvaluatorState};
 use crate::progress::{Display, Progress};
 use crate::roles::checkpoint_kind as kind;
 use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
-use crate::run_dir::{MetricsRow, RunDir, Summary};
+use crate::run_control::RunOptions;
+use crate::run_control::{checkpoint_due, log_stopped, open_run};
+use crate::run_dir::{MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::Batch;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::Path;
 use std::time::Instant;
 
 /// Every role of one MBPO run in one process, called in Algorithm 2's order.
@@ -218,32 +219,6 @@ impl Mbpo {
     }
 }
 
-/// How a single-process run starts and when it stops early.
-#[derive(Debug, Default, Clone, Copy)]
-pub struct RunOptions<'a> {
-    /// Continue from the newest complete checkpoint in the run directory.
-    pub resume: bool,
-    /// Checked after every env step: when set, checkpoint and return (status `stopped`).
-    pub stop: Option<&'a AtomicBool>,
-}
-
-impl RunOptions<'_> {
-    pub(crate) fn stop_requested(&self) -> bool {
-        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
-    }
-}
-
-/// The newest complete checkpoint of `out`, or an error saying there is none.
-pub fn latest_checkpoint(out: &Path) -> Result<(PathBuf, checkpoint::Manifest), TrainError> {
-    checkpoint::latest(out)?.ok_or_else(|| {
-        TrainError::Config(format!(
-            "{} has no complete checkpoint to resume from (looked in {})",
-            out.display(),
-            checkpoint::root(out).display()
-        ))
-    })
-}
-
 /// Run MBPO per `cfg`, writing the run directory `out`; returns the summary.
 pub fn train_mbpo(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
     train_mbpo_with(cfg, out, RunOptions::default())
@@ -258,25 +233,14 @@ pub fn train_mbpo_with(
     let mut mbpo = Mbpo::new(cfg)?;
     let mut evaluator = Evaluator::new(cfg)?;
     let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
-    let (mut run, done) = if opts.resume {
-        let (dir, manifest) = latest_checkpoint(out)?;
-        mbpo.restore_checkpoint(&dir)?;
+    let (mut run, done) = open_run(cfg, out, opts, |dir| {
+        mbpo.restore_checkpoint(dir)?;
         let book: RunBook = checkpoint::read(&dir.join(CHECKPOINT_FILES[4]), EVALUATOR_KIND)?;
         evaluator.restore(book.evaluator);
         step_seconds = book.step_seconds;
         mbpo.last_model_report = book.last_model_report;
-        tracing::info!(
-            "resuming {} from its checkpoint after {} env steps",
-            out.display(),
-            manifest.env_steps
-        );
-        (
-            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
-            manifest.env_steps,
-        )
-    } else {
-        (RunDir::create(out, cfg)?, 0)
-    };
+        Ok(())
+    })?;
     let save = |mbpo: &Mbpo, evaluator: &Evaluator, step_seconds: &[f64], t: u64| {
         let dir = checkpoint::dir_for(out, t);
         mbpo.write_checkpoint(&dir)?;
@@ -305,16 +269,12 @@ pub fn train_mbpo_with(
             progress.set_eval(row.eval_return);
         }
         progress.update(t, mbpo.sac().updates());
-        let stopping = opts.stop_requested() && t < cfg.steps;
-        let every = cfg.checkpoint.every;
-        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+        let stopping = opts.stopping_at(t, cfg.steps);
+        if checkpoint_due(cfg, t, stopping) {
             save(&mbpo, &evaluator, &step_seconds, t)?;
         }
         if stopping {
-            tracing::info!(
-                "stopped after {t} env steps; continue with --resume {}",
-                out.display()
-            );
+            log_stopped(t, out);
             status = "stopped";
             break;
         }

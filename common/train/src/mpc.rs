@@ -18,10 +18,10 @@
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::{ExperimentConfig, PlanReward};
-use crate::mbpo_trainer::{latest_checkpoint, RunOptions};
 use crate::progress::{Display, Progress};
 use crate::roles::{checkpoint_kind, ModelSnapshot, ModelTrainerRole, ModelTrainerState, Schedule};
-use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::run_control::{checkpoint_due, log_stopped, open_run, RunOptions};
+use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
@@ -458,21 +458,10 @@ pub fn train_mpc_with(
         plan_seconds: Vec::with_capacity(cfg.steps as usize),
         last_model_report: None,
     };
-    let (mut run, done) = if opts.resume {
-        let (dir, manifest) = latest_checkpoint(out)?;
-        book = mpc.restore_checkpoint(&dir)?;
-        tracing::info!(
-            "resuming {} from its checkpoint after {} env steps",
-            out.display(),
-            manifest.env_steps
-        );
-        (
-            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
-            manifest.env_steps,
-        )
-    } else {
-        (RunDir::create(out, cfg)?, 0)
-    };
+    let (mut run, done) = open_run(cfg, out, opts, |dir| {
+        book = mpc.restore_checkpoint(dir)?;
+        Ok(())
+    })?;
     // The clock continues from the checkpoint's.
     let started = Instant::now()
         .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
@@ -512,16 +501,12 @@ pub fn train_mpc_with(
         }
         progress.set_model_version(mpc.actor.model_version());
         progress.update(t, mpc.actor.plans());
-        let stopping = opts.stop_requested() && t < cfg.steps;
-        let every = cfg.checkpoint.every;
-        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+        let stopping = opts.stopping_at(t, cfg.steps);
+        if checkpoint_due(cfg, t, stopping) {
             save(&mpc, &mut book, t)?;
         }
         if stopping {
-            tracing::info!(
-                "stopped after {t} env steps; continue with --resume {}",
-                out.display()
-            );
+            log_stopped(t, out);
             status = "stopped";
             break;
         }

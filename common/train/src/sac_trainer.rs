@@ -9,9 +9,9 @@ use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::checkpoint;
 use crate::config::ExperimentConfig;
 use crate::eval::{Evaluator, EvaluatorState};
-use crate::mbpo_trainer::{latest_checkpoint, RunOptions};
 use crate::progress::{Display, Progress};
-use crate::run_dir::{RunDir, Summary};
+use crate::run_control::{checkpoint_due, log_stopped, open_run, RunOptions};
+use crate::run_dir::Summary;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
 use mbpo_sac::{Sac, SacState, SacStats};
@@ -86,8 +86,7 @@ pub fn train_sac_with(
     let mut update_rng = stream(seed, "learner.update", 0);
     let mut evaluator = Evaluator::new(cfg)?;
     let mut stats = SacStats::default();
-    let (mut run, done) = if opts.resume {
-        let (dir, manifest) = latest_checkpoint(out)?;
+    let (mut run, done) = open_run(cfg, out, opts, |dir| {
         let path = dir.join(SAC_CHECKPOINT_FILE);
         let state: SacRunState = checkpoint::read(&path, SAC_CHECKPOINT_KIND)?;
         let bad = |e: String| TrainError::Config(format!("{}: {e}", path.display()));
@@ -97,13 +96,8 @@ pub fn train_sac_with(
             .map_err(|e| bad(e.to_string()))?;
         (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
         evaluator.restore(state.evaluator);
-        (
-            RunDir::reopen_with_config(out, cfg, manifest.env_steps)?,
-            manifest.env_steps,
-        )
-    } else {
-        (RunDir::create(out, cfg)?, 0)
-    };
+        Ok(())
+    })?;
     let label = format!("sac {} s{seed}", cfg.env);
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
 
@@ -135,12 +129,8 @@ pub fn train_sac_with(
         progress.update(t, sac.updates());
 
         // Checkpoint.
-        let stopping = opts
-            .stop
-            .is_some_and(|s| s.load(std::sync::atomic::Ordering::Relaxed))
-            && t < cfg.steps;
-        let every = cfg.checkpoint.every;
-        if t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every)) {
+        let stopping = opts.stopping_at(t, cfg.steps);
+        if checkpoint_due(cfg, t, stopping) {
             let dir = checkpoint::dir_for(out, t);
             std::fs::create_dir_all(&dir)?;
             let state = SacRunState {
@@ -157,10 +147,7 @@ pub fn train_sac_with(
             checkpoint::prune(out, cfg.checkpoint.keep)?;
         }
         if stopping {
-            tracing::info!(
-                "stopped after {t} env steps; continue with --resume {}",
-                out.display()
-            );
+            log_stopped(t, out);
             status = "stopped";
             break;
         }

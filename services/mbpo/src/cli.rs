@@ -166,9 +166,14 @@ pub struct CommonTrainArgs {
     /// Total real env steps (overrides the config's `steps`).
     #[arg(long)]
     pub steps: Option<u64>,
-    /// Run directory (default: runs/<algo>-<env>-s<seed>).
+    /// Run directory (default: runs/<algo>-<env>-s<seed>, or the first free `-2`, `-3`, ...
+    /// after it when that holds an earlier run).
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
+    /// Delete the earlier run in `--out` (checkpoints, logs, results) and start afresh;
+    /// without it, a fresh run into a directory holding a run is refused.
+    #[arg(long, requires = "out")]
+    pub overwrite: bool,
 }
 
 #[derive(Debug, Args)]
@@ -185,7 +190,7 @@ pub struct TrainArgs {
     pub mode: String,
     /// Continue the run in this directory from its newest complete checkpoint, with the
     /// config it was started with (`--steps` may extend it; no other overrides).
-    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["algo", "env", "config", "overrides", "seed", "out"])]
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["algo", "env", "config", "overrides", "seed", "out", "overwrite"])]
     pub resume: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub common: CommonTrainArgs,
@@ -247,7 +252,7 @@ pub enum RestartPolicy {
 pub struct RunArgs {
     /// Continue the pipeline run in this directory from its newest complete checkpoint, with
     /// its config, mode, actors and slack (`--steps` may extend it).
-    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["config", "overrides", "seed", "out"])]
+    #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["config", "overrides", "seed", "out", "overwrite"])]
     pub resume: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub common: CommonTrainArgs,

@@ -37,16 +37,77 @@ pub fn resolve_config(
     Ok(cfg)
 }
 
-/// The run directory: `--out`, or `runs/<algo>-<env>-s<seed>`.
-pub fn run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> PathBuf {
-    common.out.clone().unwrap_or_else(|| {
-        PathBuf::from(format!(
-            "runs/{}-{}-s{}",
-            cfg.algo.name(),
-            cfg.env,
-            cfg.seed
-        ))
-    })
+/// What a run directory holds once a run has started in it.
+const RUN_FILES: [&str; 5] = [
+    "config.toml",
+    "metrics.csv",
+    "summary.json",
+    "policy.ckpt",
+    "checkpoints",
+];
+
+/// Whether `dir` holds (part of) an earlier run.
+fn holds_a_run(dir: &Path) -> bool {
+    RUN_FILES.iter().any(|f| dir.join(f).exists())
+}
+
+/// The directory of a fresh run. The default, `runs/<algo>-<env>-s<seed>`, moves on to the
+/// first free `…-2`, `…-3`, … when it holds an earlier run, so running the same command
+/// twice keeps both runs. An explicit `--out` that holds an earlier run is refused unless
+/// `--overwrite` (which removes that run first): writing over it would replace its results,
+/// and a later `--resume` would take its checkpoints with this run's metrics.
+pub fn fresh_run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> anyhow::Result<PathBuf> {
+    let Some(out) = &common.out else {
+        let base = format!("runs/{}-{}-s{}", cfg.algo.name(), cfg.env, cfg.seed);
+        let dir = (1..)
+            .map(|n| match n {
+                1 => PathBuf::from(&base),
+                n => PathBuf::from(format!("{base}-{n}")),
+            })
+            .find(|d| !holds_a_run(d))
+            .expect("some numbered directory is free");
+        if dir != Path::new(&base) {
+            tracing::info!("{base} holds an earlier run: writing {}", dir.display());
+        }
+        return Ok(dir);
+    };
+    if holds_a_run(out) {
+        if !common.overwrite {
+            let newest = match mbpo_train::checkpoint::latest(out) {
+                Ok(Some((_, m))) => format!(" (newest checkpoint after {} env steps)", m.env_steps),
+                _ => String::new(),
+            };
+            anyhow::bail!(
+                "{} holds an earlier run{newest}; continue it with `--resume {}`, \
+                 pick another --out, or add --overwrite to delete it and start afresh",
+                out.display(),
+                out.display()
+            );
+        }
+        remove_earlier_run(out)?;
+    }
+    Ok(out.clone())
+}
+
+/// Remove what an earlier run wrote into `dir` (only the run's own files and folders; a fresh
+/// run rewrites the rest: its config, metrics and TensorBoard files).
+fn remove_earlier_run(dir: &Path) -> anyhow::Result<()> {
+    for name in ["checkpoints", "logs", "summary.json", "policy.ckpt"] {
+        let path = dir.join(name);
+        let removed = if path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(e).with_context(|| format!("--overwrite: removing {}", path.display()))
+            }
+            _ => {}
+        }
+    }
+    tracing::info!("--overwrite: removed the earlier run in {}", dir.display());
+    Ok(())
 }
 
 /// The config of the run in `dir` being resumed (`mbpo train/run --resume`): its own resolved
@@ -67,7 +128,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone(), true),
         None => {
             let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
-            let out = run_dir(&args.common, &cfg);
+            let out = fresh_run_dir(&args.common, &cfg)?;
             (cfg, out, false)
         }
     };

@@ -30,7 +30,7 @@ use mbpo_wire::{
 };
 
 use crate::cli::{RestartPolicy, RunArgs};
-use crate::train_cmd::{resolve_config, resumed_config, run_dir};
+use crate::train_cmd::{fresh_run_dir, resolve_config, resumed_config};
 use checkpoints::{Barrier, SupervisorCheckpoint};
 use collect::Collector;
 
@@ -170,7 +170,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone()),
         None => {
             let cfg = resolve_config(&args.common, None, None)?;
-            let out = run_dir(&args.common, &cfg);
+            let out = fresh_run_dir(&args.common, &cfg)?;
             (cfg, out)
         }
     };

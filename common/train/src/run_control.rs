@@ -1,0 +1,149 @@
+//! How a single-process run starts (fresh, or from its newest checkpoint) and when it
+//! checkpoints and stops: the scaffolding the SAC, MBPO and MPC trainers share, so all three
+//! resume, checkpoint and stop by the same rules.
+
+use crate::checkpoint;
+use crate::config::ExperimentConfig;
+use crate::run_dir::RunDir;
+use crate::sac_trainer::TrainError;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// How a single-process run starts and when it stops early.
+#[derive(Debug, Default, Clone, Copy)]
+pub struct RunOptions<'a> {
+    /// Continue from the newest complete checkpoint in the run directory.
+    pub resume: bool,
+    /// Checked after every env step: when set, checkpoint and return (status `stopped`).
+    pub stop: Option<&'a AtomicBool>,
+}
+
+impl RunOptions<'_> {
+    /// Whether the run stops after env step `t` of `steps`: a stop was requested and steps
+    /// are left (after the last step the run ends as `completed` anyway).
+    pub(crate) fn stopping_at(&self, t: u64, steps: u64) -> bool {
+        t < steps && self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+    }
+}
+
+/// The newest complete checkpoint of `out`, or an error saying there is none.
+pub fn latest_checkpoint(out: &Path) -> Result<(PathBuf, checkpoint::Manifest), TrainError> {
+    checkpoint::latest(out)?.ok_or_else(|| {
+        TrainError::Config(format!(
+            "{} has no complete checkpoint to resume from (looked in {})",
+            out.display(),
+            checkpoint::root(out).display()
+        ))
+    })
+}
+
+/// Open the run directory `out` of a run of `cfg`, returning it and the env steps already
+/// done: a fresh directory, or (with `opts.resume`) the newest checkpoint handed to `restore`
+/// and the directory reopened after the checkpoint's step.
+///
+/// A checkpoint after more steps than the run has is refused before anything is read: the
+/// run would end at once with a summary that claims `steps` it never stopped at.
+pub(crate) fn open_run(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+    restore: impl FnOnce(&Path) -> Result<(), TrainError>,
+) -> Result<(RunDir, u64), TrainError> {
+    if !opts.resume {
+        return Ok((RunDir::create(out, cfg)?, 0));
+    }
+    let (dir, manifest) = latest_checkpoint(out)?;
+    let done = manifest.env_steps;
+    if done > cfg.steps {
+        return Err(TrainError::Config(format!(
+            "the checkpoint is after step {done}, past the run's {} steps; \
+             give --steps N with N > {done}",
+            cfg.steps
+        )));
+    }
+    restore(&dir)?;
+    tracing::info!(
+        "resuming {} from its checkpoint after {done} env steps",
+        out.display()
+    );
+    Ok((RunDir::reopen_with_config(out, cfg, done)?, done))
+}
+
+/// Whether env step `t` ends with a checkpoint: every `checkpoint.every` steps, after the last
+/// step, and when the run is stopping.
+pub(crate) fn checkpoint_due(cfg: &ExperimentConfig, t: u64, stopping: bool) -> bool {
+    let every = cfg.checkpoint.every;
+    t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every))
+}
+
+/// Log a clean stop after env step `t` and how to continue.
+pub(crate) fn log_stopped(t: u64, out: &Path) {
+    tracing::info!(
+        "stopped after {t} env steps; continue with --resume {}",
+        out.display()
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stop_request_stops_every_step_but_the_last() {
+        let flag = AtomicBool::new(false);
+        let opts = RunOptions {
+            resume: false,
+            stop: Some(&flag),
+        };
+        assert!(!opts.stopping_at(5, 10));
+        flag.store(true, Ordering::Relaxed);
+        assert!(opts.stopping_at(5, 10));
+        assert!(!opts.stopping_at(10, 10));
+        assert!(!RunOptions::default().stopping_at(5, 10));
+    }
+
+    #[test]
+    fn checkpoints_fall_every_n_steps_at_the_end_and_on_stop() {
+        let mut cfg = ExperimentConfig {
+            steps: 25,
+            ..Default::default()
+        };
+        cfg.checkpoint.every = 10;
+        let due: Vec<u64> = (1..=25)
+            .filter(|&t| checkpoint_due(&cfg, t, false))
+            .collect();
+        assert_eq!(due, [10, 20, 25]);
+        assert!(checkpoint_due(&cfg, 7, true));
+        cfg.checkpoint.every = 0;
+        let due: Vec<u64> = (1..=25)
+            .filter(|&t| checkpoint_due(&cfg, t, false))
+            .collect();
+        assert_eq!(due, [25]);
+    }
+
+    #[test]
+    fn resuming_past_the_runs_steps_is_refused_before_restoring() {
+        let out = std::env::temp_dir().join(format!("run-control-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let dir = checkpoint::dir_for(&out, 300);
+        std::fs::create_dir_all(&dir).unwrap();
+        checkpoint::mark_complete(&dir, 300, &[]).unwrap();
+        let cfg = ExperimentConfig {
+            steps: 200,
+            ..Default::default()
+        };
+        let resume = RunOptions {
+            resume: true,
+            stop: None,
+        };
+        let err = open_run(&cfg, &out, resume, |_| panic!("restored"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("after step 300, past the run's 200 steps"),
+            "{err}"
+        );
+        assert!(err.contains("--steps N with N > 300"), "{err}");
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
