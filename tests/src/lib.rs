@@ -9,7 +9,8 @@ use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
-use mbpo_train::{Algo, ExperimentConfig};
+use mbpo_plan::PlannerKind;
+use mbpo_train::{Algo, ExperimentConfig, PlanReward};
 
 /// The packages whose binaries a pipeline run needs.
 pub const PACKAGES: [&str; 5] = [
@@ -65,6 +66,35 @@ pub fn tiny_config(steps: u64) -> ExperimentConfig {
     cfg.model.hidden = vec![32, 32];
     cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
     cfg.model.batch_size = 64;
+    cfg
+}
+
+/// MPC-CEM on Pendulum with a tiny model and planner: warm-up 100, a model every 100 steps,
+/// evaluations at 200, 300, 400 (the eval point 100 is still warm-up).
+pub fn tiny_mpc_config(steps: u64) -> ExperimentConfig {
+    let mut cfg = ExperimentConfig {
+        algo: Algo::Mpc,
+        steps,
+        ..Default::default()
+    };
+    cfg.eval.every = 100;
+    cfg.eval.episodes = 1;
+    cfg.mpc.init_random_steps = 100;
+    cfg.mpc.model_train_freq = 100;
+    cfg.mpc.reward = PlanReward::Known;
+    let p = &mut cfg.mpc.planner;
+    p.kind = PlannerKind::Cem;
+    p.horizon = 8;
+    p.particles = 2;
+    p.cem.candidates = 24;
+    p.cem.elites = 4;
+    p.cem.iterations = 2;
+    cfg.model.members = 2;
+    cfg.model.elites = 2;
+    cfg.model.hidden = vec![16, 16];
+    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
+    cfg.model.batch_size = 32;
+    cfg.model.max_epochs = Some(20);
     cfg
 }
 

@@ -4,39 +4,9 @@
 use std::time::Duration;
 
 use mbpo_integration_tests::*;
-use mbpo_plan::PlannerKind;
-use mbpo_train::{train_mpc, Algo, ExperimentConfig, PlanReward};
+use mbpo_train::{train_mpc, ExperimentConfig};
 
 const TIMEOUT: Duration = Duration::from_secs(180);
-
-/// MPC-CEM on Pendulum with a tiny model and planner: warm-up 100, a model every 100 steps,
-/// evaluations at 200, 300, 400 (the eval point 100 is still warm-up).
-fn tiny_mpc_config(steps: u64) -> ExperimentConfig {
-    let mut cfg = ExperimentConfig {
-        algo: Algo::Mpc,
-        steps,
-        ..Default::default()
-    };
-    cfg.eval.every = 100;
-    cfg.eval.episodes = 1;
-    cfg.mpc.init_random_steps = 100;
-    cfg.mpc.model_train_freq = 100;
-    cfg.mpc.reward = PlanReward::Known;
-    let p = &mut cfg.mpc.planner;
-    p.kind = PlannerKind::Cem;
-    p.horizon = 8;
-    p.particles = 2;
-    p.cem.candidates = 24;
-    p.cem.elites = 4;
-    p.cem.iterations = 2;
-    cfg.model.members = 2;
-    cfg.model.elites = 2;
-    cfg.model.hidden = vec![16, 16];
-    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
-    cfg.model.batch_size = 32;
-    cfg.model.max_epochs = Some(20);
-    cfg
-}
 
 fn run(
     cfg: &ExperimentConfig,

@@ -7,7 +7,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use mbpo_integration_tests::*;
-use mbpo_train::train_mbpo;
+use mbpo_train::{train_mbpo, train_mpc};
 
 const TIMEOUT: Duration = Duration::from_secs(300);
 
@@ -23,6 +23,20 @@ fn checkpoints(run: &Path) -> Vec<u64> {
         .collect();
     steps.sort_unstable();
     steps
+}
+
+/// Steps of the MPC runs here: long enough (about 2 s) to be stopped after a checkpoint.
+const MPC_STEPS: u64 = 1500;
+
+/// The file names in checkpoint `step` of `run`, sorted.
+fn checkpoint_files(run: &Path, step: u64) -> Vec<String> {
+    let dir = mbpo_train::checkpoint::dir_for(run, step);
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
 }
 
 /// `mbpo run --quiet` with `args`, its stderr going to `log` (a pipe nobody reads while the
@@ -138,6 +152,101 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// MPC (planning actors, model trainer, planning evaluator; no learner), lockstep: a SIGINT
+/// stop and a resume change nothing -- the final model and every metrics column but the
+/// timings equal the sequential `train_mpc` run's. On resume the model trainer publishes its
+/// model again (the planners' checkpoints hold none) and waits only for the evaluator's
+/// acknowledgements of eval points after the cut (the earlier ones went with the old processes).
+#[test]
+fn mpc_lockstep_stop_and_resume_equals_the_sequential_run() {
+    let mut cfg = tiny_mpc_config(MPC_STEPS);
+    cfg.checkpoint.every = 150;
+    let dir = scratch("resume-mpc");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("rm");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let seq_dir = dir.join("sequential");
+    let seq = train_mpc(&cfg, &seq_dir).unwrap();
+    let child = start(&input, &run, &root, &["--mode", "lockstep"], &log);
+
+    let (status, err) = stop_after_first_checkpoint(child, &run, &log);
+    assert!(status.success(), "{err}");
+    assert_eq!(summary(&run)["status"], "stopped");
+    let stopped_at = *checkpoints(&run).last().unwrap();
+    assert!(stopped_at < cfg.steps, "stopped at {stopped_at}: too late");
+    let files = checkpoint_files(&run, stopped_at);
+    assert_eq!(
+        files,
+        [
+            "COMPLETE",
+            "actor-0",
+            "evaluator",
+            "model-trainer",
+            "supervisor"
+        ],
+        "an MPC checkpoint has no learner or rollout generator"
+    );
+
+    let (status, err) = resume(&run, &root, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "stopped at {stopped_at} and resumed != uninterrupted (sequential)"
+    );
+    assert_eq!(
+        metrics_without_timing(&run),
+        metrics_without_timing(&seq_dir)
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// MPC, lockstep, `--restart on-failure`: the model trainer is killed after the first
+/// checkpoint; every process restarts from it and the run ends as the sequential one does.
+#[test]
+fn mpc_lockstep_crash_restarts_from_the_checkpoint_and_equals_the_sequential_run() {
+    let mut cfg = tiny_mpc_config(MPC_STEPS);
+    cfg.checkpoint.every = 150;
+    let dir = scratch("crash-mpc");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("cm");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let seq_dir = dir.join("sequential");
+    let seq = train_mpc(&cfg, &seq_dir).unwrap();
+    let mut child = start(
+        &input,
+        &run,
+        &root,
+        &["--mode", "lockstep", "--restart", "on-failure"],
+        &log,
+    );
+    crash_service(&run, "model-trainer", true, &mut child);
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    assert!(
+        err.contains("model-trainer exited with signal: 9")
+            && err.contains("restarting the pipeline from the checkpoint after step"),
+        "{err}"
+    );
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["restarts"], 1, "{s}");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "crashed, restarted from a checkpoint != uninterrupted (sequential)"
+    );
+    assert_eq!(
+        metrics_without_timing(&run),
+        metrics_without_timing(&seq_dir)
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// Pipelined with two actors: SIGINT writes a checkpoint and stops every process; the resumed
 /// run ends with each real transition received exactly once by every consumer, the metrics
 /// rows continue (each eval point once) and the env-step count reaches the total.
@@ -145,18 +254,45 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
 fn pipelined_stop_and_resume_loses_and_duplicates_nothing() {
     let mut cfg = tiny_config(800);
     cfg.checkpoint.every = 300;
-    let dir = scratch("resume-pipelined");
-    let input = write_config(&cfg, &dir);
-    let root = ipc_root("rp");
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0)
+        .collect();
+    let consumers = ["model-trainer", "rollout-generator", "learner"];
+    pipelined_stop_and_resume(&cfg, ("resume-pipelined", "rp"), &[], &consumers, &want);
+}
+
+/// The same for MPC: two planning actors with a model lag, the model trainer the only
+/// consumer, no evaluation while warming up.
+#[test]
+fn mpc_pipelined_stop_and_resume_loses_and_duplicates_nothing() {
+    let mut cfg = tiny_mpc_config(MPC_STEPS);
+    cfg.checkpoint.every = 300;
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0 && *t > cfg.mpc.init_random_steps)
+        .collect();
+    let extra = ["--model-lag", "50"];
+    let name = ("resume-mpc-pipelined", "rmp");
+    pipelined_stop_and_resume(&cfg, name, &extra, &["model-trainer"], &want);
+}
+
+/// Run `cfg` pipelined with two actors (plus `extra` flags; `name`: scratch directory and
+/// iceoryx2 root), stop it after its first checkpoint, resume it; check every transition reached each of `consumers` once and the
+/// metrics rows are exactly the eval points `want`.
+fn pipelined_stop_and_resume(
+    cfg: &mbpo_train::ExperimentConfig,
+    (name, root): (&str, &str),
+    extra: &[&str],
+    consumers: &[&str],
+    want: &[u64],
+) {
+    let dir = scratch(name);
+    let input = write_config(cfg, &dir);
+    let root = ipc_root(root);
     let run = dir.join("run");
     let log = dir.join("stderr.log");
-    let child = start(
-        &input,
-        &run,
-        &root,
-        &["--mode", "pipelined", "--actors", "2"],
-        &log,
-    );
+    let mut args = vec!["--mode", "pipelined", "--actors", "2"];
+    args.extend_from_slice(extra);
+    let child = start(&input, &run, &root, &args, &log);
     let (status, err) = stop_after_first_checkpoint(child, &run, &log);
     assert!(status.success(), "{err}");
     let s = summary(&run);
@@ -171,7 +307,7 @@ fn pipelined_stop_and_resume_loses_and_duplicates_nothing() {
     assert_eq!(s["status"], "completed", "{s}");
     assert_eq!(s["actors"], 2, "the resumed run keeps its actors");
     let real = &s["real_transitions"];
-    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+    for consumer in consumers {
         assert_eq!(
             real["received"][consumer], cfg.steps,
             "{consumer} (stopped at {stopped_at}): {s}"
@@ -179,9 +315,6 @@ fn pipelined_stop_and_resume_loses_and_duplicates_nothing() {
     }
     assert_eq!(real["lost"], 0, "{s}");
     assert_eq!(s["env_steps"], cfg.steps, "{s}");
-    let want: Vec<u64> = (1..=cfg.steps)
-        .filter(|t| t % cfg.eval.every == 0)
-        .collect();
     assert_eq!(metric_steps(&run), want);
     let left = leftovers(s["run_id"].as_str().unwrap(), &root);
     assert!(left.is_empty(), "shared-memory leftovers: {left:?}");

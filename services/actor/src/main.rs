@@ -66,7 +66,11 @@ fn act(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut lag = stats::SlackTracker::default();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
-    let file = barrier::FileTarget::new(&args.run_dir, barrier::actor_file(args.index));
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::actor_file(args.index),
+        barrier::kind::ACTOR,
+    );
     let mut first = 1;
     if let Some(dir) = &args.resume_from {
         let state: ActorCheckpoint = file.read(dir)?;
@@ -204,7 +208,11 @@ fn evaluate(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut version = 0;
     let mut evals = 0;
     let mut after = 0;
-    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::EVALUATOR);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::file::EVALUATOR,
+        barrier::kind::EVALUATOR,
+    );
     if let Some(dir) = &args.resume_from {
         let state: EvaluatorCheckpoint = file.read(dir)?;
         (rng, version, evals, after) = (state.rng, state.version, state.evals, state.env_steps);

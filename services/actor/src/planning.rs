@@ -11,9 +11,16 @@
 //! it copied that version; the model trainer publishes the next version only after the
 //! acknowledgements of every eval point that uses the current one (weights are latest-value, so
 //! this is what keeps a version from being overwritten unseen).
+//!
+//! Checkpoints (`mbpo_service_kit::barrier`): an actor pauses between steps like the SAC actor
+//! and writes its env, streams and the controller's warm start (not the model: a resumed model
+//! trainer publishes its version again). The evaluator writes its streams as they were before
+//! its first eval point after the cut (it may have gone past the cut, see `evaluate`). The
+//! list of states it keeps for that holds one entry per eval point not yet covered by a cut.
 
 use std::time::{Duration, Instant};
 
+use mbpo_service_kit::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
 use mbpo_service_kit::{stats, *};
 use mbpo_train::actor::Behaviour;
 use mbpo_train::mpc::{PlanningActorRole, PlanningEvaluator};
@@ -65,13 +72,53 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     let mut plan_seconds = Vec::new();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::actor_file(args.index),
+        barrier::kind::PLANNING_ACTOR,
+    );
+    let mut first = 1;
+    if let Some(dir) = &args.resume_from {
+        // The model comes again from the model trainer, which republishes its version.
+        let state: PlanningActorCheckpoint = file.read(dir)?;
+        role.restore(state.role)?;
+        first = state.steps + 1;
+    }
+    // At the cut: write the state after `done` local steps, wait for the resume.
+    let write_at = |role: &PlanningActorRole, done: u64, cut| {
+        let state = PlanningActorCheckpoint {
+            role: role.checkpoint(),
+            steps: done,
+        };
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
+    // At a barrier: report the steps done, then as above.
+    let at_barrier = |role: &PlanningActorRole, done: u64| -> anyhow::Result<bool> {
+        match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
+            Some(cut) => write_at(role, done, cut),
+            None => Ok(false),
+        }
+    };
     let started = Instant::now();
     let mut ipc = Duration::ZERO;
-    for t in 1..=steps {
+    for t in first..=steps {
         let g = global_step(t, args.actors, args.index);
-        let behaviour = if schedule.is_warm_up(g) {
-            Behaviour::Uniform
-        } else {
+        let behaviour = loop {
+            control.poll()?;
+            if control.stopped() {
+                tracing::info!("stopped before step {g}");
+                return Ok(());
+            }
+            if control.pause_requested() {
+                if !at_barrier(&role, t - 1)? {
+                    tracing::info!("stopped after the checkpoint, before step {g}");
+                    return Ok(());
+                }
+                continue;
+            }
+            if schedule.is_warm_up(g) {
+                break Behaviour::Uniform;
+            }
             let need = needed_model(&schedule, g, s.slack.model_lag);
             let ok = wait_for(
                 &waiter,
@@ -79,12 +126,15 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
                 &|| format!("model version {need}"),
                 || {
                     pull_model(&model, &d, |snap| Ok(role.set_model(snap)?))?;
-                    Ok(role.model_version() >= need)
+                    Ok(role.model_version() >= need || control.pause_requested())
                 },
             )?;
             if !ok {
                 tracing::info!("stopped before step {g}");
                 return Ok(());
+            }
+            if control.pause_requested() {
+                continue;
             }
             let exact = train_points_upto(&schedule, g);
             if s.mode == Mode::Lockstep {
@@ -95,7 +145,7 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
                 );
             }
             lag.see(exact as f64 - role.model_version() as f64);
-            Behaviour::Policy
+            break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
         let rows = role.act(behaviour)?;
@@ -142,7 +192,9 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         role.plans(),
         median.unwrap_or(0.0) * 1e3
     );
-    wait_for_stop(&waiter, &control)
+    barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
+        write_at(&role, steps, cut)
+    })
 }
 
 pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
@@ -167,20 +219,67 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     let schedule = Schedule::of(cfg);
     let trainer = ProducerId::new(Role::ModelTrainer, 0);
     let mut evals = 0;
-    for t in (1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
+    let mut after = 0;
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::file::EVALUATOR,
+        barrier::kind::PLANNING_EVALUATOR,
+    );
+    if let Some(dir) = &args.resume_from {
+        let state: PlanningEvaluatorCheckpoint = file.read(dir)?;
+        evaluator.restore(state.role);
+        (evals, after) = (state.evals, state.env_steps);
+    }
+    // Unlike a policy version, the model of eval point t can exist before the actors reach t,
+    // so the evaluator may have evaluated points after the cut T by the time it learns T. Its
+    // file must hold the state after T: the state before each evaluation no cut covers yet is
+    // kept, and a cut writes the one before its first eval point after T (those evaluations
+    // are done again on resume, with the same streams).
+    let mut before_eval: Vec<(u64, PlanningEvaluatorCheckpoint)> = Vec::new();
+    let write_at = |before_eval: &mut Vec<(u64, PlanningEvaluatorCheckpoint)>,
+                    now: PlanningEvaluatorCheckpoint,
+                    cut: barrier::Cut| {
+        let mut state = before_eval
+            .iter()
+            .find(|(t, _)| *t > cut.env_steps)
+            .map_or(now, |(_, s)| s.clone());
+        state.env_steps = cut.env_steps;
+        before_eval.retain(|(t, _)| *t > cut.env_steps);
+        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
+    };
+    let state_now = |evaluator: &PlanningEvaluator, evals: u64| PlanningEvaluatorCheckpoint {
+        role: evaluator.checkpoint(),
+        evals,
+        env_steps: 0,
+    };
+    for t in (after + 1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
         let need = train_points_upto(&schedule, t);
-        let ok = wait_for(
-            &waiter,
-            &control,
-            &|| format!("model version {need} to evaluate step {t}"),
-            || {
-                pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
-                Ok(evaluator.model_version() >= need)
-            },
-        )?;
-        if !ok {
-            return Ok(());
+        // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
+        loop {
+            let ok = wait_for(
+                &waiter,
+                &control,
+                &|| format!("model version {need} to evaluate step {t}"),
+                || {
+                    pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
+                    Ok(evaluator.model_version() >= need
+                        || control.cut().is_some_and(|c| c.env_steps < t))
+                },
+            )?;
+            if !ok {
+                return Ok(());
+            }
+            match control.cut() {
+                Some(cut) if cut.env_steps < t => {
+                    let now = state_now(&evaluator, evals);
+                    if !write_at(&mut before_eval, now, cut)? {
+                        return Ok(());
+                    }
+                }
+                _ => break,
+            }
         }
+        before_eval.push((t, state_now(&evaluator, evals)));
         if s.mode == Mode::Lockstep {
             anyhow::ensure!(
                 evaluator.model_version() == need,
@@ -212,5 +311,7 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         }
         .record(),
     )?;
-    wait_for_stop(&waiter, &control)
+    barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
+        write_at(&mut before_eval, state_now(&evaluator, evals), cut)
+    })
 }

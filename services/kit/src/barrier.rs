@@ -21,6 +21,10 @@
 //! 3. The supervisor writes its own file and the `COMPLETE` marker when all files are in.
 //! 4. **Resume** (go on) or **Stop** (a clean stop: SIGINT/SIGTERM).
 //!
+//! An MPC run has no learner or rollout generator: its planning actors and model trainer pause,
+//! and its planning evaluator writes the state it had before its first eval point after T (a
+//! model can exist before the actors reach the step that uses it, so the evaluator may be ahead).
+//!
 //! Lockstep runs are deterministic whatever the cut's timing, so a resumed lockstep run ends
 //! with the same weights as an uninterrupted one (`tests/tests/pipeline_resume.rs`).
 
@@ -29,7 +33,9 @@ use std::path::Path;
 
 use mbpo_core::Rng;
 use mbpo_train::checkpoint;
+use mbpo_train::mpc::{PlanningActorState, PlanningEvaluatorState};
 use mbpo_train::roles::{ActorState, ModelTrainerState, RolloutState};
+use mbpo_train::Algo;
 use mbpo_wire::{ipc, StatsPublisher, Waiter};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
@@ -61,6 +67,10 @@ pub mod kind {
     pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::KIND;
     /// The supervisor's bookkeeping (metrics rows, counters).
     pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor";
+    /// [`super::PlanningActorCheckpoint`] (MPC runs).
+    pub const PLANNING_ACTOR: &str = "mbpo.pipeline.planning-actor";
+    /// [`super::PlanningEvaluatorCheckpoint`] (MPC runs).
+    pub const PLANNING_EVALUATOR: &str = "mbpo.pipeline.planning-evaluator";
 }
 
 /// An actor at the cut.
@@ -101,6 +111,27 @@ pub struct RolloutCheckpoint {
     pub branches: u64,
 }
 
+/// A planning actor (MPC run) at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PlanningActorCheckpoint {
+    /// The role (env episode in progress, streams, the controller's warm start; not the
+    /// model: the model trainer publishes its version again when the run resumes).
+    pub role: PlanningActorState,
+    /// Local steps done.
+    pub steps: u64,
+}
+
+/// The planning evaluator (MPC run) at the cut.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct PlanningEvaluatorCheckpoint {
+    /// The `eval.env` and `eval.plan` streams.
+    pub role: PlanningEvaluatorState,
+    /// Evaluations done.
+    pub evals: u64,
+    /// The cut's env step T (every eval point ≤ T is done, none after it).
+    pub env_steps: u64,
+}
+
 /// The learner at the cut (defined next to its role: `mbpo eval` reads it too).
 pub use mbpo_train::roles::LearnerCheckpoint;
 
@@ -123,32 +154,31 @@ pub fn actor_file(index: u16) -> String {
     format!("actor-{index}")
 }
 
-/// Every file of a checkpoint of an MBPO pipeline with `actors` actors.
-pub fn pipeline_files(actors: u16) -> Vec<String> {
-    let mut f: Vec<String> = [
-        file::LEARNER,
-        file::MODEL_TRAINER,
-        file::ROLLOUT,
-        file::EVALUATOR,
-    ]
-    .into_iter()
-    .map(String::from)
-    .collect();
-    f.extend((0..actors).map(actor_file));
-    f.push(file::SUPERVISOR.into());
+/// Every file of a checkpoint of a pipeline running `algo` with `actors` actors, with its
+/// kind: MBPO has a learner and a rollout generator, MPC planning actors and a planning
+/// evaluator instead.
+pub fn pipeline_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
+    let mpc = algo == Algo::Mpc;
+    let mut f: Vec<(String, &'static str)> = Vec::new();
+    if !mpc {
+        f.push((file::LEARNER.into(), kind::LEARNER));
+        f.push((file::ROLLOUT.into(), kind::ROLLOUT));
+    }
+    f.push((file::MODEL_TRAINER.into(), kind::MODEL_TRAINER));
+    let (evaluator, actor) = match mpc {
+        true => (kind::PLANNING_EVALUATOR, kind::PLANNING_ACTOR),
+        false => (kind::EVALUATOR, kind::ACTOR),
+    };
+    f.push((file::EVALUATOR.into(), evaluator));
+    f.extend((0..actors).map(|i| (actor_file(i), actor)));
+    f.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
     f
 }
 
-/// The checkpoint kind of a file of [`pipeline_files`].
-pub fn kind_of(file_name: &str) -> &'static str {
-    match file_name {
-        file::LEARNER => kind::LEARNER,
-        file::MODEL_TRAINER => kind::MODEL_TRAINER,
-        file::ROLLOUT => kind::ROLLOUT,
-        file::EVALUATOR => kind::EVALUATOR,
-        file::SUPERVISOR => kind::SUPERVISOR,
-        _ => kind::ACTOR,
-    }
+/// The processes that pause at a barrier and report a counter: the actors, the model trainer
+/// and (MBPO) the rollout generator. The learner and evaluator only follow the cut.
+pub fn pausing_processes(algo: Algo, actors: u16) -> usize {
+    actors as usize + if algo == Algo::Mpc { 1 } else { 2 }
 }
 
 /// Report the pause with the process's own counter, then sleep until the cut arrives.
@@ -181,13 +211,12 @@ pub struct FileTarget {
 }
 
 impl FileTarget {
-    /// The file `file` (see [`file`], [`actor_file`]) in checkpoints of `run_dir`.
-    pub fn new(run_dir: &Path, file: impl Into<String>) -> Self {
-        let file = file.into();
+    /// The file `file` (see [`file`], [`actor_file`]) of kind `kind` in checkpoints of `run_dir`.
+    pub fn new(run_dir: &Path, file: impl Into<String>, kind: &'static str) -> Self {
         Self {
             run_dir: run_dir.to_path_buf(),
-            kind: kind_of(&file),
-            file,
+            file: file.into(),
+            kind,
         }
     }
     /// Read this file of the checkpoint directory `dir` (`--resume-from`).

@@ -49,15 +49,34 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut inbox = RealInbox::new(d.rows());
     let mut rows = Batch::default();
     let mut flat = Vec::with_capacity(d.model.len());
-    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::MODEL_TRAINER);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::file::MODEL_TRAINER,
+        barrier::kind::MODEL_TRAINER,
+    );
+    let mpc = cfg.algo == mbpo_train::Algo::Mpc;
+    let mut prev_train_point = 0;
     if let Some(dir) = &args.resume_from {
         let state: ModelTrainerCheckpoint = file.read(dir)?;
         role.restore(state.role)?;
         inbox.resume_at(role.real_received());
-        // No republish: the rollout generator's checkpoint holds this model version too.
+        if mpc && role.version() > 0 {
+            // The planners' checkpoints hold no model: they plan on this version again. (MBPO:
+            // no republish, the rollout generator's checkpoint holds this model version.)
+            d.model.encode(&role.snapshot().weights, &mut flat)?;
+            let counters = WeightsCounters {
+                env_steps: role.real_received(),
+                sac_updates: 0,
+                model_trainings: role.version(),
+            };
+            model_pub.publish(&flat, role.version(), counters)?;
+            // The evaluator acknowledged every eval point ≤ T before the cut (those messages
+            // went with the stopped processes): only later ones are waited for.
+            let last = nth_train_point(cfg, &schedule, role.version());
+            prev_train_point = last.max(role.real_received() + 1);
+        }
     }
     let mut version = role.version();
-    let mut prev_train_point = 0;
     let at_cut = |role: &mut ModelTrainerRole, rows: &Batch, cut: barrier::Cut| {
         role.add_real(rows);
         let state = ModelTrainerCheckpoint {
@@ -96,7 +115,7 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             report.epochs,
             seconds,
         ))?;
-        if cfg.algo == mbpo_train::Algo::Mpc && s.mode == Mode::Lockstep {
+        if mpc && s.mode == Mode::Lockstep {
             if !wait_for_mpc_eval_acks(cfg, &waiter, &control, prev_train_point, t, version)? {
                 return Ok(());
             }
@@ -135,6 +154,14 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         inbox.received()
     );
     gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version))
+}
+
+/// The env step of the `n`-th train point (the one model version `n` was trained at).
+fn nth_train_point(cfg: &mbpo_train::ExperimentConfig, schedule: &Schedule, n: u64) -> u64 {
+    (1..=cfg.steps)
+        .filter(|&t| schedule.train_point(t).is_some())
+        .nth(n.saturating_sub(1) as usize)
+        .unwrap_or(0)
 }
 
 /// MPC lockstep: before model `version` replaces `version − 1` (weights are latest-value), wait

@@ -66,7 +66,11 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     let mut model_version = 0;
     let mut staleness = stats::SlackTracker::default();
     let mut branches = 0;
-    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::ROLLOUT);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::file::ROLLOUT,
+        barrier::kind::ROLLOUT,
+    );
     if let Some(dir) = &args.resume_from {
         let state: RolloutCheckpoint = file.read(dir)?;
         snap.version = state.role.policy_version;

@@ -70,7 +70,11 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     };
     let (mut consumed, mut updates, mut published) = (0u64, 0u64, 0u64);
     let mut model_batches = 0u64;
-    let file = barrier::FileTarget::new(&args.run_dir, barrier::file::LEARNER);
+    let file = barrier::FileTarget::new(
+        &args.run_dir,
+        barrier::file::LEARNER,
+        barrier::kind::LEARNER,
+    );
     if let Some(dir) = &args.resume_from {
         let state: LearnerCheckpoint = file.read(dir)?;
         role.restore(state.role)?;

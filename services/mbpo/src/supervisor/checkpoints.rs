@@ -11,6 +11,7 @@ use mbpo_service_kit::stats::BarrierReport;
 use mbpo_service_kit::{train_points_upto, Mode, Slack};
 use mbpo_train::checkpoint;
 use mbpo_train::roles::Schedule;
+use mbpo_train::Algo;
 use mbpo_wire::{ProducerId, Role};
 use serde::{Deserialize, Serialize};
 
@@ -40,7 +41,10 @@ pub struct Barrier {
     paused: BTreeMap<ProducerId, u64>,
     cut: Option<Cut>,
     written: BTreeSet<ProducerId>,
-    actors: u16,
+    /// Pause reports the cut needs ([`barrier::pausing_processes`]).
+    pausing: usize,
+    /// Files the processes write (every file of the checkpoint but the supervisor's).
+    files: usize,
     /// Warnings logged about a slow barrier.
     pub warnings: u32,
 }
@@ -49,15 +53,16 @@ pub struct Barrier {
 pub const BARRIER_WARN_AFTER: std::time::Duration = std::time::Duration::from_secs(60);
 
 impl Barrier {
-    /// A barrier over a pipeline with `actors` actors.
-    pub fn new(actors: u16, stop_after: bool) -> Self {
+    /// A barrier over a pipeline running `algo` with `actors` actors.
+    pub fn new(algo: Algo, actors: u16, stop_after: bool) -> Self {
         Self {
             started: Instant::now(),
             stop_after,
             paused: BTreeMap::new(),
             cut: None,
             written: BTreeSet::new(),
-            actors,
+            pausing: barrier::pausing_processes(algo, actors),
+            files: barrier::pipeline_files(algo, actors).len() - 1,
             warnings: 0,
         }
     }
@@ -78,11 +83,11 @@ impl Barrier {
         }
     }
 
-    /// The cut, once every actor, the model trainer and the rollout generator paused (and not
-    /// yet sent): T = the actors' steps summed; K = the trainings of the train points ≤ T, or
+    /// The cut, once every actor, the model trainer and the rollout generator (MBPO) paused
+    /// (and not yet sent): T = the actors' steps summed; K = the trainings of the train points ≤ T, or
     /// more if the model trainer or rollout generator had gone further (at most T + 1's).
     pub fn take_cut(&mut self, schedule: &Schedule) -> Option<Cut> {
-        if self.cut.is_some() || self.paused.len() < self.actors as usize + 2 {
+        if self.cut.is_some() || self.paused.len() < self.pausing {
             return None;
         }
         let of = |role: Role| {
@@ -105,7 +110,7 @@ impl Barrier {
 
     /// The cut once every process wrote its file.
     pub fn complete(&self) -> Option<Cut> {
-        (self.written.len() == self.actors as usize + 4)
+        (self.written.len() == self.files)
             .then_some(self.cut)
             .flatten()
     }
@@ -113,16 +118,12 @@ impl Barrier {
     /// What the barrier still waits for (for a warning when it takes long).
     pub fn waiting_for(&self) -> String {
         match self.cut {
-            None => format!(
-                "pause reports: {} of {}",
-                self.paused.len(),
-                self.actors as usize + 2
-            ),
+            None => format!("pause reports: {} of {}", self.paused.len(), self.pausing),
             Some(c) => format!(
                 "checkpoint files of step {}: {} of {}",
                 c.env_steps,
                 self.written.len(),
-                self.actors as usize + 4
+                self.files
             ),
         }
     }
@@ -131,6 +132,7 @@ impl Barrier {
 /// Write the supervisor's file and `COMPLETE`, then keep the newest `keep` checkpoints.
 pub fn finish(
     run: &Path,
+    algo: Algo,
     cut: Cut,
     state: &SupervisorCheckpoint,
     keep: usize,
@@ -141,17 +143,18 @@ pub fn finish(
         barrier::kind::SUPERVISOR,
         state,
     )?;
-    let files = barrier::pipeline_files(state.actors);
-    let names: Vec<&str> = files.iter().map(String::as_str).collect();
+    let files = barrier::pipeline_files(algo, state.actors);
+    let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
     checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
     checkpoint::prune(run, keep)?;
     Ok(())
 }
 
-/// The newest complete checkpoint of `run`, every file checked (header and checksum), and the
-/// supervisor's state in it.
+/// The newest complete checkpoint of `run` (a pipeline running `algo`), every file checked
+/// (header, kind and checksum), and the supervisor's state in it.
 pub fn latest_verified(
     run: &Path,
+    algo: Algo,
 ) -> anyhow::Result<(std::path::PathBuf, u64, SupervisorCheckpoint)> {
     let Some((dir, manifest)) = checkpoint::latest(run)? else {
         anyhow::bail!(
@@ -169,8 +172,8 @@ pub fn latest_verified(
         );
     }
     let state: SupervisorCheckpoint = checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?;
-    for f in barrier::pipeline_files(state.actors) {
-        checkpoint::verify(&dir.join(&f), barrier::kind_of(&f))?;
+    for (name, kind) in barrier::pipeline_files(algo, state.actors) {
+        checkpoint::verify(&dir.join(&name), kind)?;
     }
     Ok((dir, manifest.env_steps, state))
 }

@@ -114,6 +114,10 @@ pub struct CollectorBook {
     last_eval: Option<f64>,
     /// Process restarts.
     pub restarts: u32,
+    /// Evaluations at or before the checkpoint's step whose row was not written yet (MPC,
+    /// pipelined: an actor behind the others had not reached them), as (eval point, return,
+    /// model version). The evaluator's file is after them, so they are not evaluated again.
+    unwritten_evals: Vec<(u64, f64, u64)>,
 }
 
 /// What the supervisor knows about the run.
@@ -160,16 +164,57 @@ impl Collector {
                 best_return: f64::NEG_INFINITY,
                 last_eval: None,
                 restarts: 0,
+                unwritten_evals: Vec::new(),
             },
         }
     }
 
     /// Eval points ≤ `t` whose row is not written yet.
-    pub fn rows_missing_upto(&self, t: u64) -> usize {
+    fn rows_unwritten_upto(&self, t: u64) -> impl Iterator<Item = u64> + '_ {
         self.eval_points[self.book.next_row.min(self.eval_points.len())..]
             .iter()
-            .take_while(|&&p| p <= t)
-            .count()
+            .copied()
+            .take_while(move |&p| p <= t)
+    }
+
+    /// What a checkpoint after step `t` still lacks, counted in eval points ≤ t: MBPO, their
+    /// rows (the learner and evaluator are past t at the cut, so every row ≤ t can be
+    /// written); MPC, their evaluations (a row also waits for every actor to pass its step,
+    /// and pipelined actors can be behind the cut's step: those rows come after the resume).
+    pub fn missing_at_cut(&self, t: u64) -> usize {
+        let unwritten = self.rows_unwritten_upto(t);
+        if self.mpc() {
+            unwritten.filter(|p| !self.evals.contains_key(p)).count()
+        } else {
+            unwritten.count()
+        }
+    }
+
+    /// The book of a checkpoint after step `t` (with its evaluations whose rows are not
+    /// written yet).
+    pub fn book_at(&self, t: u64) -> CollectorBook {
+        let unwritten_evals = self
+            .rows_unwritten_upto(t)
+            .filter_map(|p| {
+                let version = self.learner.get(&p).map_or(0, |r| r.model_version);
+                Some((p, *self.evals.get(&p)?, version))
+            })
+            .collect();
+        CollectorBook {
+            unwritten_evals,
+            ..self.book.clone()
+        }
+    }
+
+    /// Continue from a checkpoint's book.
+    pub fn restore(&mut self, book: CollectorBook) {
+        for &(t, ret, version) in &book.unwritten_evals {
+            self.evals.insert(t, ret);
+            if self.mpc() {
+                self.learner.insert(t, mpc_row(t, version));
+            }
+        }
+        self.book = book;
     }
 
     /// Take one record.
@@ -179,19 +224,8 @@ impl Collector {
             Some(StatsKind::Eval) => {
                 self.evals.insert(r.env_steps, r.value);
                 if self.mpc() {
-                    // The evaluator's model version stands in for the learner's row.
-                    self.learner.insert(
-                        r.env_steps,
-                        LearnerRow {
-                            env_steps: r.env_steps,
-                            sac_updates: 0,
-                            stats: Default::default(),
-                            alpha: f32::NAN,
-                            rollout_length: 0,
-                            model_buffer: 0,
-                            model_version: r.model_version,
-                        },
-                    );
+                    self.learner
+                        .insert(r.env_steps, mpc_row(r.env_steps, r.model_version));
                 }
             }
             Some(StatsKind::Learner) => {
@@ -443,5 +477,19 @@ impl Collector {
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
         }
+    }
+}
+
+/// MPC has no learner: the evaluator's model version of eval point `t` stands in for the
+/// learner's row.
+fn mpc_row(t: u64, model_version: u64) -> LearnerRow {
+    LearnerRow {
+        env_steps: t,
+        sac_updates: 0,
+        stats: Default::default(),
+        alpha: f32::NAN,
+        rollout_length: 0,
+        model_buffer: 0,
+        model_version,
     }
 }

@@ -156,7 +156,8 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     // actors and slack it ran with.
     let resume = match args.resume.clone() {
         Some(dir) => {
-            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir)
+            let algo = resumed_config(&dir, args.common.steps)?.algo;
+            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir, algo)
                 .with_context(|| format!("resuming {}", dir.display()))?;
             args.mode = state.mode;
             args.actors = state.actors;
@@ -344,7 +345,7 @@ fn roll_back(
             RunDir::create(out, cfg).with_context(|| format!("recreating {}", out.display()))?;
         return Ok((dir, None));
     }
-    let (ckpt, env_steps, state) = checkpoints::latest_verified(out)
+    let (ckpt, env_steps, state) = checkpoints::latest_verified(out, cfg.algo)
         .with_context(|| format!("rolling {} back to its newest checkpoint", out.display()))?;
     tracing::warn!(
         "restarting the pipeline from the checkpoint after step {env_steps} ({})",
@@ -450,12 +451,11 @@ fn supervise(
     }
 
     let mut col = Collector::new(cfg, args, run_id);
-    let mpc = cfg.algo == Algo::Mpc;
     let schedule = mbpo_train::roles::Schedule::of(cfg);
     let every = cfg.checkpoint.every;
     let mut next_checkpoint = every;
     if let Some((_, env_steps, state)) = resume {
-        col.book = state.book;
+        col.restore(state.book);
         next_checkpoint = env_steps + every;
     }
     col.book.restarts = restarts.total();
@@ -484,12 +484,12 @@ fn supervise(
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
             mbpo_wire::take_termination_request();
-            let clean = !mpc && !col.all_done(args.actors);
+            let clean = !col.all_done(args.actors);
             match barrier.as_mut() {
                 // First signal: checkpoint, then stop (resumable with --resume).
                 None if clean => {
                     tracing::warn!("stopping: writing a checkpoint first (press Ctrl-C again to stop at once, without one)");
-                    barrier = Some(start_barrier(&control, args.actors, true)?);
+                    barrier = Some(start_barrier(&control, cfg.algo, args.actors, true)?);
                 }
                 Some(b) if !b.stop_after => {
                     tracing::warn!("stopping after the checkpoint under way (press Ctrl-C again to stop at once)");
@@ -555,14 +555,13 @@ fn supervise(
         if col.all_done(args.actors) && final_params.is_some() {
             break;
         }
-        // Periodic checkpoints (`[checkpoint] every` env steps; MPC runs have none yet).
+        // Periodic checkpoints (`[checkpoint] every` env steps).
         if barrier.is_none()
-            && !mpc
             && every > 0
             && col.env_steps() >= next_checkpoint
             && !col.all_done(args.actors)
         {
-            barrier = Some(start_barrier(&control, args.actors, false)?);
+            barrier = Some(start_barrier(&control, cfg.algo, args.actors, false)?);
         }
         if let Some(b) = barrier.as_mut() {
             if let Some(cut) = b.take_cut(&schedule) {
@@ -580,20 +579,20 @@ fn supervise(
             }
             if let Some(cut) = b.complete() {
                 col.write_rows(run_dir, started)?;
-                let missing = col.rows_missing_upto(cut.env_steps);
+                let missing = col.missing_at_cut(cut.env_steps);
                 anyhow::ensure!(
                     missing == 0,
-                    "checkpoint after step {}: {missing} metrics row(s) up to it are not in",
+                    "checkpoint after step {}: the records of {missing} eval point(s) up to it are not in",
                     cut.env_steps
                 );
                 let state = SupervisorCheckpoint {
                     mode: args.mode,
                     actors: args.actors,
                     slack: args.slack,
-                    book: col.book.clone(),
+                    book: col.book_at(cut.env_steps),
                     elapsed_seconds: started.elapsed().as_secs_f64(),
                 };
-                checkpoints::finish(out, cut, &state, cfg.checkpoint.keep)?;
+                checkpoints::finish(out, cfg.algo, cut, &state, cfg.checkpoint.keep)?;
                 tracing::info!(
                     "checkpoint after step {} complete ({:.2} s barrier): {}",
                     cut.env_steps,
@@ -720,6 +719,7 @@ fn supervise(
 /// Broadcast the Pause that starts a checkpoint barrier.
 fn start_barrier(
     control: &ControlPublisher<ipc::Service>,
+    algo: Algo,
     actors: u16,
     stop_after: bool,
 ) -> anyhow::Result<Barrier> {
@@ -729,5 +729,5 @@ fn start_barrier(
         CONTROL_TARGET_ALL,
         0,
     ))?;
-    Ok(Barrier::new(actors, stop_after))
+    Ok(Barrier::new(algo, actors, stop_after))
 }
