@@ -107,7 +107,7 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(
         err.contains(&format!(
-            "the checkpoint is after step {end}, past the run's {} steps; give --steps N with N > {end}",
+            "the checkpoint is after step {end}, past the run's {} steps; give --steps N with N >= {end}",
             end - 10
         )),
         "{err}"
@@ -228,7 +228,9 @@ fn a_fresh_run_never_writes_over_an_earlier_one() {
         metrics
     );
 
-    // --overwrite replaces it: none of the earlier run's checkpoints survive.
+    // --overwrite replaces it: none of the earlier run's checkpoints survive (a file of the
+    // user's in the directory does).
+    std::fs::write(a.join("notes.txt"), "mine").unwrap();
     let out = tiny_train(
         &dir,
         250,
@@ -243,6 +245,16 @@ fn a_fresh_run_never_writes_over_an_earlier_one() {
     let (newest, manifest) = mbpo_train::checkpoint::latest(&a).unwrap().unwrap();
     assert_eq!(manifest.env_steps, 250, "{}", newest.display());
     assert!(!mbpo_train::checkpoint::dir_for(&a, 300).exists());
+    assert_eq!(
+        std::fs::read_to_string(a.join("notes.txt")).unwrap(),
+        "mine"
+    );
+
+    // --out naming a file is refused before anything runs.
+    let out = tiny_train(&dir, 250, &["--out", "runs/mbpo-Pendulum-v1-s0/notes.txt"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("notes.txt is a file"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
 

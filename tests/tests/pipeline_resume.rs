@@ -275,6 +275,47 @@ fn mpc_pipelined_stop_and_resume_loses_and_duplicates_nothing() {
     pipelined_stop_and_resume(&cfg, name, &extra, &["model-trainer"], &want);
 }
 
+/// MPC pipelined with two planning actors and `--restart on-failure`: the model trainer is
+/// killed after the first periodic checkpoint; every eval point ends with exactly one row.
+/// (Whether the checkpoint held rows as unwritten, an actor being behind the cut's step,
+/// depends on timing; `CollectorBook::rows_upto` is unit-tested for that case.)
+#[test]
+fn mpc_pipelined_crash_restarts_without_duplicate_rows() {
+    let mut cfg = tiny_mpc_config(MPC_STEPS);
+    cfg.checkpoint.every = 200;
+    let dir = scratch("crash-mpc-pipelined");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("cmp");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let args = [
+        "--mode",
+        "pipelined",
+        "--actors",
+        "2",
+        "--model-lag",
+        "50",
+        "--restart",
+        "on-failure",
+    ];
+    let mut child = start(&input, &run, &root, &args, &log);
+    crash_service(&run, "model-trainer", true, &mut child);
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["restarts"], 1, "{s}");
+    assert_eq!(
+        s["real_transitions"]["received"]["model-trainer"], cfg.steps,
+        "{s}"
+    );
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0 && *t > cfg.mpc.init_random_steps)
+        .collect();
+    assert_eq!(metric_steps(&run), want);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// Run `cfg` pipelined with two actors (plus `extra` flags; `name`: scratch directory and
 /// iceoryx2 root), stop it after its first checkpoint, resume it; check every transition reached each of `consumers` once and the
 /// metrics rows are exactly the eval points `want`.

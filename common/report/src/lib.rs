@@ -84,17 +84,21 @@ pub fn read_curve(run: &Path, column: &str) -> Result<Curve, PlotError> {
     })
 }
 
-/// The group a run belongs to: its directory name without a trailing `-s<seed>`.
+/// The group a run belongs to: its directory name without a trailing `-s<seed>` or
+/// `-s<seed>-<n>` (the n-th run of that seed in the same place, see `mbpo train --out`).
 pub fn group_name(run: &Path) -> String {
     let name = run
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| run.display().to_string());
+    let number = |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_digit());
     match name.rsplit_once("-s") {
-        Some((head, seed)) if !seed.is_empty() && seed.chars().all(|c| c.is_ascii_digit()) => {
-            head.to_string()
-        }
-        _ => name,
+        Some((head, tail)) => match tail.split_once('-') {
+            None if number(tail) => head.to_string(),
+            Some((seed, n)) if number(seed) && number(n) => head.to_string(),
+            _ => name,
+        },
+        None => name,
     }
 }
 
@@ -583,6 +587,12 @@ mod tests {
         );
         assert_eq!(group_name(Path::new("runs/my-sweep")), "my-sweep");
         assert_eq!(group_name(Path::new("runs/a-s")), "a-s");
+        // The second run of seed 3 in the default place groups with the first.
+        assert_eq!(
+            group_name(Path::new("runs/mbpo-Pendulum-v1-s3-2")),
+            "mbpo-Pendulum-v1"
+        );
+        assert_eq!(group_name(Path::new("runs/a-s3-x")), "a-s3-x");
     }
 
     #[test]

@@ -57,7 +57,7 @@ pub(crate) fn open_run(
     if done > cfg.steps {
         return Err(TrainError::Config(format!(
             "the checkpoint is after step {done}, past the run's {} steps; \
-             give --steps N with N > {done}",
+             give --steps N with N >= {done}",
             cfg.steps
         )));
     }
@@ -92,8 +92,8 @@ mod tests {
     fn a_stop_request_stops_every_step_but_the_last() {
         let flag = AtomicBool::new(false);
         let opts = RunOptions {
-            resume: false,
             stop: Some(&flag),
+            ..Default::default()
         };
         assert!(!opts.stopping_at(5, 10));
         flag.store(true, Ordering::Relaxed);
@@ -134,7 +134,7 @@ mod tests {
         };
         let resume = RunOptions {
             resume: true,
-            stop: None,
+            ..Default::default()
         };
         let err = open_run(&cfg, &out, resume, |_| panic!("restored"))
             .unwrap_err()
@@ -143,7 +143,7 @@ mod tests {
             err.contains("after step 300, past the run's 200 steps"),
             "{err}"
         );
-        assert!(err.contains("--steps N with N > 300"), "{err}");
+        assert!(err.contains("--steps N with N >= 300"), "{err}");
         std::fs::remove_dir_all(&out).unwrap();
     }
 }

@@ -219,6 +219,55 @@ fn remove_event_files(dir: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
+/// Whether `dir` holds what a run wrote: a `metrics.csv` of ours (its header starts with
+/// `env_steps,`) or a complete checkpoint. A directory that merely has a `config.toml` or a
+/// `logs/` folder (a project directory, say) does not count.
+pub fn holds_a_run(dir: &Path) -> bool {
+    let ours = std::fs::read_to_string(dir.join("metrics.csv"))
+        .is_ok_and(|text| text.starts_with("env_steps,"));
+    ours || crate::checkpoint::latest(dir).is_ok_and(|c| c.is_some())
+}
+
+/// Remove what an earlier run wrote into `dir` and a fresh run would not overwrite: its
+/// checkpoint directories, its `logs/*.log`, `summary.json` and `policy.ckpt` (nothing else:
+/// `--overwrite` must not take a user's files with it). `config.toml`, `metrics.csv` and the
+/// TensorBoard files are replaced by [`RunDir::create`].
+pub fn remove_earlier_run(dir: &Path) -> std::io::Result<()> {
+    let not_found_ok = |r: std::io::Result<()>| match r {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e),
+        _ => Ok(()),
+    };
+    let checkpoints = crate::checkpoint::root(dir);
+    if let Ok(entries) = std::fs::read_dir(&checkpoints) {
+        for entry in entries {
+            let path = entry?.path();
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            let is_checkpoint =
+                name.is_some_and(|n| n.len() == 10 && n.bytes().all(|b| b.is_ascii_digit()));
+            if is_checkpoint && path.is_dir() {
+                std::fs::remove_dir_all(&path)?;
+            }
+        }
+        let _ = std::fs::remove_dir(&checkpoints); // only when empty
+    }
+    let logs = dir.join("logs");
+    if let Ok(entries) = std::fs::read_dir(&logs) {
+        for entry in entries {
+            let path = entry?.path();
+            if path.extension().is_some_and(|e| e == "log") && path.is_file() {
+                std::fs::remove_file(&path)?;
+            }
+        }
+        let _ = std::fs::remove_dir(&logs); // only when empty
+    }
+    not_found_ok(std::fs::remove_file(dir.join("summary.json")))?;
+    not_found_ok(std::fs::remove_file(
+        dir.join(crate::policy_file::FINAL_POLICY_FILE),
+    ))?;
+    tracing::info!("--overwrite: removed the earlier run in {}", dir.display());
+    Ok(())
+}
+
 /// An open run directory.
 #[derive(Debug)]
 pub struct RunDir {
@@ -389,6 +438,40 @@ pub fn read_eval_curve(path: &Path) -> std::io::Result<Vec<(u64, f64)>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn overwrite_removes_only_what_a_run_wrote() {
+        let dir = std::env::temp_dir().join(format!("run-dir-overwrite-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        // A project directory with a config.toml and a logs/ folder is not a run.
+        std::fs::create_dir_all(dir.join("logs")).unwrap();
+        std::fs::write(dir.join("config.toml"), "steps = 1\n").unwrap();
+        std::fs::write(dir.join("logs/notes.txt"), "mine").unwrap();
+        assert!(!holds_a_run(&dir));
+
+        let run = RunDir::create(&dir, &ExperimentConfig::default()).unwrap();
+        drop(run);
+        assert!(holds_a_run(&dir), "our metrics.csv makes it a run");
+        let ckpt = crate::checkpoint::dir_for(&dir, 500);
+        std::fs::create_dir_all(&ckpt).unwrap();
+        crate::checkpoint::mark_complete(&ckpt, 500, &[]).unwrap();
+        std::fs::write(crate::checkpoint::root(&dir).join("README"), "mine").unwrap();
+        std::fs::write(dir.join("logs/train.log"), "old log").unwrap();
+        std::fs::write(dir.join("summary.json"), "{}").unwrap();
+        std::fs::write(dir.join(crate::policy_file::FINAL_POLICY_FILE), "old").unwrap();
+
+        remove_earlier_run(&dir).unwrap();
+        assert!(!ckpt.exists() && !dir.join("logs/train.log").exists());
+        assert!(!dir.join("summary.json").exists());
+        assert!(!dir.join(crate::policy_file::FINAL_POLICY_FILE).exists());
+        for kept in ["logs/notes.txt", "checkpoints/README", "config.toml"] {
+            assert!(
+                dir.join(kept).is_file(),
+                "{kept} is not the run's to remove"
+            );
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn sha_of_params_is_stable_and_sensitive() {

@@ -65,8 +65,9 @@ pub mod kind {
     pub const ROLLOUT: &str = "mbpo.pipeline.rollout-generator";
     /// [`super::LearnerCheckpoint`].
     pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::KIND;
-    /// The supervisor's bookkeeping (metrics rows, counters).
-    pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor";
+    /// The supervisor's bookkeeping (metrics rows, counters). Version 2 keeps the evaluations
+    /// whose rows are not written yet; a version-1 file is refused by its kind.
+    pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor.2";
     /// [`super::PlanningActorCheckpoint`] (MPC runs).
     pub const PLANNING_ACTOR: &str = "mbpo.pipeline.planning-actor";
     /// [`super::PlanningEvaluatorCheckpoint`] (MPC runs).
@@ -473,5 +474,49 @@ where
             pause_counter,
             |cut| self.serve_cut(inbox, rows, role, cut),
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn checkpoint_files_and_pausing_processes_follow_the_algorithm() {
+        let names = |algo, actors| -> Vec<String> {
+            pipeline_files(algo, actors)
+                .into_iter()
+                .map(|(n, _)| n)
+                .collect()
+        };
+        assert_eq!(
+            names(Algo::Mbpo, 2),
+            [
+                "learner",
+                "rollout-generator",
+                "model-trainer",
+                "evaluator",
+                "actor-0",
+                "actor-1",
+                "supervisor"
+            ]
+        );
+        assert_eq!(
+            names(Algo::Mpc, 1),
+            ["model-trainer", "evaluator", "actor-0", "supervisor"]
+        );
+        let kind_of = |algo, name: &str| {
+            pipeline_files(algo, 1)
+                .into_iter()
+                .find(|(n, _)| n == name)
+                .unwrap()
+                .1
+        };
+        assert_eq!(kind_of(Algo::Mpc, "actor-0"), kind::PLANNING_ACTOR);
+        assert_eq!(kind_of(Algo::Mpc, "evaluator"), kind::PLANNING_EVALUATOR);
+        assert_eq!(kind_of(Algo::Mbpo, "actor-0"), kind::ACTOR);
+        assert_eq!(kind_of(Algo::Mbpo, "evaluator"), kind::EVALUATOR);
+        assert_eq!(pausing_processes(Algo::Mbpo, 3), 5);
+        assert_eq!(pausing_processes(Algo::Mpc, 3), 4);
     }
 }

@@ -2,6 +2,7 @@
 
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
+use mbpo_train::run_dir::holds_a_run;
 use mbpo_train::{
     train_mbpo_with, train_mpc_with, train_sac_with, Algo, ExperimentConfig, RunOptions, Summary,
     TrainError,
@@ -37,77 +38,81 @@ pub fn resolve_config(
     Ok(cfg)
 }
 
-/// What a run directory holds once a run has started in it.
-const RUN_FILES: [&str; 5] = [
-    "config.toml",
-    "metrics.csv",
-    "summary.json",
-    "policy.ckpt",
-    "checkpoints",
-];
-
-/// Whether `dir` holds (part of) an earlier run.
-fn holds_a_run(dir: &Path) -> bool {
-    RUN_FILES.iter().any(|f| dir.join(f).exists())
-}
-
 /// The directory of a fresh run. The default, `runs/<algo>-<env>-s<seed>`, moves on to the
 /// first free `…-2`, `…-3`, … when it holds an earlier run, so running the same command
-/// twice keeps both runs. An explicit `--out` that holds an earlier run is refused unless
-/// `--overwrite` (which removes that run first): writing over it would replace its results,
-/// and a later `--resume` would take its checkpoints with this run's metrics.
+/// twice keeps both runs (a new directory is claimed with `create_dir`, so two runs started
+/// at once do not pick the same one). An explicit `--out` that holds an earlier run is refused
+/// unless `--overwrite` ([`overwrite_earlier_run`] removes it once the run is known to be able
+/// to start): writing over it would replace its results, and a later `--resume` would take its
+/// checkpoints with this run's metrics.
 pub fn fresh_run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> anyhow::Result<PathBuf> {
     let Some(out) = &common.out else {
         let base = format!("runs/{}-{}-s{}", cfg.algo.name(), cfg.env, cfg.seed);
-        let dir = (1..)
-            .map(|n| match n {
+        for n in 1.. {
+            let dir = match n {
                 1 => PathBuf::from(&base),
                 n => PathBuf::from(format!("{base}-{n}")),
-            })
-            .find(|d| !holds_a_run(d))
-            .expect("some numbered directory is free");
-        if dir != Path::new(&base) {
-            tracing::info!("{base} holds an earlier run: writing {}", dir.display());
-        }
-        return Ok(dir);
-    };
-    if holds_a_run(out) {
-        if !common.overwrite {
-            let newest = match mbpo_train::checkpoint::latest(out) {
-                Ok(Some((_, m))) => format!(" (newest checkpoint after {} env steps)", m.env_steps),
-                _ => String::new(),
             };
-            anyhow::bail!(
-                "{} holds an earlier run{newest}; continue it with `--resume {}`, \
-                 pick another --out, or add --overwrite to delete it and start afresh",
-                out.display(),
-                out.display()
-            );
+            if holds_a_run(&dir) {
+                continue;
+            }
+            std::fs::create_dir_all("runs").context("creating runs/")?;
+            match std::fs::create_dir(&dir) {
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && holds_a_run(&dir) => {
+                    continue; // claimed by a run started just now
+                }
+                Err(e) if e.kind() != std::io::ErrorKind::AlreadyExists => {
+                    return Err(e).with_context(|| format!("creating {}", dir.display()));
+                }
+                _ => {}
+            }
+            if n > 1 {
+                tracing::info!("{base} holds an earlier run: writing {}", dir.display());
+            }
+            return Ok(dir);
         }
-        remove_earlier_run(out)?;
+        unreachable!("some numbered run directory is free");
+    };
+    if out.is_file() {
+        anyhow::bail!(
+            "--out {} is a file; a run writes a directory (pick another --out)",
+            out.display()
+        );
+    }
+    if holds_a_run(out) && !common.overwrite {
+        let newest = match mbpo_train::checkpoint::latest(out) {
+            Ok(Some((_, m))) => format!(" (newest checkpoint after {} env steps)", m.env_steps),
+            _ => String::new(),
+        };
+        anyhow::bail!(
+            "{} holds an earlier run{newest}; continue it with `--resume {}`, \
+             pick another --out, or add --overwrite to delete it and start afresh",
+            out.display(),
+            out.display()
+        );
     }
     Ok(out.clone())
 }
 
-/// Remove what an earlier run wrote into `dir` (only the run's own files and folders; a fresh
-/// run rewrites the rest: its config, metrics and TensorBoard files).
-fn remove_earlier_run(dir: &Path) -> anyhow::Result<()> {
-    for name in ["checkpoints", "logs", "summary.json", "policy.ckpt"] {
-        let path = dir.join(name);
-        let removed = if path.is_dir() {
-            std::fs::remove_dir_all(&path)
-        } else {
-            std::fs::remove_file(&path)
-        };
-        match removed {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(e).with_context(|| format!("--overwrite: removing {}", path.display()))
-            }
-            _ => {}
-        }
+/// `--overwrite`: remove the earlier run in `out` (only the files a run writes), after checking
+/// what could still keep the new run from starting -- its environment can be built (a MuJoCo
+/// task needs `deploy/setup_mujoco.sh`) -- so a run that fails at once leaves the old one whole.
+pub fn overwrite_earlier_run(
+    common: &CommonTrainArgs,
+    cfg: &ExperimentConfig,
+    out: &Path,
+) -> anyhow::Result<()> {
+    if !common.overwrite || !holds_a_run(out) {
+        return Ok(());
     }
-    tracing::info!("--overwrite: removed the earlier run in {}", dir.display());
-    Ok(())
+    mbpo_envs::make(&cfg.env).with_context(|| {
+        format!(
+            "--overwrite: {} is kept, the new run could not start",
+            out.display()
+        )
+    })?;
+    mbpo_train::run_dir::remove_earlier_run(out)
+        .with_context(|| format!("--overwrite: removing the earlier run in {}", out.display()))
 }
 
 /// The config of the run in `dir` being resumed (`mbpo train/run --resume`): its own resolved
@@ -129,6 +134,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         None => {
             let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
             let out = fresh_run_dir(&args.common, &cfg)?;
+            overwrite_earlier_run(&args.common, &cfg, &out)?;
             (cfg, out, false)
         }
     };

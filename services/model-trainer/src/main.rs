@@ -157,10 +157,14 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
 }
 
 /// The env step of the `n`-th train point (the one model version `n` was trained at).
+/// (0 when there is none: n = 0, or past the run's last train point.)
 fn nth_train_point(cfg: &mbpo_train::ExperimentConfig, schedule: &Schedule, n: u64) -> u64 {
+    let Some(index) = n.checked_sub(1) else {
+        return 0;
+    };
     (1..=cfg.steps)
         .filter(|&t| schedule.train_point(t).is_some())
-        .nth(n.saturating_sub(1) as usize)
+        .nth(index as usize)
         .unwrap_or(0)
 }
 
@@ -189,4 +193,32 @@ fn wait_for_mpc_eval_acks(
         pending.retain(|&e| !control.take_ack(e));
         Ok(pending.is_empty())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_nth_train_point_is_where_model_version_n_was_trained() {
+        let mut cfg = mbpo_train::ExperimentConfig {
+            algo: mbpo_train::Algo::Mpc,
+            steps: 1000,
+            ..Default::default()
+        };
+        cfg.mpc.init_random_steps = 100;
+        cfg.mpc.model_train_freq = 250;
+        let schedule = Schedule::of(&cfg);
+        let points: Vec<u64> = (1..=4)
+            .map(|n| nth_train_point(&cfg, &schedule, n))
+            .collect();
+        // The first model right after the warm-up, then one every 250 steps.
+        assert_eq!(points, [101, 351, 601, 851]);
+        assert_eq!(
+            nth_train_point(&cfg, &schedule, 0),
+            0,
+            "no model: no train point"
+        );
+        assert_eq!(nth_train_point(&cfg, &schedule, 99), 0, "past the last one");
+    }
 }

@@ -99,8 +99,9 @@ pub struct PipelineSummary {
     pub ipc_leftovers: Vec<String>,
 }
 
-/// The collector's bookkeeping at a checkpoint (every row ≤ T is written by then), so a
-/// resumed run continues its rows, episode count, best return and clock.
+/// The collector's bookkeeping at a checkpoint (every row ≤ T is written by then, or its
+/// evaluation kept in `unwritten_evals`), so a resumed run continues its rows, episode count,
+/// best return and clock.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CollectorBook {
     next_row: usize,
@@ -118,6 +119,17 @@ pub struct CollectorBook {
     /// pipelined: an actor behind the others had not reached them), as (eval point, return,
     /// model version). The evaluator's file is after them, so they are not evaluated again.
     unwritten_evals: Vec<(u64, f64, u64)>,
+}
+
+impl CollectorBook {
+    /// The metrics rows a run resumed from this book keeps: those up to the checkpoint's step
+    /// `env_steps`, except the ones of its unwritten evaluations (written after the checkpoint
+    /// by the attempt being abandoned; the book writes them again).
+    pub fn rows_upto(&self, env_steps: u64) -> u64 {
+        self.unwritten_evals
+            .first()
+            .map_or(env_steps, |&(t, _, _)| t - 1)
+    }
 }
 
 /// What the supervisor knows about the run.
@@ -491,5 +503,35 @@ fn mpc_row(t: u64, model_version: u64) -> LearnerRow {
         rollout_length: 0,
         model_buffer: 0,
         model_version,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn book(unwritten_evals: Vec<(u64, f64, u64)>) -> CollectorBook {
+        CollectorBook {
+            next_row: 8,
+            episodes: Vec::new(),
+            models: BTreeMap::new(),
+            progress: (0, 0, 0),
+            last_row: (0.0, 0),
+            last_row_updates: 0,
+            final_return: f64::NAN,
+            best_return: f64::NEG_INFINITY,
+            last_eval: None,
+            restarts: 0,
+            unwritten_evals,
+        }
+    }
+
+    #[test]
+    fn a_resume_keeps_the_rows_before_the_first_unwritten_evaluation() {
+        assert_eq!(book(Vec::new()).rows_upto(913), 913);
+        // Rows 900 and later were written after the checkpoint by the abandoned attempt (or
+        // not at all): the resumed run writes them from the book.
+        let held = book(vec![(900, -1133.3, 9), (1000, -1200.0, 10)]);
+        assert_eq!(held.rows_upto(1013), 899);
     }
 }

@@ -30,7 +30,7 @@ use mbpo_wire::{
 };
 
 use crate::cli::{RestartPolicy, RunArgs};
-use crate::train_cmd::{fresh_run_dir, resolve_config, resumed_config};
+use crate::train_cmd::{fresh_run_dir, overwrite_earlier_run, resolve_config, resumed_config};
 use checkpoints::{Barrier, SupervisorCheckpoint};
 use collect::Collector;
 
@@ -185,17 +185,20 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         bail!("--actors must be at least 1");
     }
     let mut run_dir = match &resume {
-        Some((_, env_steps, _)) => {
-            if *env_steps > cfg.steps {
+        Some((_, env_steps, state)) => {
+            // (At N = T there is nothing left to run: every process would only wait for the
+            // others' last records, which an MPC run's processes already sent before the cut.)
+            if *env_steps >= cfg.steps {
                 bail!(
-                    "the checkpoint is after step {env_steps}, past the run's {} steps; give --steps N with N > {env_steps}",
+                    "the checkpoint is after step {env_steps}, and the run has {} steps; give --steps N with N > {env_steps}",
                     cfg.steps
                 );
             }
-            RunDir::reopen_with_config(&out, &cfg, *env_steps)
+            RunDir::reopen_with_config(&out, &cfg, state.book.rows_upto(*env_steps))
                 .with_context(|| format!("reopening {}", out.display()))?
         }
         None => {
+            overwrite_earlier_run(&args.common, &cfg, &out)?;
             RunDir::create(&out, &cfg).with_context(|| format!("creating {}", out.display()))?
         }
     };
@@ -351,7 +354,7 @@ fn roll_back(
         "restarting the pipeline from the checkpoint after step {env_steps} ({})",
         ckpt.display()
     );
-    let dir = RunDir::reopen_with_config(out, cfg, env_steps)
+    let dir = RunDir::reopen_with_config(out, cfg, state.book.rows_upto(env_steps))
         .with_context(|| format!("reopening {}", out.display()))?;
     Ok((dir, Some((ckpt, env_steps, state))))
 }
