@@ -295,6 +295,18 @@ fn learning_bench_continues_and_reuses_its_runs() {
         log.contains("continuing from its newest checkpoint"),
         "{log}"
     );
+    // Each seed logs into its run's directory, across the two invocations.
+    let seed_log = std::fs::read_to_string(run(&split).join("logs/train.log")).unwrap();
+    for line in [
+        "seed 0: step 200 eval",
+        "continuing from its newest checkpoint",
+        "seed 0: step 500 eval",
+    ] {
+        assert!(
+            seed_log.contains(line),
+            "{line:?} not in the seed's log:\n{seed_log}"
+        );
+    }
     let metrics = std::fs::read_to_string(run(&split).join("metrics.csv")).unwrap();
     let steps: Vec<&str> = metrics
         .lines()
@@ -347,4 +359,29 @@ fn learning_bench_continues_and_reuses_its_runs() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+}
+
+/// Seeds of `mbpo bench learning` run on their own threads, each logging into its own run's
+/// `logs/train.log`, not into another seed's.
+#[test]
+fn learning_bench_logs_each_seed_into_its_run() {
+    let dir = scratch("cli-bench-logs");
+    let out = mbpo()
+        .args(["bench", "learning", "--config"])
+        .arg(config_file())
+        .args(["--seeds", "2", "--threads", "2", "--steps", "300", "--out"])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    for (seed, other) in [(0, 1), (1, 0)] {
+        let log = dir.join(format!("runs/mbpo-Pendulum-v1-s{seed}/logs/train.log"));
+        let text = std::fs::read_to_string(&log).unwrap();
+        assert!(
+            text.contains(&format!("seed {seed}: step 200 eval")),
+            "{text}"
+        );
+        assert!(!text.contains(&format!("seed {other}:")), "{text}");
+    }
+    std::fs::remove_dir_all(dir).unwrap();
 }

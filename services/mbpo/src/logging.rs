@@ -4,7 +4,10 @@
 //!
 //! The log file is attached after logging starts because the run directory is only known
 //! once the config is resolved; events before that (argument errors) go to stderr only.
+//! `mbpo bench learning` runs several seeds in one process, on their own threads: each seed's
+//! thread logs into its own run's file ([`thread_also_to_file`]).
 
+use std::cell::RefCell;
 use std::fs::File;
 use std::io::{IsTerminal, Write};
 use std::path::Path;
@@ -16,6 +19,11 @@ use tracing_subscriber::{fmt, EnvFilter};
 
 /// The run's log file, once attached.
 static LOG_FILE: Mutex<Option<File>> = Mutex::new(None);
+
+thread_local! {
+    /// This thread's own log file, in place of the process's (one seed of a benchmark).
+    static THREAD_LOG: RefCell<Option<File>> = const { RefCell::new(None) };
+}
 
 /// stderr, written with the progress bars cleared so a line never lands inside a bar.
 struct Stderr;
@@ -31,12 +39,16 @@ impl Write for Stderr {
     }
 }
 
-/// The attached log file (unbuffered: one write per event, so a crash loses nothing logged);
-/// a sink until one is attached.
+/// The attached log file: the thread's own if it has one, else the process's (unbuffered: one
+/// write per event, so a crash loses nothing logged); a sink until one is attached.
 struct LogFile;
 
 impl Write for LogFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let own = THREAD_LOG.with_borrow_mut(|f| f.as_mut().map(|f| f.write_all(buf)));
+        if let Some(written) = own {
+            return written.map(|()| buf.len());
+        }
         let mut file = LOG_FILE.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(f) = file.as_mut() {
             f.write_all(buf)?;
@@ -67,14 +79,38 @@ pub fn init() {
 /// From now on, also append every event to `path` (its directory is created).
 pub fn also_to_file(path: &Path) -> anyhow::Result<()> {
     use anyhow::Context;
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let file = File::options()
-        .create(true)
-        .append(true)
-        .open(path)
-        .with_context(|| format!("opening the log file {}", path.display()))?;
+    let file =
+        open_log(path).with_context(|| format!("opening the log file {}", path.display()))?;
     *LOG_FILE.lock().unwrap_or_else(|e| e.into_inner()) = Some(file);
     Ok(())
+}
+
+/// Open `path` for appending (its directory is created).
+fn open_log(path: &Path) -> std::io::Result<File> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    File::options().create(true).append(true).open(path)
+}
+
+/// While the returned guard lives, append this thread's events to `path` (instead of the
+/// process's log file): the log of one seed of `mbpo bench learning`.
+pub fn thread_also_to_file(path: &Path) -> std::io::Result<ThreadLog> {
+    let file = open_log(path).map_err(|e| {
+        std::io::Error::new(
+            e.kind(),
+            format!("opening the log file {}: {e}", path.display()),
+        )
+    })?;
+    THREAD_LOG.with_borrow_mut(|f| *f = Some(file));
+    Ok(ThreadLog)
+}
+
+/// Ends [`thread_also_to_file`] when dropped.
+pub struct ThreadLog;
+
+impl Drop for ThreadLog {
+    fn drop(&mut self) {
+        THREAD_LOG.with_borrow_mut(|f| *f = None);
+    }
 }

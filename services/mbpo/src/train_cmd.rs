@@ -190,6 +190,8 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
             }
         }
     }
+    // This seed's events (its thread's) also go to its run's log, as `mbpo train`'s do.
+    let _log = crate::logging::thread_also_to_file(&dir.join("logs").join("train.log"))?;
     if resume {
         tracing::info!(run = %dir.display(), "continuing from its newest checkpoint");
     }

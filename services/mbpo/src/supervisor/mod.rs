@@ -154,27 +154,23 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     }
     // A resumed run: its config, its newest checkpoint (every file checked), and the mode,
     // actors and slack it ran with.
-    let resume = match args.resume.clone() {
+    let (cfg, out, resume) = match args.resume.clone() {
         Some(dir) => {
-            let algo = resumed_config(&dir, args.common.steps)?.algo;
-            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir, algo)
+            let cfg = resumed_config(&dir, args.common.steps)?;
+            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir, cfg.algo)
                 .with_context(|| format!("resuming {}", dir.display()))?;
             args.mode = state.mode;
             args.actors = state.actors;
             args.slack = state.slack;
-            Some((ckpt, env_steps, state))
+            (cfg, dir, Some((ckpt, env_steps, state)))
         }
-        None => None,
-    };
-    let args = &args;
-    let (cfg, out) = match &args.resume {
-        Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone()),
         None => {
             let cfg = resolve_config(&args.common, None, None)?;
             let out = fresh_run_dir(&args.common, &cfg)?;
-            (cfg, out)
+            (cfg, out, None)
         }
     };
+    let args = &args;
     if cfg.algo == Algo::Sac {
         bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
     }
