@@ -161,6 +161,9 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
 fn mpc_lockstep_stop_and_resume_equals_the_sequential_run() {
     let mut cfg = tiny_mpc_config(MPC_STEPS);
     cfg.checkpoint.every = 150;
+    // An evaluation (3 episodes of 200 planned steps) outlasts the 50 actor steps from the
+    // model of step 101 to the first cut: the evaluator, ahead at eval point 200, abandons it.
+    cfg.eval.episodes = 3;
     let dir = scratch("resume-mpc");
     let input = write_config(&cfg, &dir);
     let root = ipc_root("rm");
@@ -186,6 +189,12 @@ fn mpc_lockstep_stop_and_resume_equals_the_sequential_run() {
             "supervisor"
         ],
         "an MPC checkpoint has no learner or rollout generator"
+    );
+
+    let evaluator_log = std::fs::read_to_string(run.join("logs/evaluator.log")).unwrap();
+    assert!(
+        evaluator_log.contains("eval after step 200 abandoned"),
+        "{evaluator_log}"
     );
 
     let (status, err) = resume(&run, &root, &log);

@@ -258,6 +258,19 @@ impl PlanningEvaluator {
     }
     /// Mean undiscounted return of `episodes` MPC episodes (the warm start reset per episode).
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
+        let ret = self.evaluate_unless(episodes, || false)?;
+        Ok(ret.expect("an evaluation nobody abandons completes"))
+    }
+
+    /// [`PlanningEvaluator::evaluate`], abandoned (`Ok(None)`) as soon as `abandon()` says so;
+    /// it is asked before every planning step (an MPC evaluation can take minutes, a checkpoint
+    /// barrier should not wait for one it will discard). An abandoned evaluation has moved the
+    /// streams on: [`PlanningEvaluator::restore`] the state from before it to evaluate again.
+    pub fn evaluate_unless(
+        &mut self,
+        episodes: usize,
+        mut abandon: impl FnMut() -> bool,
+    ) -> Result<Option<f64>, TrainError> {
         let (o, a) = (self.env.obs_dim(), self.env.act_dim());
         let (mut obs, mut action, mut env_action) =
             (vec![0.0f32; o], vec![0.0f32; a], vec![0.0f32; a]);
@@ -266,6 +279,9 @@ impl PlanningEvaluator {
             self.env.reset(&mut self.env_rng, &mut obs);
             self.mpc.reset();
             loop {
+                if abandon() {
+                    return Ok(None);
+                }
                 self.mpc
                     .act(&mut self.model.model, &obs, &mut self.plan_rng, &mut action)
                     .map_err(plan_err)?;
@@ -277,7 +293,7 @@ impl PlanningEvaluator {
                 }
             }
         }
-        Ok(total / episodes.max(1) as f64)
+        Ok(Some(total / episodes.max(1) as f64))
     }
 }
 

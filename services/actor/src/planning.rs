@@ -254,43 +254,81 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     };
     for t in (after + 1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
         let need = train_points_upto(&schedule, t);
-        // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
-        loop {
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| format!("model version {need} to evaluate step {t}"),
-                || {
-                    pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
-                    Ok(evaluator.model_version() >= need
-                        || control.cut().is_some_and(|c| c.env_steps < t))
-                },
-            )?;
-            if !ok {
-                return Ok(());
+        let ret = loop {
+            // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
+            // (A model once copied is kept: in lockstep the trainer may publish need + 1 as
+            // soon as t is acknowledged, and an evaluation of t abandoned at a barrier is
+            // evaluated again with version need.)
+            loop {
+                let ok = wait_for(
+                    &waiter,
+                    &control,
+                    &|| format!("model version {need} to evaluate step {t}"),
+                    || {
+                        if evaluator.model_version() < need {
+                            pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
+                        }
+                        Ok(evaluator.model_version() >= need
+                            || control.cut().is_some_and(|c| c.env_steps < t))
+                    },
+                )?;
+                if !ok {
+                    return Ok(());
+                }
+                match control.cut() {
+                    Some(cut) if cut.env_steps < t => {
+                        let now = state_now(&evaluator, evals);
+                        if !write_at(&mut before_eval, now, cut)? {
+                            return Ok(());
+                        }
+                    }
+                    _ => break,
+                }
             }
-            match control.cut() {
-                Some(cut) if cut.env_steps < t => {
-                    let now = state_now(&evaluator, evals);
-                    if !write_at(&mut before_eval, now, cut)? {
+            before_eval.push((t, state_now(&evaluator, evals)));
+            if s.mode == Mode::Lockstep {
+                anyhow::ensure!(
+                    evaluator.model_version() == need,
+                    "lockstep evaluator at step {t} expected model version {need}, got {}",
+                    evaluator.model_version()
+                );
+                // The model trainer publishes version need + 1 only after this.
+                send_ack(&acks, trainer, t)?;
+            }
+            let started = Instant::now();
+            // A cut before t (or a stop) abandons the evaluation: the barrier would otherwise
+            // wait for an evaluation it discards (t is evaluated again after the cut).
+            let mut poll_error = None;
+            let ret = evaluator.evaluate_unless(cfg.eval.episodes, || {
+                if let Err(e) = control.poll() {
+                    poll_error = Some(e);
+                    return true;
+                }
+                control.stopped() || control.cut().is_some_and(|c| c.env_steps < t)
+            })?;
+            if let Some(e) = poll_error {
+                return Err(e);
+            }
+            match ret {
+                Some(ret) => {
+                    let seconds = started.elapsed().as_secs_f64();
+                    break (ret, seconds);
+                }
+                None => {
+                    // Back to the state before t, as if t had not been started.
+                    let (_, before) = before_eval.pop().expect("pushed before evaluating t");
+                    evaluator.restore(before.role);
+                    tracing::info!(
+                        "eval after step {t} abandoned after {:.1} s for the checkpoint barrier",
+                        started.elapsed().as_secs_f64()
+                    );
+                    if control.stopped() {
                         return Ok(());
                     }
                 }
-                _ => break,
             }
-        }
-        before_eval.push((t, state_now(&evaluator, evals)));
-        if s.mode == Mode::Lockstep {
-            anyhow::ensure!(
-                evaluator.model_version() == need,
-                "lockstep evaluator at step {t} expected model version {need}, got {}",
-                evaluator.model_version()
-            );
-            // The model trainer publishes version need + 1 only after this.
-            send_ack(&acks, trainer, t)?;
-        }
-        let started = Instant::now();
-        let ret = evaluator.evaluate(cfg.eval.episodes)?;
+        };
+        let (ret, seconds) = ret;
         stats_pub.send(&stats::eval_model(
             t,
             evaluator.model_version(),
@@ -298,9 +336,8 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
             cfg.eval.episodes,
         ))?;
         tracing::info!(
-            "eval after step {t} (model version {}): {ret:.2} in {:.1} s",
-            evaluator.model_version(),
-            started.elapsed().as_secs_f64()
+            "eval after step {t} (model version {}): {ret:.2} in {seconds:.1} s",
+            evaluator.model_version()
         );
         evals += 1;
     }
