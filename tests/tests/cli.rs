@@ -250,6 +250,21 @@ fn a_fresh_run_never_writes_over_an_earlier_one() {
         "mine"
     );
 
+    // A directory that is not a run but holds a config.toml a run would replace is refused.
+    std::fs::create_dir_all(dir.join("project")).unwrap();
+    std::fs::write(dir.join("project/config.toml"), "[tool]\n").unwrap();
+    let out = tiny_train(&dir, 250, &["--out", "project"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("holds config.toml that a run would replace"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.join("project/config.toml")).unwrap(),
+        "[tool]\n"
+    );
+
     // --out naming a file is refused before anything runs.
     let out = tiny_train(&dir, 250, &["--out", "runs/mbpo-Pendulum-v1-s0/notes.txt"]);
     assert!(!out.status.success());

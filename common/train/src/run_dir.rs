@@ -223,13 +223,32 @@ fn remove_event_files(dir: &Path) -> std::io::Result<()> {
 /// `env_steps,`) or a complete checkpoint. A directory that merely has a `config.toml` or a
 /// `logs/` folder (a project directory, say) does not count.
 pub fn holds_a_run(dir: &Path) -> bool {
-    let ours = std::fs::read_to_string(dir.join("metrics.csv"))
-        .is_ok_and(|text| text.starts_with("env_steps,"));
+    let ours = File::open(dir.join("metrics.csv")).is_ok_and(|f| {
+        let mut header = String::new();
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(f), &mut header).is_ok()
+            && header.starts_with("env_steps,")
+    });
     ours || crate::checkpoint::latest(dir).is_ok_and(|c| c.is_some())
 }
 
+/// Whether `name` is a log file a run writes into `logs/`: `train.log` (`mbpo train`),
+/// `supervisor.log` and one per service process (`mbpo run`).
+fn is_run_log(name: &str) -> bool {
+    let Some(stem) = name.strip_suffix(".log") else {
+        return false;
+    };
+    let numbered = |prefix: &str| {
+        stem.strip_prefix(prefix)
+            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+    };
+    matches!(
+        stem,
+        "train" | "supervisor" | "learner" | "model-trainer" | "rollout-generator" | "evaluator"
+    ) || numbered("actor-")
+}
+
 /// Remove what an earlier run wrote into `dir` and a fresh run would not overwrite: its
-/// checkpoint directories, its `logs/*.log`, `summary.json` and `policy.ckpt` (nothing else:
+/// checkpoint directories, its logs in `logs/`, `summary.json` and `policy.ckpt` (nothing else:
 /// `--overwrite` must not take a user's files with it). `config.toml`, `metrics.csv` and the
 /// TensorBoard files are replaced by [`RunDir::create`].
 pub fn remove_earlier_run(dir: &Path) -> std::io::Result<()> {
@@ -254,7 +273,8 @@ pub fn remove_earlier_run(dir: &Path) -> std::io::Result<()> {
     if let Ok(entries) = std::fs::read_dir(&logs) {
         for entry in entries {
             let path = entry?.path();
-            if path.extension().is_some_and(|e| e == "log") && path.is_file() {
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
+            if name.is_some_and(|n| is_run_log(&n)) && path.is_file() {
                 std::fs::remove_file(&path)?;
             }
         }
@@ -447,6 +467,7 @@ mod tests {
         std::fs::create_dir_all(dir.join("logs")).unwrap();
         std::fs::write(dir.join("config.toml"), "steps = 1\n").unwrap();
         std::fs::write(dir.join("logs/notes.txt"), "mine").unwrap();
+        std::fs::write(dir.join("logs/my-tool.log"), "mine").unwrap();
         assert!(!holds_a_run(&dir));
 
         let run = RunDir::create(&dir, &ExperimentConfig::default()).unwrap();
@@ -457,14 +478,21 @@ mod tests {
         crate::checkpoint::mark_complete(&ckpt, 500, &[]).unwrap();
         std::fs::write(crate::checkpoint::root(&dir).join("README"), "mine").unwrap();
         std::fs::write(dir.join("logs/train.log"), "old log").unwrap();
+        std::fs::write(dir.join("logs/actor-12.log"), "old log").unwrap();
         std::fs::write(dir.join("summary.json"), "{}").unwrap();
         std::fs::write(dir.join(crate::policy_file::FINAL_POLICY_FILE), "old").unwrap();
 
         remove_earlier_run(&dir).unwrap();
         assert!(!ckpt.exists() && !dir.join("logs/train.log").exists());
+        assert!(!dir.join("logs/actor-12.log").exists());
         assert!(!dir.join("summary.json").exists());
         assert!(!dir.join(crate::policy_file::FINAL_POLICY_FILE).exists());
-        for kept in ["logs/notes.txt", "checkpoints/README", "config.toml"] {
+        for kept in [
+            "logs/notes.txt",
+            "logs/my-tool.log",
+            "checkpoints/README",
+            "config.toml",
+        ] {
             assert!(
                 dir.join(kept).is_file(),
                 "{kept} is not the run's to remove"

@@ -254,18 +254,19 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     };
     for t in (after + 1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
         let need = train_points_upto(&schedule, t);
+        let mut acknowledged = false;
         let ret = loop {
             // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
-            // (A model once copied is kept: in lockstep the trainer may publish need + 1 as
-            // soon as t is acknowledged, and an evaluation of t abandoned at a barrier is
-            // evaluated again with version need.)
+            // (Lockstep keeps a model once copied: the trainer may publish need + 1 as soon as
+            // t is acknowledged, and an evaluation of t abandoned at a barrier is done again
+            // with version need.)
             loop {
                 let ok = wait_for(
                     &waiter,
                     &control,
                     &|| format!("model version {need} to evaluate step {t}"),
                     || {
-                        if evaluator.model_version() < need {
+                        if s.mode == Mode::Pipelined || evaluator.model_version() < need {
                             pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
                         }
                         Ok(evaluator.model_version() >= need
@@ -292,8 +293,12 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
                     "lockstep evaluator at step {t} expected model version {need}, got {}",
                     evaluator.model_version()
                 );
-                // The model trainer publishes version need + 1 only after this.
-                send_ack(&acks, trainer, t)?;
+                // The model trainer publishes version need + 1 only after this (once per
+                // eval point, also when an abandoned evaluation of t is done again).
+                if !acknowledged {
+                    send_ack(&acks, trainer, t)?;
+                    acknowledged = true;
+                }
             }
             let started = Instant::now();
             // A cut before t (or a stop) abandons the evaluation: the barrier would otherwise

@@ -102,15 +102,23 @@ pub fn thread_also_to_file(path: &Path) -> std::io::Result<ThreadLog> {
             format!("opening the log file {}: {e}", path.display()),
         )
     })?;
-    THREAD_LOG.with_borrow_mut(|f| *f = Some(file));
-    Ok(ThreadLog)
+    let previous = THREAD_LOG.replace(Some(file));
+    Ok(ThreadLog {
+        previous,
+        this_thread: std::marker::PhantomData,
+    })
 }
 
-/// Ends [`thread_also_to_file`] when dropped.
-pub struct ThreadLog;
+/// Ends [`thread_also_to_file`] when dropped (on the thread that made it: it is not `Send`),
+/// putting back the thread's previous log file.
+pub struct ThreadLog {
+    previous: Option<File>,
+    this_thread: std::marker::PhantomData<*const ()>,
+}
 
 impl Drop for ThreadLog {
     fn drop(&mut self) {
-        THREAD_LOG.with_borrow_mut(|f| *f = None);
+        let previous = self.previous.take();
+        let _ = THREAD_LOG.try_with(|f| *f.borrow_mut() = previous);
     }
 }

@@ -58,13 +58,10 @@ pub fn fresh_run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> anyhow
             }
             std::fs::create_dir_all("runs").context("creating runs/")?;
             match std::fs::create_dir(&dir) {
-                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists && holds_a_run(&dir) => {
-                    continue; // claimed by a run started just now
-                }
-                Err(e) if e.kind() != std::io::ErrorKind::AlreadyExists => {
-                    return Err(e).with_context(|| format!("creating {}", dir.display()));
-                }
-                _ => {}
+                // Claimed by a run started just now (or left empty): take the next one.
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(e).with_context(|| format!("creating {}", dir.display())),
+                Ok(()) => {}
             }
             if n > 1 {
                 tracing::info!("{base} holds an earlier run: writing {}", dir.display());
@@ -79,7 +76,25 @@ pub fn fresh_run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> anyhow
             out.display()
         );
     }
-    if holds_a_run(out) && !common.overwrite {
+    if common.overwrite {
+        return Ok(out.clone());
+    }
+    if !holds_a_run(out) {
+        // Not a run, but a run would replace these (a project directory's config.toml, say).
+        let replaced: Vec<&str> = ["config.toml", "metrics.csv"]
+            .into_iter()
+            .filter(|f| out.join(f).exists())
+            .collect();
+        if !replaced.is_empty() {
+            anyhow::bail!(
+                "--out {} holds {} that a run would replace; pick another --out, or add \
+                 --overwrite to replace them",
+                out.display(),
+                replaced.join(" and ")
+            );
+        }
+    }
+    if holds_a_run(out) {
         let newest = match mbpo_train::checkpoint::latest(out) {
             Ok(Some((_, m))) => format!(" (newest checkpoint after {} env steps)", m.env_steps),
             _ => String::new(),

@@ -166,20 +166,13 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         }
         None => {
             let cfg = resolve_config(&args.common, None, None)?;
+            check_run_args(&args, &cfg)?; // before a run directory is claimed
             let out = fresh_run_dir(&args.common, &cfg)?;
             (cfg, out, None)
         }
     };
     let args = &args;
-    if cfg.algo == Algo::Sac {
-        bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
-    }
-    if args.mode == Mode::Lockstep && args.actors != 1 {
-        bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
-    }
-    if args.actors == 0 {
-        bail!("--actors must be at least 1");
-    }
+    check_run_args(args, &cfg)?;
     let mut run_dir = match &resume {
         Some((_, env_steps, state)) => {
             // (At N = T there is nothing left to run: every process would only wait for the
@@ -713,6 +706,20 @@ fn supervise(
     let to_target = run_dir.env_steps_to_target(cfg.target_return())?;
     let report = col.summary(status, sha, started, to_target);
     Ok(Attempt::Finished(Box::new(report), failure))
+}
+
+/// What `mbpo run` cannot run: SAC, lockstep with several actors, no actors.
+fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow::Result<()> {
+    if cfg.algo == Algo::Sac {
+        bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
+    }
+    if args.mode == Mode::Lockstep && args.actors != 1 {
+        bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
+    }
+    if args.actors == 0 {
+        bail!("--actors must be at least 1");
+    }
+    Ok(())
 }
 
 /// Broadcast the Pause that starts a checkpoint barrier.
