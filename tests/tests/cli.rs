@@ -358,6 +358,8 @@ fn learning_bench_continues_and_reuses_its_runs() {
     let again = bench_learning(&split, "500", &[]);
     assert!(again.status.success(), "{again:?}");
     assert!(String::from_utf8_lossy(&again.stderr).contains("already completed"));
+    let seed_log = std::fs::read_to_string(run(&split).join("logs/train.log")).unwrap();
+    assert!(seed_log.contains("already completed"), "{seed_log}");
     let lower = bench_learning(&split, "500", &low_target);
     assert!(lower.status.success(), "{lower:?}");
     assert!(String::from_utf8_lossy(&lower.stderr).contains("already completed"));

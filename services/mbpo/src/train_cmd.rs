@@ -175,6 +175,10 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
 pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
     let stored = dir.join("config.toml");
     let resume = mbpo_train::checkpoint::latest(dir)?.is_some();
+    // This seed's events (its thread's) also go to its run's log, as `mbpo train`'s do, once
+    // the directory is known to hold this config's run (or none).
+    let log_file = dir.join("logs").join("train.log");
+    let mut _log = None;
     if resume || stored.exists() {
         // A run directory this build cannot read is not reused or overwritten blindly (it may
         // hold hours of work, e.g. from a newer build with config keys this one does not know).
@@ -198,6 +202,7 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
                 dir.display()
             )));
         }
+        _log = Some(crate::logging::thread_also_to_file(&log_file)?);
         if let Some(done) = completed_summary(dir) {
             if steps_before == cfg.steps && done.env_steps == cfg.steps {
                 tracing::info!(run = %dir.display(), "already completed: reusing its results");
@@ -205,8 +210,9 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
             }
         }
     }
-    // This seed's events (its thread's) also go to its run's log, as `mbpo train`'s do.
-    let _log = crate::logging::thread_also_to_file(&dir.join("logs").join("train.log"))?;
+    if _log.is_none() {
+        _log = Some(crate::logging::thread_also_to_file(&log_file)?);
+    }
     if resume {
         tracing::info!(run = %dir.display(), "continuing from its newest checkpoint");
     }
