@@ -511,6 +511,11 @@ impl<S: Service> TransitionSubscriber<S> {
     pub fn publishers(&self) -> usize {
         self.svc.dynamic_config().number_of_publishers()
     }
+    /// Times this port listed the registered publishers: the only step of a receive that
+    /// allocates once connected (inside iceoryx2; at most every 50 ms, none per sample).
+    pub fn publisher_relists(&self) -> u64 {
+        self.side.relists()
+    }
     /// Counters: received, rejected, gaps, missing, restarts.
     pub fn stats(&self) -> SubscriberStats {
         self.tracker.borrow().stats

@@ -386,6 +386,11 @@ impl<S: Service> WeightsSubscriber<S> {
         }))
     }
 
+    /// Times this port listed the registered publishers: the only step of a receive that
+    /// allocates once connected (inside iceoryx2; at most every 50 ms, none per sample).
+    pub fn publisher_relists(&self) -> u64 {
+        self.side.relists()
+    }
     /// Version of the last snapshot returned (0 before the first).
     pub fn last_version(&self) -> u64 {
         self.last.get().map_or(0, |(_, v)| v)

@@ -1,5 +1,7 @@
 //! The receive path (receive a batch, push it into a replay buffer or copy it into a `Batch`;
-//! read the newest weights) allocates nothing once the ports exist, and the send path allocates
+//! read the newest weights) allocates nothing once the ports exist except in the periodic
+//! re-list of publishers (iceoryx2 builds a two-block snapshot; at most every 50 ms, which a
+//! loaded machine reaches within the test's 200 steps), and the send path allocates
 //! nothing beyond the one small block iceoryx2 0.10 itself allocates per `send()` (measured on
 //! a bare iceoryx2 publisher; a WaitSet wake-up also allocates inside iceoryx2).
 //!
@@ -37,6 +39,7 @@ fn steady_state_receive_path_does_not_allocate() {
         let mut out = Batch::new(17, 6, 1000);
         let params = vec![0.25f32; 1000];
         let mut dst = vec![0.0f32; 1000];
+        let relists = || rx.publisher_relists() + ws.publisher_relists();
         // (send-side, receive-side) allocations of one step.
         let mut step = |v: u64| {
             let a0 = allocations();
@@ -60,14 +63,18 @@ fn steady_state_receive_path_does_not_allocate() {
             step(v);
         }
         let (mut send, mut recv) = (0, 0);
+        let relists_before = relists();
         for v in 21..=220 {
             let (s, r) = step(v);
             send += s;
             recv += r;
         }
-        assert_eq!(
-            recv, 0,
-            "{recv} allocations on the receive path in 200 steps"
+        let relisted = relists() - relists_before;
+        // Two blocks per re-list (iceoryx2's publisher snapshot); nothing else.
+        assert!(
+            recv as u64 <= 2 * relisted,
+            "{recv} allocations on the receive path in 200 steps ({relisted} publisher re-lists, \
+             which may allocate 2 each)"
         );
         // Two iceoryx2 sends per step, one block each.
         assert!(
