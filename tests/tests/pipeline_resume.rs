@@ -219,41 +219,9 @@ fn mpc_lockstep_stop_and_resume_equals_the_sequential_run() {
 fn mpc_lockstep_crash_restarts_from_the_checkpoint_and_equals_the_sequential_run() {
     let mut cfg = tiny_mpc_config(MPC_STEPS);
     cfg.checkpoint.every = 150;
-    let dir = scratch("crash-mpc");
-    let input = write_config(&cfg, &dir);
-    let root = ipc_root("cm");
-    let run = dir.join("run");
-    let log = dir.join("stderr.log");
-    let seq_dir = dir.join("sequential");
-    let seq = train_mpc(&cfg, &seq_dir).unwrap();
-    let mut child = start(
-        &input,
-        &run,
-        &root,
-        &["--mode", "lockstep", "--restart", "on-failure"],
-        &log,
-    );
-    crash_service(&run, "model-trainer", true, &mut child);
-    let (status, err) = wait_logged(child, &log);
-    assert!(status.success(), "{err}");
-    assert!(
-        err.contains("model-trainer exited with signal: 9")
-            && err.contains("restarting the pipeline from the checkpoint after step"),
-        "{err}"
-    );
-    let s = summary(&run);
-    assert_eq!(s["status"], "completed", "{s}");
-    assert_eq!(s["restarts"], 1, "{s}");
-    assert_eq!(
-        s["policy_sha256"],
-        seq.policy_sha256.as_str(),
-        "crashed, restarted from a checkpoint != uninterrupted (sequential)"
-    );
-    assert_eq!(
-        metrics_without_timing(&run),
-        metrics_without_timing(&seq_dir)
-    );
-    let _ = std::fs::remove_dir_all(dir);
+    lockstep_crash_equals_the_sequential_run(&cfg, ("crash-mpc", "cm"), "model-trainer", |d| {
+        train_mpc(&cfg, d).unwrap()
+    });
 }
 
 /// Pipelined with two actors: SIGINT writes a checkpoint and stops every process; the resumed
@@ -437,13 +405,28 @@ fn crash_service(run: &Path, service: &str, after_checkpoint: bool, child: &mut 
 fn lockstep_crash_restarts_from_the_checkpoint_and_equals_the_uninterrupted_run() {
     let mut cfg = tiny_config(800);
     cfg.checkpoint.every = 100;
-    let dir = scratch("crash-lockstep");
-    let input = write_config(&cfg, &dir);
-    let root = ipc_root("cl");
+    lockstep_crash_equals_the_sequential_run(&cfg, ("crash-lockstep", "cl"), "learner", |d| {
+        train_mbpo(&cfg, d).unwrap()
+    });
+}
+
+/// Run `cfg` in lockstep with `--restart on-failure` (`name`: scratch directory and iceoryx2
+/// root), SIGKILL `service` after the first checkpoint, and check the restarted run ends with
+/// the `sequential` reference's final weights and metrics, leaving nothing behind.
+fn lockstep_crash_equals_the_sequential_run(
+    cfg: &mbpo_train::ExperimentConfig,
+    (name, root): (&str, &str),
+    service: &str,
+    sequential: impl FnOnce(&Path) -> mbpo_train::Summary,
+) {
+    let dir = scratch(name);
+    let input = write_config(cfg, &dir);
+    let root = ipc_root(root);
     let run = dir.join("run");
     let log = dir.join("stderr.log");
+    // Sequential first: the pipeline's first checkpoint comes within a second.
     let seq_dir = dir.join("sequential");
-    let seq = train_mbpo(&cfg, &seq_dir).unwrap();
+    let seq = sequential(&seq_dir);
     let mut child = start(
         &input,
         &run,
@@ -451,11 +434,11 @@ fn lockstep_crash_restarts_from_the_checkpoint_and_equals_the_uninterrupted_run(
         &["--mode", "lockstep", "--restart", "on-failure"],
         &log,
     );
-    crash_service(&run, "learner", true, &mut child);
+    crash_service(&run, service, true, &mut child);
     let (status, err) = wait_logged(child, &log);
     assert!(status.success(), "{err}");
     assert!(
-        err.contains("learner exited with signal: 9")
+        err.contains(&format!("{service} exited with signal: 9"))
             && err.contains("restarting the pipeline from the checkpoint after step"),
         "{err}"
     );

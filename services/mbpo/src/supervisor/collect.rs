@@ -122,6 +122,23 @@ pub struct CollectorBook {
 }
 
 impl CollectorBook {
+    /// The book of a run that has not started.
+    fn start() -> Self {
+        Self {
+            next_row: 0,
+            episodes: Vec::new(),
+            models: BTreeMap::new(),
+            progress: (0, 0, 0),
+            last_row: (0.0, 0),
+            last_row_updates: 0,
+            final_return: f64::NAN,
+            best_return: f64::NEG_INFINITY,
+            last_eval: None,
+            restarts: 0,
+            unwritten_evals: Vec::new(),
+        }
+    }
+
     /// The metrics rows a run resumed from this book keeps: those up to the checkpoint's step
     /// `env_steps`, except the ones of its unwritten evaluations (written after the checkpoint
     /// by the attempt being abandoned; the book writes them again).
@@ -165,19 +182,7 @@ impl Collector {
             learner: BTreeMap::new(),
             done: BTreeMap::new(),
             actor_steps: BTreeMap::new(),
-            book: CollectorBook {
-                next_row: 0,
-                episodes: Vec::new(),
-                models: BTreeMap::new(),
-                progress: (0, 0, 0),
-                last_row: (0.0, 0),
-                last_row_updates: 0,
-                final_return: f64::NAN,
-                best_return: f64::NEG_INFINITY,
-                last_eval: None,
-                restarts: 0,
-                unwritten_evals: Vec::new(),
-            },
+            book: CollectorBook::start(),
         }
     }
 
@@ -513,16 +518,8 @@ mod tests {
     fn book(unwritten_evals: Vec<(u64, f64, u64)>) -> CollectorBook {
         CollectorBook {
             next_row: 8,
-            episodes: Vec::new(),
-            models: BTreeMap::new(),
-            progress: (0, 0, 0),
-            last_row: (0.0, 0),
-            last_row_updates: 0,
-            final_return: f64::NAN,
-            best_return: f64::NEG_INFINITY,
-            last_eval: None,
-            restarts: 0,
             unwritten_evals,
+            ..CollectorBook::start()
         }
     }
 
