@@ -189,6 +189,19 @@ impl ProbabilisticEnsemble {
     /// current weights; see the module docs for the procedure. Draws the holdout permutation,
     /// the bootstrap indices and the per-epoch shuffles from `rng`.
     pub fn train(&mut self, data: &Batch, rng: &mut Rng) -> Result<TrainReport, TrainError> {
+        let report = self.train_unless(data, rng, || false)?;
+        Ok(report.expect("a training that is never asked to stop completes"))
+    }
+
+    /// [`Self::train`], giving up after an epoch when `stop_requested()` says so (a user's Ctrl-C; one
+    /// training can take minutes on a large D_env) and returning `None`. The ensemble and `rng`
+    /// are then part-way: restore a checkpoint taken before the call.
+    pub fn train_unless(
+        &mut self,
+        data: &Batch,
+        rng: &mut Rng,
+        mut stop_requested: impl FnMut() -> bool,
+    ) -> Result<Option<TrainReport>, TrainError> {
         let start = Instant::now();
         self.check_training_data(data)?;
         let cfg = self.config.clone();
@@ -290,6 +303,9 @@ impl ProbabilisticEnsemble {
                 report.stop = StopReason::TimeLimit;
                 break;
             }
+            if stop_requested() {
+                return Ok(None);
+            }
         }
 
         // 6. Restore every member's best weights and pick the elites. MBPO re-evaluates the
@@ -308,7 +324,7 @@ impl ProbabilisticEnsemble {
         report.final_holdout_mse = mse;
         report.elites = self.elites.clone();
         report.seconds = start.elapsed().as_secs_f64();
-        Ok(report)
+        Ok(Some(report))
     }
 
     /// One Adam step: every member's loss gradient on rows `b0..b0 + rows` of its bootstrap

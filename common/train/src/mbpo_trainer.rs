@@ -27,7 +27,7 @@ use crate::progress::{Display, Progress};
 use crate::roles::checkpoint_kind as kind;
 use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
 use crate::run_control::RunOptions;
-use crate::run_control::{checkpoint_due, log_stopped, open_run};
+use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
 use crate::run_dir::{MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::Batch;
@@ -99,9 +99,20 @@ impl Mbpo {
 
     /// Train p_θ on all of D_env (holdout early stopping; elites) and hand it to the rollouts.
     pub fn train_model(&mut self) -> Result<&TrainReport, TrainError> {
-        let (snapshot, report) = self.model_trainer.train()?;
+        let trained = self.train_model_unless(|| false)?;
+        Ok(trained.expect("a training that is never asked to stop completes"))
+    }
+
+    /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
+    fn train_model_unless(
+        &mut self,
+        stop: impl FnMut() -> bool,
+    ) -> Result<Option<&TrainReport>, TrainError> {
+        let Some((snapshot, report)) = self.model_trainer.train_unless(stop)? else {
+            return Ok(None);
+        };
         self.rollout.set_model(&snapshot)?;
-        Ok(self.last_model_report.insert(report))
+        Ok(Some(self.last_model_report.insert(report)))
     }
 
     /// Set k for `epoch`, resize D_model to keep `retain_epochs` of rollouts, and branch
@@ -131,12 +142,21 @@ impl Mbpo {
 
     /// One env step `t` of Algorithm 2 (1-based), warm-up included.
     pub fn step(&mut self, t: u64) -> Result<(), TrainError> {
+        self.step_unless(t, || false).map(|_| ())
+    }
+
+    /// [`Self::step`], unless `stop()` says so during its model training (checked after every
+    /// epoch): the training is then undone and `false` returned, so the run is exactly as after
+    /// step t − 1. A stop need not wait for a training that can take minutes.
+    pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
         if self.schedule.is_warm_up(t) {
             self.warm_up_step();
-            return Ok(());
+            return Ok(true);
         }
         if let Some(epoch) = self.schedule.train_point(t) {
-            let report = self.train_model()?;
+            let Some(report) = self.train_model_unless(stop)? else {
+                return Ok(false);
+            };
             // The same line as the pipeline's model trainer, so runs can be compared.
             tracing::info!(
                 "model trained for step {t} on {} transitions: {} epochs, elites {:?}, {:.2} s",
@@ -149,7 +169,7 @@ impl Mbpo {
         }
         self.env_step();
         self.policy_updates();
-        Ok(())
+        Ok(true)
     }
 }
 
@@ -258,7 +278,12 @@ pub fn train_mbpo_with(
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
     for t in done + 1..=cfg.steps {
         let started = Instant::now();
-        mbpo.step(t)?;
+        if !mbpo.step_unless(t, || opts.stop_requested())? {
+            // Stopped during the model training of step t, which was undone.
+            stop_before(t, |at| Ok(save(&mbpo, &evaluator, &step_seconds, at)?), out)?;
+            status = "stopped";
+            break;
+        }
         if !mbpo.schedule.is_warm_up(t) {
             step_seconds.push(started.elapsed().as_secs_f64());
         }

@@ -20,7 +20,7 @@ use crate::checkpoint::{self, CheckpointError};
 use crate::config::{ExperimentConfig, PlanReward};
 use crate::progress::{Display, Progress};
 use crate::roles::{checkpoint_kind, ModelSnapshot, ModelTrainerRole, ModelTrainerState, Schedule};
-use crate::run_control::{checkpoint_due, log_stopped, open_run, RunOptions};
+use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, RunOptions};
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
@@ -331,20 +331,40 @@ impl MpcRun {
 
     /// Train p_θ on all of D_env and hand the new model to the actor and the evaluator.
     pub fn train_model(&mut self) -> Result<&TrainReport, TrainError> {
-        let (snapshot, report) = self.model_trainer.train()?;
+        let trained = self.train_model_unless(|| false)?;
+        Ok(trained.expect("a training that is never asked to stop completes"))
+    }
+
+    /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
+    fn train_model_unless(
+        &mut self,
+        stop: impl FnMut() -> bool,
+    ) -> Result<Option<&TrainReport>, TrainError> {
+        let Some((snapshot, report)) = self.model_trainer.train_unless(stop)? else {
+            return Ok(None);
+        };
         self.actor.set_model(&snapshot)?;
         self.evaluator.set_model(&snapshot)?;
         self.model_params = snapshot.weights.params;
-        Ok(self.last_model_report.insert(report))
+        Ok(Some(self.last_model_report.insert(report)))
     }
 
     /// One env step `t` (1-based): warm-up, or (re)train at a train point and act by planning.
     pub fn step(&mut self, t: u64) -> Result<(), TrainError> {
+        self.step_unless(t, || false).map(|_| ())
+    }
+
+    /// [`Self::step`], unless `stop()` says so during its model training (checked after every
+    /// epoch): the training is then undone and `false` returned, so the run is exactly as after
+    /// step t − 1.
+    pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
         let behaviour = if self.schedule.is_warm_up(t) {
             Behaviour::Uniform
         } else {
             if self.schedule.train_point(t).is_some() {
-                let r = self.train_model()?;
+                let Some(r) = self.train_model_unless(stop)? else {
+                    return Ok(false);
+                };
                 tracing::debug!(
                     "model trained before step {t}: {} epochs, elites {:?}",
                     r.epochs,
@@ -355,7 +375,7 @@ impl MpcRun {
         };
         let rows = self.actor.act(behaviour)?;
         self.model_trainer.add_real(&rows);
-        Ok(())
+        Ok(true)
     }
 
     /// Evaluation episodes with the current model.
@@ -495,7 +515,12 @@ pub fn train_mpc_with(
     let label = format!("mpc {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto()).counting("plans");
     for t in done + 1..=cfg.steps {
-        mpc.step(t)?;
+        if !mpc.step_unless(t, || opts.stop_requested())? {
+            // Stopped during the model training of step t, which was undone.
+            stop_before(t, |at| save(&mpc, &mut book, at), out)?;
+            status = "stopped";
+            break;
+        }
         if !mpc.schedule.is_warm_up(t) {
             book.plan_seconds.push(mpc.actor.last_plan_seconds);
         }

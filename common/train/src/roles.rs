@@ -348,17 +348,37 @@ impl ModelTrainerRole {
     }
     /// Train p_θ on all real data by maximum likelihood; returns the new snapshot.
     pub fn train(&mut self) -> Result<(ModelSnapshot, TrainReport), TrainError> {
+        let trained = self.train_unless(|| false)?;
+        Ok(trained.expect("a training that is never asked to stop completes"))
+    }
+
+    /// [`Self::train`], abandoned after an epoch when `stop()` says so: the role is then
+    /// exactly as before the call (model, optimiser and random stream restored) and `None` is
+    /// returned, so a checkpoint written next is the one of the previous step.
+    pub fn train_unless(
+        &mut self,
+        stop: impl FnMut() -> bool,
+    ) -> Result<Option<(ModelSnapshot, TrainReport)>, TrainError> {
         let data = self.d_env.to_batch();
-        let report = self
+        let before = (self.model.checkpoint(), self.rng.clone());
+        let trained = self
             .model
-            .train(&data, &mut self.rng)
+            .train_unless(&data, &mut self.rng, stop)
             .map_err(|e| TrainError::Config(e.to_string()))?;
+        let Some(report) = trained else {
+            let (model, rng) = before;
+            self.model
+                .restore(&model)
+                .map_err(|e| restore_err("model trainer", e))?;
+            self.rng = rng;
+            return Ok(None);
+        };
         self.version += 1;
         let snapshot = ModelSnapshot {
             version: self.version,
             weights: self.model.weights(),
         };
-        Ok((snapshot, report))
+        Ok(Some((snapshot, report)))
     }
 }
 

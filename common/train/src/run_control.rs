@@ -14,7 +14,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 pub struct RunOptions<'a> {
     /// Continue from the newest complete checkpoint in the run directory.
     pub resume: bool,
-    /// Checked after every env step: when set, checkpoint and return (status `stopped`).
+    /// Checked after every env step and every epoch of a model training (which is then
+    /// undone): when set, checkpoint and return (status `stopped`).
     pub stop: Option<&'a AtomicBool>,
 }
 
@@ -22,7 +23,12 @@ impl RunOptions<'_> {
     /// Whether the run stops after env step `t` of `steps`: a stop was requested and steps
     /// are left (after the last step the run ends as `completed` anyway).
     pub(crate) fn stopping_at(&self, t: u64, steps: u64) -> bool {
-        t < steps && self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+        t < steps && self.stop_requested()
+    }
+
+    /// Whether a stop was requested (also checked inside a step's model training).
+    pub(crate) fn stop_requested(&self) -> bool {
+        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
     }
 }
 
@@ -74,6 +80,22 @@ pub(crate) fn open_run(
 pub(crate) fn checkpoint_due(cfg: &ExperimentConfig, t: u64, stopping: bool) -> bool {
     let every = cfg.checkpoint.every;
     t == cfg.steps || stopping || (every > 0 && t.is_multiple_of(every))
+}
+
+/// Stop a run whose step `t` was abandoned part-way (its model training undone): checkpoint
+/// the state after step t − 1 with `save` and log the stop. (When t − 1 is the checkpoint the
+/// run resumed from, the same files are written again.)
+pub(crate) fn stop_before(
+    t: u64,
+    save: impl FnOnce(u64) -> Result<(), TrainError>,
+    out: &Path,
+) -> Result<(), TrainError> {
+    let done = t - 1;
+    if done > 0 {
+        save(done)?;
+    }
+    log_stopped(done, out);
+    Ok(())
 }
 
 /// Log a clean stop after env step `t` and how to continue.

@@ -158,6 +158,37 @@ fn mpc_resumed_from_a_checkpoint_equals_the_uninterrupted_run() {
         );
         std::fs::remove_dir_all(crashed).unwrap();
     }
+    // Ctrl-C during the model training of step 201 undoes it and checkpoints step 200 (the
+    // actor's and model trainer's files byte for byte the uninterrupted run's); the resume
+    // trains again.
+    let crashed = crash_copy_after(&full, 200, "mpc-stop-in-training");
+    let stop = AtomicBool::new(true);
+    let opts = RunOptions {
+        resume: true,
+        stop: Some(&stop),
+    };
+    let stopped = train_mpc_with(&cfg, &crashed, opts).unwrap();
+    assert_eq!(
+        (stopped.status.as_str(), stopped.env_steps),
+        ("stopped", 200)
+    );
+    let (_, newest) = checkpoint::latest(&crashed).unwrap().unwrap();
+    assert_eq!(newest.env_steps, 200);
+    // (The third file, the run's book, holds the wall clock.)
+    for f in &mbpo_train::mpc::CHECKPOINT_FILES[..2] {
+        let read = |run: &Path| std::fs::read(checkpoint::dir_for(run, 200).join(f)).unwrap();
+        assert!(
+            read(&full) == read(&crashed),
+            "{f} of checkpoint 200 differs"
+        );
+    }
+    let resumed = train_mpc_with(&cfg, &crashed, resume).unwrap();
+    assert_eq!(resumed.policy_sha256, reference.policy_sha256);
+    assert_eq!(
+        metrics_without_timings(&crashed),
+        metrics_without_timings(&full)
+    );
+    std::fs::remove_dir_all(crashed).unwrap();
     // A clean stop checkpoints off the periodic schedule and resumes from there.
     let run = temp_dir("mpc-stop");
     let _ = std::fs::remove_dir_all(&run);

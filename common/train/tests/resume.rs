@@ -123,7 +123,54 @@ fn mbpo_resumed_after_a_crash_equals_the_uninterrupted_run() {
         );
         std::fs::remove_dir_all(crashed).unwrap();
     }
+    stopped_during_the_model_training_of_301(&cfg, &full, &reference.policy_sha256);
     std::fs::remove_dir_all(full).unwrap();
+}
+
+/// Ctrl-C while the model training of step 301 is under way (a training can take minutes)
+/// stops after the epoch under way: the training is undone and the state after step 300 is
+/// checkpointed -- the roles' files byte for byte the uninterrupted run's checkpoint 300 -- and
+/// a resume does the training again and ends with the uninterrupted run.
+fn stopped_during_the_model_training_of_301(cfg: &ExperimentConfig, full: &Path, sha: &str) {
+    let run = temp_dir("mbpo-stop-in-training");
+    copy_dir(full, &run);
+    simulate_crash_after(&run, 300);
+    let stop = AtomicBool::new(true);
+    let opts = RunOptions {
+        resume: true,
+        stop: Some(&stop),
+    };
+    let stopped = train_mbpo_with(cfg, &run, opts).unwrap();
+    assert_eq!(
+        (stopped.status.as_str(), stopped.env_steps),
+        ("stopped", 300)
+    );
+    // Every role's file (the fifth, the run's book, holds the wall clock).
+    let roles = &mbpo_train::mbpo_trainer::CHECKPOINT_FILES[..4];
+    assert_same_checkpoint(full, &run, 300, roles);
+    let done = train_mbpo_with(
+        cfg,
+        &run,
+        RunOptions {
+            resume: true,
+            stop: None,
+        },
+    )
+    .unwrap();
+    assert_eq!(done.status, "completed");
+    assert_eq!(done.policy_sha256, sha);
+    assert_eq!(metrics_without_timings(&run), metrics_without_timings(full));
+    std::fs::remove_dir_all(run).unwrap();
+}
+
+/// The newest checkpoint of `b` is the one of step `at`, and each of `files` in it equals `a`'s.
+fn assert_same_checkpoint(a: &Path, b: &Path, at: u64, files: &[&str]) {
+    let (_, newest) = checkpoint::latest(b).unwrap().unwrap();
+    assert_eq!(newest.env_steps, at);
+    for f in files {
+        let read = |run: &Path| std::fs::read(checkpoint::dir_for(run, at).join(f)).unwrap();
+        assert!(read(a) == read(b), "{f} of checkpoint {at} differs");
+    }
 }
 
 /// A MuJoCo episode lasts up to 1000 steps, so this checkpoint falls mid-episode: the resumed

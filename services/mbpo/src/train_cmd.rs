@@ -256,8 +256,9 @@ extern "C" fn request_stop(signal: libc::c_int) {
     }
 }
 
-/// SIGINT/SIGTERM set a flag the trainer checks after each env step: it then writes a
-/// checkpoint and the summary (status `stopped`) and returns, so `--resume` continues the run.
+/// SIGINT/SIGTERM set a flag the trainer checks after each env step and after each epoch of a
+/// model training (which it then undoes): it writes a checkpoint and the summary (status
+/// `stopped`) and returns, so `--resume` continues the run.
 /// A second signal stops the process at once (no checkpoint).
 fn stop_on_signals() -> &'static AtomicBool {
     let handler = request_stop as extern "C" fn(libc::c_int) as libc::sighandler_t;
