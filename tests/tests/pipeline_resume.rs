@@ -252,6 +252,63 @@ fn mpc_pipelined_stop_and_resume_loses_and_duplicates_nothing() {
     pipelined_stop_and_resume(&cfg, name, &extra, &["model-trainer"], &want);
 }
 
+/// Pipelined, Ctrl-C during a model training (one can take minutes) does not wait for it: the
+/// trainer abandons it after the epoch under way, the checkpoint holds the trainings done (none
+/// here), and the resumed run trains again and completes with every transition received once.
+#[test]
+fn pipelined_stop_abandons_the_model_training_under_way() {
+    let mut cfg = tiny_config(300);
+    // The one training (for step 201) runs for 15 s unless abandoned.
+    cfg.model.max_epochs_since_update = 1_000_000;
+    cfg.model.max_train_seconds = Some(15.0);
+    let dir = scratch("stop-in-training");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("sit");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let mut child = start(&input, &run, &root, &["--mode", "pipelined"], &log);
+    let trainer_log = run.join("logs").join("model-trainer.log");
+    let t = Instant::now();
+    while !std::fs::read_to_string(&trainer_log)
+        .unwrap_or_default()
+        .contains("training model v1 for step 201")
+    {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended early");
+        assert!(t.elapsed() < TIMEOUT, "no training started");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // SAFETY: kill(2) on our child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    assert_eq!(summary(&run)["status"], "stopped");
+    let trainer = std::fs::read_to_string(&trainer_log).unwrap();
+    assert!(
+        trainer.contains("model training for step 201 abandoned"),
+        "{trainer}"
+    );
+    assert!(err.contains("with 0 model trainings"), "{err}");
+    assert_eq!(checkpoints(&run).len(), 1);
+
+    let (status, err) = resume(&run, &root, &log);
+    assert!(status.success(), "{err}");
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(
+            s["real_transitions"]["received"][consumer], cfg.steps,
+            "{consumer}: {s}"
+        );
+    }
+    let trainer = std::fs::read_to_string(&trainer_log).unwrap();
+    assert!(
+        trainer.contains("model v1 trained for step 201"),
+        "{trainer}"
+    );
+    assert_eq!(metric_steps(&run), [200, 300]);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// MPC pipelined with two planning actors and `--restart on-failure`: the model trainer is
 /// killed after the first periodic checkpoint; every eval point ends with exactly one row.
 /// (Whether the checkpoint held rows as unwritten, an actor being behind the cut's step,

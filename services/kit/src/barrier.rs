@@ -11,8 +11,10 @@
 //!    counter ([`report_paused`]: an actor its local steps, the others their trainings or
 //!    branches). The learner and evaluator keep consuming.
 //! 2. **Checkpoint(T, K)** (the cut, to all): T = the actors' steps summed (every real
-//!    transition that exists), K = the model trainings the cut holds (at least those of the
-//!    train points ≤ T, more if the trainer had already trained for T + 1). Every process goes
+//!    transition that exists), K = the model trainings the cut holds: those done (lockstep: at
+//!    least those of the train points ≤ T; more if the trainer had already trained for T + 1).
+//!    A pipelined trainer abandons a training under way when the run stops after the barrier
+//!    ([`PAUSE_TO_STOP`]), so K can miss a train point ≤ T there. Every process goes
 //!    on until its state is exactly "after T with K trainings" -- the learner consumed T steps,
 //!    published version T and holds K imagined batches; the model trainer and rollout generator
 //!    did K trainings / branches and hold all T transitions; the evaluator evaluated every eval
@@ -42,6 +44,10 @@ use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use crate::{wait_for, ControlInbox, RealInbox};
 use mbpo_core::Batch;
 use mbpo_wire::TransitionSubscriber;
+
+/// The Pause's `request_id` of a barrier the run stops after (SIGINT/SIGTERM); 0 for a
+/// periodic one. (Sent again when a stop is requested during a periodic barrier.)
+pub const PAUSE_TO_STOP: u64 = 1;
 
 /// The cut of a checkpoint barrier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -328,6 +328,8 @@ pub struct ControlInbox {
     stop: Cell<bool>,
     acked: RefCell<BTreeSet<u64>>,
     pause: Cell<bool>,
+    /// The barrier under way ends in a stop (SIGINT/SIGTERM).
+    pause_to_stop: Cell<bool>,
     cut: Cell<Option<barrier::Cut>>,
     resume: Cell<bool>,
 }
@@ -341,6 +343,7 @@ impl ControlInbox {
             stop: Cell::new(false),
             acked: RefCell::new(BTreeSet::new()),
             pause: Cell::new(false),
+            pause_to_stop: Cell::new(false),
             cut: Cell::new(None),
             resume: Cell::new(false),
         })
@@ -356,7 +359,12 @@ impl ControlInbox {
                 Some(ControlCommand::Ack) => {
                     self.acked.borrow_mut().insert(m.msg.step);
                 }
-                Some(ControlCommand::Pause) => self.pause.set(true),
+                Some(ControlCommand::Pause) => {
+                    self.pause.set(true);
+                    if m.msg.request_id == barrier::PAUSE_TO_STOP {
+                        self.pause_to_stop.set(true);
+                    }
+                }
                 Some(ControlCommand::Checkpoint) => {
                     self.pause.set(true);
                     self.cut.set(Some(barrier::Cut {
@@ -366,6 +374,7 @@ impl ControlInbox {
                 }
                 Some(ControlCommand::Resume) => {
                     self.pause.set(false);
+                    self.pause_to_stop.set(false);
                     self.cut.set(None);
                     self.resume.set(true);
                 }
@@ -390,6 +399,12 @@ impl ControlInbox {
     /// True while a checkpoint barrier is under way (from its Pause to its Resume).
     pub fn pause_requested(&self) -> bool {
         self.pause.get()
+    }
+    /// True while the checkpoint barrier under way is one the run stops after: work the
+    /// cut does not need may then be abandoned rather than finished (a periodic checkpoint
+    /// lets it finish, as the run goes on with it).
+    pub fn pause_to_stop(&self) -> bool {
+        self.pause_to_stop.get()
     }
     /// The cut of the checkpoint barrier under way, once the supervisor sent it.
     pub fn cut(&self) -> Option<barrier::Cut> {

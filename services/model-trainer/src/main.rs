@@ -12,9 +12,10 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use mbpo_core::Batch;
+use mbpo_model::TrainReport;
 use mbpo_service_kit::barrier::{self, ModelTrainerCheckpoint};
 use mbpo_service_kit::{stats, *};
-use mbpo_train::roles::{ModelTrainerRole, Schedule};
+use mbpo_train::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
 use mbpo_wire::*;
 
 #[derive(Debug, Parser)]
@@ -85,8 +86,11 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
     let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, at_cut);
-    let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
-    for t in train_points.skip(version as usize) {
+    let mut train_points = (1..=cfg.steps)
+        .filter(|&t| schedule.train_point(t).is_some())
+        .skip(version as usize)
+        .peekable();
+    while let Some(&t) = train_points.peek() {
         if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, t - 1, version)? {
             return Ok(());
         }
@@ -96,8 +100,21 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         };
         inbox.take(n, &mut rows);
         role.add_real(&rows);
+        tracing::info!(
+            "training model v{} for step {t} on {} transitions",
+            version + 1,
+            role.real_received()
+        );
         let started = Instant::now();
-        let (snapshot, report) = role.train()?;
+        let Some((snapshot, report)) = train(&mut role, s.mode, &control, version)? else {
+            // Back to the gate, which serves the barrier (a resumed run trains again) or stops.
+            tracing::info!(
+                "model training for step {t} abandoned after {:.1} s: the run is stopping",
+                started.elapsed().as_secs_f64()
+            );
+            continue;
+        };
+        train_points.next();
         let seconds = started.elapsed().as_secs_f64();
         version = snapshot.version;
         // The same number the sequential metrics row shows: mean elite holdout MSE.
@@ -154,6 +171,35 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
         inbox.received()
     );
     gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version))
+}
+
+/// Train on the role's data. Pipelined, a stop -- or a checkpoint barrier the run stops after
+/// (Ctrl-C) -- abandons the training after the epoch under way (`None`; the role is as before
+/// it): a training can take minutes, and the cut then holds the `done` trainings completed
+/// (a resumed run trains again, on at least as much data: pipelined runs train on whatever has
+/// arrived). A periodic barrier lets the training finish, since the run goes on with it.
+/// Lockstep must hold every training of the train points ≤ T, so it trains to the end.
+fn train(
+    role: &mut ModelTrainerRole,
+    mode: Mode,
+    control: &ControlInbox,
+    done: u64,
+) -> anyhow::Result<Option<(ModelSnapshot, TrainReport)>> {
+    if mode == Mode::Lockstep {
+        return Ok(Some(role.train()?));
+    }
+    let mut poll_error = None;
+    let trained = role.train_unless(|| {
+        if let Err(e) = control.poll() {
+            poll_error = Some(e);
+            return true;
+        }
+        control.stopped() || (control.pause_to_stop() && barrier::holds(control, done))
+    })?;
+    match poll_error {
+        Some(e) => Err(e),
+        None => Ok(trained),
+    }
 }
 
 /// The env step of the `n`-th train point (the one model version `n` was trained at).

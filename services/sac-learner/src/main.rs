@@ -197,8 +197,14 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             }
         }
         let next = consumed + 1;
-        let imagined_ready =
-            model_batches >= train_points_upto(&schedule, next.saturating_sub(s.slack.model_lag));
+        // At a cut, the K imagined batches it holds are enough for every step ≤ T: pipelined,
+        // K may miss a training the model trainer abandoned for the barrier (lockstep K covers
+        // every train point ≤ T).
+        let imagined_ready = model_batches
+            >= train_points_upto(&schedule, next.saturating_sub(s.slack.model_lag))
+            || control
+                .cut()
+                .is_some_and(|c| next <= c.env_steps && model_batches >= c.model_trainings);
         if consumed < cfg.steps
             && inbox.pending() > 0
             && imagined_ready

@@ -84,9 +84,12 @@ impl Barrier {
     }
 
     /// The cut, once every actor, the model trainer and the rollout generator (MBPO) paused
-    /// (and not yet sent): T = the actors' steps summed; K = the trainings of the train points ≤ T, or
-    /// more if the model trainer or rollout generator had gone further (at most T + 1's).
-    pub fn take_cut(&mut self, schedule: &Schedule) -> Option<Cut> {
+    /// (and not yet sent): T = the actors' steps summed; K = the trainings the model trainer or
+    /// rollout generator had done. Lockstep, K is at least the trainings of the train points ≤ T
+    /// (it equals the sequential run, so a training under way for a point ≤ T is finished);
+    /// pipelined, the trainer abandons a training under way at a pause (it can take minutes)
+    /// and does it again after the barrier, so K is what was done.
+    pub fn take_cut(&mut self, schedule: &Schedule, mode: Mode) -> Option<Cut> {
         if self.cut.is_some() || self.paused.len() < self.pausing {
             return None;
         }
@@ -100,9 +103,14 @@ impl Barrier {
         let done = of(Role::ModelTrainer)
             .chain(of(Role::RolloutGenerator))
             .max();
+        let done = done.unwrap_or(0);
+        let model_trainings = match mode {
+            Mode::Lockstep => train_points_upto(schedule, env_steps).max(done),
+            Mode::Pipelined => done,
+        };
         let cut = Cut {
             env_steps,
-            model_trainings: train_points_upto(schedule, env_steps).max(done.unwrap_or(0)),
+            model_trainings,
         };
         self.cut = Some(cut);
         Some(cut)
@@ -176,4 +184,48 @@ pub fn latest_verified(
         checkpoint::verify(&dir.join(&name), kind)?;
     }
     Ok((dir, manifest.env_steps, state))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_train::ExperimentConfig;
+
+    /// Actor 0 paused after 650 steps, the model trainer after 1 training (the second, for step
+    /// 651 of train points 401, 651, ..., abandoned), the rollout generator after 1 branch.
+    fn barrier_at_650() -> (Barrier, Schedule) {
+        let mut cfg = ExperimentConfig::default();
+        cfg.mbpo.init_random_steps = 400;
+        cfg.mbpo.model_train_freq = 250;
+        let mut b = Barrier::new(Algo::Mbpo, 1, true);
+        b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(650));
+        b.on_report(
+            ProducerId::new(Role::ModelTrainer, 0),
+            BarrierReport::Paused(1),
+        );
+        b.on_report(
+            ProducerId::new(Role::RolloutGenerator, 0),
+            BarrierReport::Paused(1),
+        );
+        (b, Schedule::of(&cfg))
+    }
+
+    #[test]
+    fn a_lockstep_cut_holds_every_training_up_to_t_and_a_pipelined_one_what_was_done() {
+        let (mut lockstep, schedule) = barrier_at_650();
+        let cut = lockstep.take_cut(&schedule, Mode::Lockstep).unwrap();
+        assert_eq!((cut.env_steps, cut.model_trainings), (650, 1));
+        let (mut pipelined, _) = barrier_at_650();
+        let cut = pipelined.take_cut(&schedule, Mode::Pipelined).unwrap();
+        assert_eq!((cut.env_steps, cut.model_trainings), (650, 1));
+        // Step 651 done by the actor: lockstep needs the training of 651 (finished in the
+        // barrier); pipelined holds the one training done.
+        for (mode, k) in [(Mode::Lockstep, 2), (Mode::Pipelined, 1)] {
+            let (mut b, _) = barrier_at_650();
+            b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(651));
+            let cut = b.take_cut(&schedule, mode).unwrap();
+            assert_eq!((cut.env_steps, cut.model_trainings), (651, k), "{mode:?}");
+            assert!(b.take_cut(&schedule, mode).is_none(), "a cut is taken once");
+        }
+    }
 }

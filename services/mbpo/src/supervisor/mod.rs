@@ -486,6 +486,7 @@ fn supervise(
                 Some(b) if !b.stop_after => {
                     tracing::warn!("stopping after the checkpoint under way (press Ctrl-C again to stop at once)");
                     b.stop_after = true;
+                    send_pause(&control, true)?;
                 }
                 // A second signal, or nothing to checkpoint: stop at once.
                 _ => {
@@ -556,7 +557,7 @@ fn supervise(
             barrier = Some(start_barrier(&control, cfg.algo, args.actors, false)?);
         }
         if let Some(b) = barrier.as_mut() {
-            if let Some(cut) = b.take_cut(&schedule) {
+            if let Some(cut) = b.take_cut(&schedule, args.mode) {
                 tracing::info!(
                     "checkpoint cut: after step {} with {} model trainings",
                     cut.env_steps,
@@ -729,11 +730,23 @@ fn start_barrier(
     actors: u16,
     stop_after: bool,
 ) -> anyhow::Result<Barrier> {
+    send_pause(control, stop_after)?;
+    Ok(Barrier::new(algo, actors, stop_after))
+}
+
+/// Broadcast a Pause, saying whether the run stops after the barrier (processes may then
+/// abandon work the cut does not need, such as a model training under way).
+fn send_pause(control: &ControlPublisher<ipc::Service>, stop_after: bool) -> anyhow::Result<()> {
+    let to_stop = if stop_after {
+        mbpo_service_kit::barrier::PAUSE_TO_STOP
+    } else {
+        0
+    };
     control.send(&ControlMsg::request(
         ControlCommand::Pause,
-        0,
+        to_stop,
         CONTROL_TARGET_ALL,
         0,
     ))?;
-    Ok(Barrier::new(algo, actors, stop_after))
+    Ok(())
 }
