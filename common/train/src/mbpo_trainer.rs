@@ -278,7 +278,7 @@ pub fn train_mbpo_with(
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
     for t in done + 1..=cfg.steps {
         let started = Instant::now();
-        if !mbpo.step_unless(t, || opts.stop_requested())? {
+        if !mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
             // Stopped during the model training of step t, which was undone.
             stop_before(t, |at| Ok(save(&mbpo, &evaluator, &step_seconds, at)?), out)?;
             status = "stopped";

@@ -515,7 +515,7 @@ pub fn train_mpc_with(
     let label = format!("mpc {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto()).counting("plans");
     for t in done + 1..=cfg.steps {
-        if !mpc.step_unless(t, || opts.stop_requested())? {
+        if !mpc.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
             // Stopped during the model training of step t, which was undone.
             stop_before(t, |at| save(&mpc, &mut book, at), out)?;
             status = "stopped";

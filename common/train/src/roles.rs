@@ -348,8 +348,12 @@ impl ModelTrainerRole {
     }
     /// Train p_θ on all real data by maximum likelihood; returns the new snapshot.
     pub fn train(&mut self) -> Result<(ModelSnapshot, TrainReport), TrainError> {
-        let trained = self.train_unless(|| false)?;
-        Ok(trained.expect("a training that is never asked to stop completes"))
+        let data = self.d_env.to_batch();
+        let report = self
+            .model
+            .train(&data, &mut self.rng)
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        Ok(self.trained(report))
     }
 
     /// [`Self::train`], abandoned after an epoch when `stop()` says so: the role is then
@@ -373,12 +377,17 @@ impl ModelTrainerRole {
             self.rng = rng;
             return Ok(None);
         };
+        Ok(Some(self.trained(report)))
+    }
+
+    /// The next version, after a completed training.
+    fn trained(&mut self, report: TrainReport) -> (ModelSnapshot, TrainReport) {
         self.version += 1;
         let snapshot = ModelSnapshot {
             version: self.version,
             weights: self.model.weights(),
         };
-        Ok(Some((snapshot, report)))
+        (snapshot, report)
     }
 }
 

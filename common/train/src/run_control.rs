@@ -22,13 +22,9 @@ pub struct RunOptions<'a> {
 impl RunOptions<'_> {
     /// Whether the run stops after env step `t` of `steps`: a stop was requested and steps
     /// are left (after the last step the run ends as `completed` anyway).
+    /// (Also checked inside the model training of step `t`.)
     pub(crate) fn stopping_at(&self, t: u64, steps: u64) -> bool {
-        t < steps && self.stop_requested()
-    }
-
-    /// Whether a stop was requested (also checked inside a step's model training).
-    pub(crate) fn stop_requested(&self) -> bool {
-        self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
+        t < steps && self.stop.is_some_and(|s| s.load(Ordering::Relaxed))
     }
 }
 

@@ -13,8 +13,8 @@
 //! 2. **Checkpoint(T, K)** (the cut, to all): T = the actors' steps summed (every real
 //!    transition that exists), K = the model trainings the cut holds: those done (lockstep: at
 //!    least those of the train points ≤ T; more if the trainer had already trained for T + 1).
-//!    A pipelined trainer abandons a training under way when the run stops after the barrier
-//!    ([`PAUSE_TO_STOP`]), so K can miss a train point ≤ T there. Every process goes
+//!    A pipelined MBPO trainer abandons a training under way when the run stops after the
+//!    barrier ([`PAUSE_TO_STOP`]), so K can miss a train point ≤ T there. Every process goes
 //!    on until its state is exactly "after T with K trainings" -- the learner consumed T steps,
 //!    published version T and holds K imagined batches; the model trainer and rollout generator
 //!    did K trainings / branches and hold all T transitions; the evaluator evaluated every eval

@@ -106,7 +106,8 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
             role.real_received()
         );
         let started = Instant::now();
-        let Some((snapshot, report)) = train(&mut role, s.mode, &control, version)? else {
+        let abandon = s.mode == Mode::Pipelined && !mpc;
+        let Some((snapshot, report)) = train(&mut role, abandon, &control, version)? else {
             // Back to the gate, which serves the barrier (a resumed run trains again) or stops.
             tracing::info!(
                 "model training for step {t} abandoned after {:.1} s: the run is stopping",
@@ -173,28 +174,28 @@ fn run(args: &ServiceArgs) -> anyhow::Result<()> {
     gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version))
 }
 
-/// Train on the role's data. Pipelined, a stop -- or a checkpoint barrier the run stops after
-/// (Ctrl-C) -- abandons the training after the epoch under way (`None`; the role is as before
-/// it): a training can take minutes, and the cut then holds the `done` trainings completed
-/// (a resumed run trains again, on at least as much data: pipelined runs train on whatever has
-/// arrived). A periodic barrier lets the training finish, since the run goes on with it.
-/// Lockstep must hold every training of the train points ≤ T, so it trains to the end.
+/// Train on the role's data, abandoning the training after the epoch under way (`None`; the
+/// role is as before it) when the process is stopped, or -- pipelined MBPO -- when a
+/// checkpoint barrier the run stops after (Ctrl-C) does not need it: a training can take
+/// minutes, and the cut then holds the `done` trainings completed (the resumed run trains
+/// again, on at least as much data: pipelined runs train on whatever has arrived). A periodic
+/// barrier lets the training finish, since the run goes on with it; lockstep must hold every
+/// training of the train points ≤ T, and an MPC evaluator needs the model of every eval point
+/// ≤ T (`Barrier::take_cut`).
 fn train(
     role: &mut ModelTrainerRole,
-    mode: Mode,
+    abandon_at_stop_barrier: bool,
     control: &ControlInbox,
     done: u64,
 ) -> anyhow::Result<Option<(ModelSnapshot, TrainReport)>> {
-    if mode == Mode::Lockstep {
-        return Ok(Some(role.train()?));
-    }
     let mut poll_error = None;
     let trained = role.train_unless(|| {
         if let Err(e) = control.poll() {
             poll_error = Some(e);
             return true;
         }
-        control.stopped() || (control.pause_to_stop() && barrier::holds(control, done))
+        control.stopped()
+            || (abandon_at_stop_barrier && control.pause_to_stop() && barrier::holds(control, done))
     })?;
     match poll_error {
         Some(e) => Err(e),

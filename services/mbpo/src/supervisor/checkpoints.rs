@@ -47,6 +47,7 @@ pub struct Barrier {
     files: usize,
     /// Warnings logged about a slow barrier.
     pub warnings: u32,
+    algo: Algo,
 }
 
 /// A barrier is reported as slow after this long (and every as long again).
@@ -64,6 +65,7 @@ impl Barrier {
             pausing: barrier::pausing_processes(algo, actors),
             files: barrier::pipeline_files(algo, actors).len() - 1,
             warnings: 0,
+            algo,
         }
     }
 
@@ -85,10 +87,12 @@ impl Barrier {
 
     /// The cut, once every actor, the model trainer and the rollout generator (MBPO) paused
     /// (and not yet sent): T = the actors' steps summed; K = the trainings the model trainer or
-    /// rollout generator had done. Lockstep, K is at least the trainings of the train points ≤ T
-    /// (it equals the sequential run, so a training under way for a point ≤ T is finished);
-    /// pipelined, the trainer abandons a training under way at a pause (it can take minutes)
-    /// and does it again after the barrier, so K is what was done.
+    /// rollout generator had done, and at least those of the train points ≤ T (a training
+    /// under way for one is finished) -- except when a pipelined MBPO run stops after this
+    /// barrier: its trainer abandons a training under way (one can take minutes), the resumed
+    /// run does it again, and K is what was done. (Lockstep equals the sequential run; a run
+    /// that goes on keeps its learner within `--model-lag`; an MPC evaluator needs the model
+    /// of every eval point ≤ T.)
     pub fn take_cut(&mut self, schedule: &Schedule, mode: Mode) -> Option<Cut> {
         if self.cut.is_some() || self.paused.len() < self.pausing {
             return None;
@@ -104,9 +108,11 @@ impl Barrier {
             .chain(of(Role::RolloutGenerator))
             .max();
         let done = done.unwrap_or(0);
-        let model_trainings = match mode {
-            Mode::Lockstep => train_points_upto(schedule, env_steps).max(done),
-            Mode::Pipelined => done,
+        let abandons = mode == Mode::Pipelined && self.algo == Algo::Mbpo && self.stop_after;
+        let model_trainings = if abandons {
+            done
+        } else {
+            train_points_upto(schedule, env_steps).max(done)
         };
         let cut = Cut {
             env_steps,
@@ -191,40 +197,49 @@ mod tests {
     use super::*;
     use mbpo_train::ExperimentConfig;
 
-    /// Actor 0 paused after 650 steps, the model trainer after 1 training (the second, for step
-    /// 651 of train points 401, 651, ..., abandoned), the rollout generator after 1 branch.
-    fn barrier_at_650() -> (Barrier, Schedule) {
-        let mut cfg = ExperimentConfig::default();
+    /// Actor 0 paused after `t` steps, the model trainer after 1 training (the second, for step
+    /// 651 of train points 401, 651, ..., not done), the rollout generator after 1 branch.
+    fn barrier_at(algo: Algo, t: u64, stop_after: bool) -> (Barrier, Schedule) {
+        let mut cfg = ExperimentConfig {
+            algo,
+            ..Default::default()
+        };
         cfg.mbpo.init_random_steps = 400;
         cfg.mbpo.model_train_freq = 250;
-        let mut b = Barrier::new(Algo::Mbpo, 1, true);
-        b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(650));
+        cfg.mpc.init_random_steps = 400;
+        cfg.mpc.model_train_freq = 250;
+        let mut b = Barrier::new(algo, 1, stop_after);
+        b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(t));
         b.on_report(
             ProducerId::new(Role::ModelTrainer, 0),
             BarrierReport::Paused(1),
         );
-        b.on_report(
-            ProducerId::new(Role::RolloutGenerator, 0),
-            BarrierReport::Paused(1),
-        );
+        if algo == Algo::Mbpo {
+            b.on_report(
+                ProducerId::new(Role::RolloutGenerator, 0),
+                BarrierReport::Paused(1),
+            );
+        }
         (b, Schedule::of(&cfg))
     }
 
     #[test]
-    fn a_lockstep_cut_holds_every_training_up_to_t_and_a_pipelined_one_what_was_done() {
-        let (mut lockstep, schedule) = barrier_at_650();
-        let cut = lockstep.take_cut(&schedule, Mode::Lockstep).unwrap();
-        assert_eq!((cut.env_steps, cut.model_trainings), (650, 1));
-        let (mut pipelined, _) = barrier_at_650();
-        let cut = pipelined.take_cut(&schedule, Mode::Pipelined).unwrap();
-        assert_eq!((cut.env_steps, cut.model_trainings), (650, 1));
-        // Step 651 done by the actor: lockstep needs the training of 651 (finished in the
-        // barrier); pipelined holds the one training done.
-        for (mode, k) in [(Mode::Lockstep, 2), (Mode::Pipelined, 1)] {
-            let (mut b, _) = barrier_at_650();
-            b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(651));
+    fn only_a_pipelined_mbpo_stop_cuts_without_the_trainings_up_to_t() {
+        let cases = [
+            // (algo, mode, stop after the barrier, K at T = 651)
+            (Algo::Mbpo, Mode::Pipelined, true, 1),
+            (Algo::Mbpo, Mode::Pipelined, false, 2),
+            (Algo::Mbpo, Mode::Lockstep, true, 2),
+            (Algo::Mpc, Mode::Pipelined, true, 2),
+        ];
+        for (algo, mode, stop_after, k) in cases {
+            let (mut b, schedule) = barrier_at(algo, 650, stop_after);
             let cut = b.take_cut(&schedule, mode).unwrap();
-            assert_eq!((cut.env_steps, cut.model_trainings), (651, k), "{mode:?}");
+            assert_eq!((cut.env_steps, cut.model_trainings), (650, 1));
+            let (mut b, schedule) = barrier_at(algo, 651, stop_after);
+            let cut = b.take_cut(&schedule, mode).unwrap();
+            let case = format!("{algo:?} {mode:?} stop {stop_after}");
+            assert_eq!((cut.env_steps, cut.model_trainings), (651, k), "{case}");
             assert!(b.take_cut(&schedule, mode).is_none(), "a cut is taken once");
         }
     }
