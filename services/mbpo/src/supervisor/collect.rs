@@ -293,6 +293,12 @@ impl Collector {
     }
 
     /// True when every process reported done (MPC runs have no learner or rollout generator).
+    /// Every actor sent its Done record (all real transitions exist).
+    pub fn actors_done(&self, actors: u16) -> bool {
+        let done = self.done.keys().filter(|p| p.role() == Some(Role::Actor));
+        done.count() == actors as usize
+    }
+
     pub fn all_done(&self, actors: u16) -> bool {
         let others = if self.mpc() { 2 } else { 4 };
         self.done.len() == actors as usize + others

@@ -473,23 +473,33 @@ fn supervise(
     let mut failure: Option<anyhow::Error> = None;
     let mut crashed: Option<String> = None;
     let mut interrupted = false;
+    let mut finishing = false;
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
             mbpo_wire::take_termination_request();
-            let clean = !col.all_done(args.actors);
-            match barrier.as_mut() {
-                // First signal: checkpoint, then stop (resumable with --resume).
-                None if clean => {
+            let state = RunState {
+                barrier: barrier.as_ref().map(|b| b.stop_after),
+                all_done: col.all_done(args.actors),
+                actors_done: col.actors_done(args.actors),
+                finishing,
+            };
+            match on_signal(state) {
+                OnSignal::CheckpointAndStop => {
                     tracing::warn!("stopping: writing a checkpoint first (press Ctrl-C again to stop at once, without one)");
                     barrier = Some(start_barrier(&control, cfg.algo, args.actors, true)?);
                 }
-                Some(b) if !b.stop_after => {
+                OnSignal::StopAfterBarrier => {
                     tracing::warn!("stopping after the checkpoint under way (press Ctrl-C again to stop at once)");
-                    b.stop_after = true;
+                    if let Some(b) = barrier.as_mut() {
+                        b.stop_after = true;
+                    }
                     send_pause(&control, true)?;
                 }
-                // A second signal, or nothing to checkpoint: stop at once.
-                _ => {
+                OnSignal::Finish => {
+                    tracing::warn!("the actors are done: finishing the run's last updates and evaluations (press Ctrl-C again to stop at once, without a checkpoint)");
+                    finishing = true;
+                }
+                OnSignal::StopNow => {
                     interrupted = true;
                     break;
                 }
@@ -723,6 +733,45 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
     Ok(())
 }
 
+/// What the supervisor knows when a SIGINT/SIGTERM arrives.
+#[derive(Debug, Clone, Copy)]
+struct RunState {
+    /// The checkpoint barrier under way, if any: whether the run stops after it.
+    barrier: Option<bool>,
+    /// Every process sent its Done record.
+    all_done: bool,
+    /// Every actor sent its Done record.
+    actors_done: bool,
+    /// An earlier signal chose [`OnSignal::Finish`].
+    finishing: bool,
+}
+
+/// What a SIGINT/SIGTERM does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum OnSignal {
+    /// Write a checkpoint, then stop (resumable with `--resume`).
+    CheckpointAndStop,
+    /// A periodic checkpoint is under way: stop after it.
+    StopAfterBarrier,
+    /// Every actor is done: a checkpoint would be at the run's last step, which no resume
+    /// continues (`--resume` needs steps left), while what is left -- the learner's last
+    /// updates, the last evaluations -- is short. Finish the run instead.
+    Finish,
+    /// A second signal, or nothing left to do: stop at once, without a checkpoint.
+    StopNow,
+}
+
+fn on_signal(run: RunState) -> OnSignal {
+    match run.barrier {
+        _ if run.finishing => OnSignal::StopNow,
+        // A periodic barrier at the last step resumes the run, which then finishes.
+        Some(false) | None if run.actors_done && !run.all_done => OnSignal::Finish,
+        Some(false) => OnSignal::StopAfterBarrier,
+        None if !run.all_done => OnSignal::CheckpointAndStop,
+        Some(true) | None => OnSignal::StopNow,
+    }
+}
+
 /// Broadcast the Pause that starts a checkpoint barrier.
 fn start_barrier(
     control: &ControlPublisher<ipc::Service>,
@@ -749,4 +798,43 @@ fn send_pause(control: &ControlPublisher<ipc::Service>, stop_after: bool) -> any
         0,
     ))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state(barrier: Option<bool>, actors_done: bool, all_done: bool) -> RunState {
+        RunState {
+            barrier,
+            all_done,
+            actors_done,
+            finishing: false,
+        }
+    }
+
+    #[test]
+    fn a_signal_checkpoints_unless_the_actors_are_done_then_the_run_finishes() {
+        use OnSignal::*;
+        let cases = [
+            // (barrier under way, actors done, all done) -> first signal
+            (None, false, false, CheckpointAndStop),
+            (Some(false), false, false, StopAfterBarrier),
+            (Some(true), false, false, StopNow),
+            (None, true, false, Finish),
+            (Some(false), true, false, Finish),
+            (None, true, true, StopNow),
+            (Some(false), true, true, StopAfterBarrier),
+        ];
+        for (barrier, actors_done, all_done, want) in cases {
+            let run = state(barrier, actors_done, all_done);
+            assert_eq!(on_signal(run), want, "{run:?}");
+        }
+        // A second signal while finishing stops at once.
+        let finishing = RunState {
+            finishing: true,
+            ..state(None, true, false)
+        };
+        assert_eq!(on_signal(finishing), StopNow);
+    }
 }
