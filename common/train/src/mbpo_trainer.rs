@@ -25,7 +25,9 @@ use crate::config::ExperimentConfig;
 use crate::eval::{Evaluator, EvaluatorState};
 use crate::progress::{Display, Progress};
 use crate::roles::checkpoint_kind as kind;
-use crate::roles::{ActorRole, LearnerRole, ModelTrainerRole, RolloutRole, Schedule};
+use crate::roles::{
+    ActorRole, LearnerRole, ModelSnapshot, ModelTrainerRole, RolloutRole, Schedule,
+};
 use crate::run_control::RunOptions;
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
 use crate::run_dir::{MetricsRow, Summary};
@@ -99,8 +101,8 @@ impl Mbpo {
 
     /// Train p_θ on all of D_env (holdout early stopping; elites) and hand it to the rollouts.
     pub fn train_model(&mut self) -> Result<&TrainReport, TrainError> {
-        let trained = self.train_model_unless(|| false)?;
-        Ok(trained.expect("a training that is never asked to stop completes"))
+        let (snapshot, report) = self.model_trainer.train()?;
+        self.use_model(snapshot, report)
     }
 
     /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
@@ -108,11 +110,20 @@ impl Mbpo {
         &mut self,
         stop: impl FnMut() -> bool,
     ) -> Result<Option<&TrainReport>, TrainError> {
-        let Some((snapshot, report)) = self.model_trainer.train_unless(stop)? else {
-            return Ok(None);
-        };
+        match self.model_trainer.train_unless(stop)? {
+            Some((snapshot, report)) => self.use_model(snapshot, report).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Hand a newly trained model to the roles that use it.
+    fn use_model(
+        &mut self,
+        snapshot: ModelSnapshot,
+        report: TrainReport,
+    ) -> Result<&TrainReport, TrainError> {
         self.rollout.set_model(&snapshot)?;
-        Ok(Some(self.last_model_report.insert(report)))
+        Ok(self.last_model_report.insert(report))
     }
 
     /// Set k for `epoch`, resize D_model to keep `retain_epochs` of rollouts, and branch
@@ -140,14 +151,10 @@ impl Mbpo {
         self.learner.finish_step();
     }
 
-    /// One env step `t` of Algorithm 2 (1-based), warm-up included.
-    pub fn step(&mut self, t: u64) -> Result<(), TrainError> {
-        self.step_unless(t, || false).map(|_| ())
-    }
-
-    /// [`Self::step`], unless `stop()` says so during its model training (checked after every
-    /// epoch): the training is then undone and `false` returned, so the run is exactly as after
-    /// step t − 1. A stop need not wait for a training that can take minutes.
+    /// One env step `t` of Algorithm 2 (1-based), warm-up included; `true` when done. When
+    /// `stop()` says so during its model training (checked after every epoch), the training is
+    /// undone and `false` returned, so the run is exactly as after step t − 1: a stop need not
+    /// wait for a training that can take minutes.
     pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
         if self.schedule.is_warm_up(t) {
             self.warm_up_step();

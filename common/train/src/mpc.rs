@@ -331,8 +331,8 @@ impl MpcRun {
 
     /// Train p_θ on all of D_env and hand the new model to the actor and the evaluator.
     pub fn train_model(&mut self) -> Result<&TrainReport, TrainError> {
-        let trained = self.train_model_unless(|| false)?;
-        Ok(trained.expect("a training that is never asked to stop completes"))
+        let (snapshot, report) = self.model_trainer.train()?;
+        self.use_model(snapshot, report)
     }
 
     /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
@@ -340,22 +340,27 @@ impl MpcRun {
         &mut self,
         stop: impl FnMut() -> bool,
     ) -> Result<Option<&TrainReport>, TrainError> {
-        let Some((snapshot, report)) = self.model_trainer.train_unless(stop)? else {
-            return Ok(None);
-        };
+        match self.model_trainer.train_unless(stop)? {
+            Some((snapshot, report)) => self.use_model(snapshot, report).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// Hand a newly trained model to the roles that use it.
+    fn use_model(
+        &mut self,
+        snapshot: ModelSnapshot,
+        report: TrainReport,
+    ) -> Result<&TrainReport, TrainError> {
         self.actor.set_model(&snapshot)?;
         self.evaluator.set_model(&snapshot)?;
         self.model_params = snapshot.weights.params;
-        Ok(Some(self.last_model_report.insert(report)))
+        Ok(self.last_model_report.insert(report))
     }
 
-    /// One env step `t` (1-based): warm-up, or (re)train at a train point and act by planning.
-    pub fn step(&mut self, t: u64) -> Result<(), TrainError> {
-        self.step_unless(t, || false).map(|_| ())
-    }
-
-    /// [`Self::step`], unless `stop()` says so during its model training (checked after every
-    /// epoch): the training is then undone and `false` returned, so the run is exactly as after
+    /// One env step `t` (1-based): warm-up, or (re)train at a train point and act by planning;
+    /// `true` when done. When `stop()` says so during its model training (checked after every
+    /// epoch), the training is undone and `false` returned, so the run is exactly as after
     /// step t − 1.
     pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
         let behaviour = if self.schedule.is_warm_up(t) {
