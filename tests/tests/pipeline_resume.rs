@@ -1,4 +1,4 @@
-//! Checkpoints of the running pipeline (`mbpo_service_kit::barrier`): SIGINT writes one and
+//! Checkpoints of the running pipeline (`mbpo_runtime::barrier`): SIGINT writes one and
 //! stops cleanly, `mbpo run --resume` continues, and a lockstep run stopped and resumed ends
 //! with the same weights as the sequential reference (= an uninterrupted lockstep run).
 

@@ -3,6 +3,7 @@
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
+//! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
@@ -26,6 +27,7 @@ pub mod roles;
 pub mod run_control;
 pub mod run_dir;
 pub mod sac_trainer;
+pub mod schedule;
 pub mod tensorboard;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
@@ -34,3 +36,4 @@ pub use mpc::{train_mpc, train_mpc_with};
 pub use run_control::RunOptions;
 pub use run_dir::{policy_sha256, RunDir, Summary};
 pub use sac_trainer::{train_sac, train_sac_with, TrainError};
+pub use schedule::Schedule;

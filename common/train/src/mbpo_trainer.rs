@@ -294,7 +294,7 @@ pub fn train_mbpo_with(
         if !mbpo.schedule.is_warm_up(t) {
             step_seconds.push(started.elapsed().as_secs_f64());
         }
-        if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
+        if mbpo.schedule.is_eval_point(t) {
             let row = metrics_row(&mbpo, &mut evaluator, t);
             run.write_metrics(&row)?;
             evaluator.log("mbpo", &row);

@@ -529,8 +529,8 @@ pub fn train_mpc_with(
         if !mpc.schedule.is_warm_up(t) {
             book.plan_seconds.push(mpc.actor.last_plan_seconds);
         }
-        if (t.is_multiple_of(cfg.eval.every) || t == cfg.steps) && mpc.actor.model_version() > 0 {
-            // (While warming up there is no model to plan with, so nothing to evaluate.)
+        if mpc.schedule.is_eval_point(t) {
+            // (Not while warming up: there is no model to plan with.)
             let row = evaluate_at(&mut mpc, &mut book, t, started, cfg.eval.episodes)?;
             run.write_metrics(&row)?;
             progress.set_eval(row.eval_return);

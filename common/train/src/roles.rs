@@ -131,48 +131,7 @@ pub mod pipeline_learner {
     pub const KIND: &str = "mbpo.pipeline.learner";
 }
 
-/// When the model-based steps happen, as a pure function of the env step `t` (1-based).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Schedule {
-    /// Uniform-random warm-up steps.
-    pub init_random_steps: u64,
-    /// Env steps per epoch.
-    pub epoch_length: u64,
-    /// Model retrain period in env steps.
-    pub model_train_freq: u64,
-}
-
-impl Schedule {
-    /// The schedule of a config (MPC's warm-up and retrain period for algo = "mpc").
-    pub fn of(cfg: &ExperimentConfig) -> Self {
-        if cfg.algo == crate::config::Algo::Mpc {
-            return Self {
-                init_random_steps: cfg.mpc.init_random_steps,
-                epoch_length: cfg.mpc.model_train_freq,
-                model_train_freq: cfg.mpc.model_train_freq,
-            };
-        }
-        Self {
-            init_random_steps: cfg.mbpo.init_random_steps,
-            epoch_length: cfg.mbpo.epoch_length,
-            model_train_freq: cfg.mbpo.model_train_freq,
-        }
-    }
-    /// Is step `t` a warm-up step?
-    pub fn is_warm_up(&self, t: u64) -> bool {
-        t <= self.init_random_steps
-    }
-    /// `Some(epoch)` when the model is trained and rollouts are branched before step `t`.
-    pub fn train_point(&self, t: u64) -> Option<usize> {
-        if self.is_warm_up(t) {
-            return None;
-        }
-        let since = t - self.init_random_steps - 1;
-        since
-            .is_multiple_of(self.model_train_freq)
-            .then_some((since / self.epoch_length) as usize)
-    }
-}
+pub use crate::schedule::Schedule;
 
 /// The policy after `version` learner steps: version 0 is the initial parameters, version t the
 /// parameters after env step t was consumed (and, after the warm-up, its G updates done). The

@@ -85,6 +85,7 @@ pub fn train_sac_with(
     let mut sample_rng = stream(seed, "learner.sample", 0);
     let mut update_rng = stream(seed, "learner.update", 0);
     let mut evaluator = Evaluator::new(cfg)?;
+    let schedule = crate::Schedule::of(cfg);
     let mut stats = SacStats::default();
     let (mut run, done) = open_run(cfg, out, opts, |dir| {
         let path = dir.join(SAC_CHECKPOINT_FILE);
@@ -120,7 +121,7 @@ pub fn train_sac_with(
         }
 
         // Evaluate and record.
-        if t.is_multiple_of(cfg.eval.every) || t == cfg.steps {
+        if schedule.is_eval_point(t) {
             let row = evaluator.evaluate(t, &sac, &stats, &actor);
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);

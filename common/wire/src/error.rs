@@ -439,3 +439,23 @@ pub enum WaitError {
     #[error("the WaitSet failed ({0})")]
     WaitSet(String),
 }
+
+/// A message that arrived intact but does not decode into what its kind promises.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DecodeError {
+    /// A stats record of a kind this build does not know (a newer peer?).
+    #[error("stats record of unknown kind {0}: every process of a run must be the same build")]
+    UnknownStatsKind(u32),
+    /// A model snapshot whose length does not match the run's model layout.
+    #[error("model snapshot has {found} floats, the run's model layout needs {expected}: every process of a run must use the same config")]
+    ModelLength {
+        /// Floats the layout needs.
+        expected: usize,
+        /// Floats that arrived.
+        found: usize,
+    },
+    /// Model weights that do not fit the run's wire layout (sender side).
+    #[error("model weights do not match the wire layout: {0}")]
+    ModelWeights(String),
+}

@@ -3,6 +3,9 @@
 //!
 //! * [`names`]: the services of a run (`mbpo/<run>/real`, `.../imagined`, `.../policy`,
 //!   `.../model`, `.../stats`, `.../control`), roles, producer ids, [`SCHEMA_VERSION`].
+//! * [`stats`]: what the services report to the coordinator ([`Stats`], named fields) and the
+//!   one place that maps it onto the fixed-size [`StatsRecord`].
+//! * [`model_layout`]: a model snapshot as one flat `[f32]` ([`ModelWireLayout`]).
 //! * [`schema`]: the `#[repr(C)]` headers and payloads ([`TransitionHeader`], [`WeightsHeader`],
 //!   [`MsgHeader`], [`StatsRecord`], [`ControlMsg`]) and the transition [`RowLayout`]
 //!   (`[obs, act, reward, next_obs, terminated]`) with allocation-free conversions to and from
@@ -52,23 +55,26 @@ use std::time::Duration;
 pub mod bench;
 pub mod error;
 pub mod messages;
+pub mod model_layout;
 pub mod names;
 pub mod reliable;
 pub mod run;
 pub mod schema;
+pub mod stats;
 pub mod transitions;
 pub mod waiter;
 pub mod weights;
 
 pub use error::{
-    CleanupError, HeaderMismatch, NodeCreateError, PortCreateError, PublishError, ReceiveError,
-    RunIpcError, SequenceGap, WaitError, WaitForSubscribersError, WaiterCreateError,
+    CleanupError, DecodeError, HeaderMismatch, NodeCreateError, PortCreateError, PublishError,
+    ReceiveError, RunIpcError, SequenceGap, WaitError, WaitForSubscribersError, WaiterCreateError,
     WeightsReceiveError,
 };
 pub use messages::{
     ControlPublisher, ControlSubscriber, MsgPublisher, MsgSubscriber, Received, StatsPublisher,
     StatsSubscriber, WireMessage,
 };
+pub use model_layout::ModelWireLayout;
 pub use names::{Channel, ProducerId, Role, SCHEMA_VERSION};
 pub use reliable::{PublisherStats, SendReport, SubscriberStats};
 pub use run::{run_hash, ChannelQos, RunIpc, StaleCleanup, WireNode};
@@ -76,11 +82,17 @@ pub use schema::{
     ControlCommand, ControlMsg, MsgHeader, RowLayout, RowRef, StatsKind, StatsRecord,
     TransitionHeader, WeightsCounters, WeightsHeader, WeightsKind, CONTROL_TARGET_ALL,
 };
+pub use stats::{
+    BarrierReport, Done, EpisodeEnd, EvalResult, LearnerRow, ModelTrained, Progress, RolloutBranch,
+    SlackTracker, Stats,
+};
 pub use transitions::{
     DrainReport, TransitionBatch, TransitionMeta, TransitionPublisher, TransitionSubscriber,
 };
-pub use waiter::{WaitOutcome, Waiter, Wakeable};
-pub use weights::{WeightsPublisher, WeightsSnapshot, WeightsSubscriber};
+pub use waiter::{Transport, WaitOutcome, Waiter, Wakeable};
+pub use weights::{
+    policy_version_of, policy_wire_version, WeightsPublisher, WeightsSnapshot, WeightsSubscriber,
+};
 
 /// The iceoryx2 service types, so services can name them without importing iceoryx2.
 pub use iceoryx2::service::{ipc, ipc_threadsafe, local, Service};

@@ -160,6 +160,16 @@ impl<T: WireMessage, S: Service> MsgPublisher<T, S> {
     }
 }
 
+impl<S: Service> MsgPublisher<StatsRecord, S> {
+    /// Send one report ([`crate::stats::Stats`]) as its record.
+    pub fn report(
+        &self,
+        stats: impl Into<crate::stats::Stats>,
+    ) -> Result<SendReport, PublishError> {
+        self.send(&stats.into().record())
+    }
+}
+
 /// A received message with its header.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Received<T> {

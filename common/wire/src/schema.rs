@@ -146,26 +146,24 @@ pub struct MsgHeader {
     pub producer_id: u32,
 }
 
-/// What a [`StatsRecord`] reports. The meaning of [`StatsRecord::metrics`] depends on it.
+/// What a [`StatsRecord`] reports; which slot holds which field is defined once, in
+/// [`crate::stats::Stats`] (decode records with [`crate::stats::Stats::decode`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[repr(u32)]
 pub enum StatsKind {
-    /// An actor finished an episode: `value` = undiscounted return, `episode_len` = steps.
+    /// An actor finished an episode.
     Episode = 1,
-    /// A deterministic evaluation finished: `value` = mean return over `episode_len`
-    /// episodes, `metrics[0]` = standard deviation of the returns.
+    /// A deterministic evaluation finished.
     Eval = 2,
-    /// Learner progress: `metrics` = [q1 loss, q2 loss, policy loss, alpha, entropy, updates/s, 0, 0].
+    /// The learner's part of a metrics row.
     Learner = 3,
-    /// Model trained: `value` = holdout MSE, `metrics` = [train loss, epochs, seconds, n elites, ...].
+    /// A model training finished.
     Model = 4,
-    /// Rollouts generated: `metrics` = [rows generated, rollout length k, seconds, 0, ...].
+    /// A rollout branch finished.
     Rollout = 5,
-    /// Liveness and counters only.
+    /// Progress counters, or the final report of a process (`metrics[0]` = 1).
     Heartbeat = 6,
-    /// A checkpoint barrier step (`mbpo_service_kit::stats::BarrierReport`): `metrics[0]` = 0
-    /// "paused" (`env_steps` = the producer's own work counter at the pause) or 1 "written"
-    /// (`env_steps` = the checkpoint's env step T).
+    /// A checkpoint barrier step.
     Checkpoint = 7,
 }
 
@@ -214,17 +212,6 @@ impl StatsRecord {
     /// The [`StatsKind`] if `kind` is a known value.
     pub fn stats_kind(&self) -> Option<StatsKind> {
         StatsKind::from_u32(self.kind)
-    }
-    /// An `Episode` record.
-    pub fn episode(ret: f64, len: u32, env_steps: u64, policy_version: u64) -> Self {
-        Self {
-            kind: StatsKind::Episode as u32,
-            value: ret,
-            episode_len: len,
-            env_steps,
-            policy_version,
-            ..Self::default()
-        }
     }
 }
 

@@ -209,3 +209,26 @@ where
         }
     }
 }
+
+/// A service type whose listeners a [`Waiter`] can sleep on: `ipc::Service` (processes) and
+/// `local::Service` (threads of one process). The bound is a supertrait, so code generic over
+/// `S: Transport` needs no further where-clause to wait.
+pub trait Transport:
+    Service<
+    Event: iceoryx2_cal::event::Event<
+        iceoryx2_bb_lock_free::mpmc::counting_bit_set::RelocatableCountingBitSet,
+        Listener: iceoryx2_bb_posix::file_descriptor_set::SynchronousMultiplexing,
+    >,
+>
+{
+}
+
+impl<S> Transport for S where
+    S: Service<
+        Event: iceoryx2_cal::event::Event<
+            iceoryx2_bb_lock_free::mpmc::counting_bit_set::RelocatableCountingBitSet,
+            Listener: iceoryx2_bb_posix::file_descriptor_set::SynchronousMultiplexing,
+        >,
+    >
+{
+}

@@ -399,3 +399,14 @@ impl<S: Service> WeightsSubscriber<S> {
         &self.side
     }
 }
+
+/// Policy versions cross the wire shifted by one ([`WeightsPublisher`] versions start at 1,
+/// policy versions at 0 = the initial parameters).
+pub fn policy_wire_version(version: u64) -> u64 {
+    version + 1
+}
+
+/// The policy version of a wire version (see [`policy_wire_version`]).
+pub fn policy_version_of(wire_version: u64) -> u64 {
+    wire_version.saturating_sub(1)
+}

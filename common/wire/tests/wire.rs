@@ -457,12 +457,11 @@ fn stats_and_control_round_trip() {
 
     for e in 0..10 {
         stats_tx
-            .send(&StatsRecord::episode(
-                -100.0 + e as f64,
-                200,
-                200 * (e + 1),
-                e,
-            ))
+            .report(EpisodeEnd {
+                env_steps: 200 * (e + 1),
+                episode_return: -100.0 + e as f64,
+                version: e,
+            })
             .unwrap();
     }
     let mut returns = Vec::new();

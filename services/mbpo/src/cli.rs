@@ -259,7 +259,7 @@ pub struct RunArgs {
     /// Hand-off mode: `lockstep` equals `mbpo train --mode sequential` bit for bit (one actor);
     /// `pipelined` overlaps the processes within bounded slack.
     #[arg(long, value_enum, default_value = "pipelined")]
-    pub mode: mbpo_service_kit::Mode,
+    pub mode: mbpo_runtime::Mode,
     /// Number of environment actors (lockstep needs exactly 1).
     #[arg(long, default_value_t = 1)]
     pub actors: u16,
@@ -267,7 +267,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub actors_per_core: Option<u16>,
     #[command(flatten)]
-    pub slack: mbpo_service_kit::Slack,
+    pub slack: mbpo_runtime::Slack,
     /// Base directory of the run's iceoryx2 files (kept short: unix socket paths live under it).
     #[arg(long, default_value = "/tmp/mbpo-ipc")]
     pub ipc_root: std::path::PathBuf,

@@ -17,7 +17,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {}", mbpo_service_kit::error_chain(&err));
+            eprintln!("error: {}", mbpo_runtime::error_chain(err.as_ref()));
             ExitCode::FAILURE
         }
     }

@@ -1,4 +1,4 @@
-//! The supervisor's side of pipeline checkpoints (protocol in `mbpo_service_kit::barrier`):
+//! The supervisor's side of pipeline checkpoints (protocol in `mbpo_runtime::barrier`):
 //! start a barrier (periodically, or on SIGINT/SIGTERM for a clean stop), turn the processes'
 //! pause reports into the cut, and write its own file and `COMPLETE` once every file is in.
 
@@ -6,12 +6,12 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Instant;
 
-use mbpo_service_kit::barrier::{self, Cut};
-use mbpo_service_kit::stats::BarrierReport;
-use mbpo_service_kit::{train_points_upto, Mode, Slack};
+use mbpo_runtime::barrier::{self, Cut};
+use mbpo_runtime::{Mode, Slack};
 use mbpo_train::checkpoint;
 use mbpo_train::roles::Schedule;
 use mbpo_train::Algo;
+use mbpo_wire::BarrierReport;
 use mbpo_wire::{ProducerId, Role};
 use serde::{Deserialize, Serialize};
 
@@ -112,7 +112,7 @@ impl Barrier {
         let model_trainings = if abandons {
             done
         } else {
-            train_points_upto(schedule, env_steps).max(done)
+            schedule.train_points_upto(env_steps).max(done)
         };
         let cut = Cut {
             env_steps,

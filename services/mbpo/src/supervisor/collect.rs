@@ -9,11 +9,10 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use mbpo_service_kit::stats::{Done, LearnerRow};
 use mbpo_train::progress::Progress;
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
-use mbpo_wire::{ProducerId, Role, StatsKind, StatsRecord};
+use mbpo_wire::{Done, LearnerRow, ProducerId, Role, Stats};
 use serde::{Deserialize, Serialize};
 
 use crate::cli::RunArgs;
@@ -155,7 +154,7 @@ pub struct Collector {
     mode: String,
     actors: u16,
     run_id: String,
-    slack: mbpo_service_kit::Slack,
+    slack: mbpo_runtime::Slack,
     eval_points: Vec<u64>,
     evals: BTreeMap<u64, f64>,
     learner: BTreeMap<u64, LearnerRow>,
@@ -175,9 +174,7 @@ impl Collector {
             actors: args.actors,
             run_id: run_id.into(),
             slack: args.slack.effective(args.mode),
-            eval_points: (1..=cfg.steps)
-                .filter(|&t| mbpo_service_kit::is_eval_point(cfg, t))
-                .collect(),
+            eval_points: mbpo_train::Schedule::of(cfg).eval_points().collect(),
             evals: BTreeMap::new(),
             learner: BTreeMap::new(),
             done: BTreeMap::new(),
@@ -234,48 +231,43 @@ impl Collector {
         self.book = book;
     }
 
-    /// Take one record.
-    pub fn on_record(&mut self, from: ProducerId, r: &StatsRecord) {
-        match r.stats_kind() {
-            Some(StatsKind::Episode) => self.book.episodes.push((r.env_steps, r.value)),
-            Some(StatsKind::Eval) => {
-                self.evals.insert(r.env_steps, r.value);
+    /// Take one report (barrier reports go to the supervisor's barrier, never here).
+    pub fn on_stats(&mut self, from: ProducerId, stats: Stats) {
+        match stats {
+            Stats::Episode(e) => self.book.episodes.push((e.env_steps, e.episode_return)),
+            Stats::Eval(e) => {
+                self.evals.insert(e.env_steps, e.mean_return);
                 if self.mpc() {
-                    self.learner
-                        .insert(r.env_steps, mpc_row(r.env_steps, r.model_version));
+                    let row = mpc_row(e.env_steps, e.model_version);
+                    self.learner.insert(e.env_steps, row);
                 }
             }
-            Some(StatsKind::Learner) => {
-                let row = LearnerRow::from_record(r);
-                self.book.progress = (r.env_steps, r.sac_updates, r.model_version);
-                self.learner.insert(r.env_steps, row);
+            Stats::Learner(row) => {
+                self.book.progress = (row.env_steps, row.sac_updates, row.model_version);
+                self.learner.insert(row.env_steps, row);
             }
-            Some(StatsKind::Model) => {
-                self.book.models.insert(r.model_version, r.value);
+            Stats::Model(m) => {
+                self.book.models.insert(m.version, m.holdout_mse);
             }
-            // Barrier reports go to the supervisor's barrier, never here.
-            Some(StatsKind::Rollout | StatsKind::Checkpoint) => {}
-            Some(StatsKind::Heartbeat) => match Done::from_record(r) {
-                Some(d) => {
-                    tracing::info!("{from} finished: {d:?}");
-                    if from.role() == Some(Role::Actor) {
-                        self.actor_steps.insert(from, u64::MAX);
-                    }
-                    self.done.insert(from, d);
+            Stats::Rollout(_) | Stats::Barrier(_) => {}
+            Stats::Done(d) => {
+                tracing::info!("{from} finished: {d:?}");
+                if from.role() == Some(Role::Actor) {
+                    self.actor_steps.insert(from, u64::MAX);
                 }
-                None if from.role() == Some(Role::Learner) => {
-                    self.book.progress = (r.env_steps, r.sac_updates, r.model_version)
+                self.done.insert(from, d);
+            }
+            Stats::Progress(p) if from.role() == Some(Role::Learner) => {
+                self.book.progress = (p.env_steps, p.sac_updates, p.model_version)
+            }
+            // MPC has no learner: the actors' progress is the run's.
+            Stats::Progress(p) if self.mpc() && from.role() == Some(Role::Actor) => {
+                self.actor_steps.insert(from, p.env_steps);
+                if p.env_steps > self.book.progress.0 {
+                    self.book.progress = (p.env_steps, 0, p.model_version)
                 }
-                // MPC has no learner: the actors' progress is the run's.
-                None if self.mpc() && from.role() == Some(Role::Actor) => {
-                    self.actor_steps.insert(from, r.env_steps);
-                    if r.env_steps > self.book.progress.0 {
-                        self.book.progress = (r.env_steps, 0, r.model_version)
-                    }
-                }
-                None => {}
-            },
-            None => tracing::warn!("stats record of unknown kind {} from {from}", r.kind),
+            }
+            Stats::Progress(_) => {}
         }
     }
 
@@ -342,11 +334,11 @@ impl Collector {
                 eval_return: ret,
                 train_return,
                 sac_updates: lr.sac_updates,
-                critic_loss: some(lr.stats.critic_loss),
-                actor_loss: some(lr.stats.actor_loss),
+                critic_loss: some(lr.critic_loss),
+                actor_loss: some(lr.actor_loss),
                 alpha: (!mpc).then_some(lr.alpha as f64),
-                entropy: some(lr.stats.entropy),
-                q_mean: some(lr.stats.q_mean),
+                entropy: some(lr.entropy),
+                q_mean: some(lr.q_mean),
                 model_holdout_mse: model,
                 rollout_length: model.filter(|_| !mpc).map(|_| lr.rollout_length as f64),
                 model_buffer: model.filter(|_| !mpc).map(|_| lr.model_buffer as f64),
@@ -509,8 +501,11 @@ fn mpc_row(t: u64, model_version: u64) -> LearnerRow {
     LearnerRow {
         env_steps: t,
         sac_updates: 0,
-        stats: Default::default(),
+        critic_loss: 0.0,
+        actor_loss: 0.0,
         alpha: f32::NAN,
+        entropy: 0.0,
+        q_mean: 0.0,
         rollout_length: 0,
         model_buffer: 0,
         model_version,

@@ -20,14 +20,14 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use mbpo_service_kit::stats::BarrierReport;
-use mbpo_service_kit::{configure_run, policy_wire_version, Mode};
+use mbpo_runtime::{configure_run, Mode};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::{policy_sha256, Algo, RunDir};
 use mbpo_wire::{
     ipc, ControlCommand, ControlMsg, ControlPublisher, Role, RunIpc, StatsSubscriber, WaitOutcome,
     Waiter, WeightsKind, WeightsSubscriber, CONTROL_TARGET_ALL,
 };
+use mbpo_wire::{policy_wire_version, Stats};
 
 use crate::cli::{RestartPolicy, RunArgs};
 use crate::train_cmd::{fresh_run_dir, overwrite_earlier_run, resolve_config, resumed_config};
@@ -364,7 +364,7 @@ fn supervise(
 ) -> anyhow::Result<Attempt> {
     let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
     let stats = StatsSubscriber::create(&node)?;
-    let dims = mbpo_service_kit::Dims::of(cfg)?;
+    let dims = mbpo_runtime::Dims::of(cfg)?;
     // The run's final "policy": the SAC actor (MBPO), or the last model version (MPC).
     let policy = if cfg.algo == Algo::Mpc {
         WeightsSubscriber::create(
@@ -455,7 +455,7 @@ fn supervise(
     let mut stopped = false;
     let final_wire = if cfg.algo == Algo::Mpc {
         let schedule = mbpo_train::roles::Schedule::of(cfg);
-        mbpo_service_kit::train_points_upto(&schedule, cfg.steps)
+        schedule.train_points_upto(cfg.steps)
     } else {
         policy_wire_version(cfg.steps)
     };
@@ -507,12 +507,13 @@ fn supervise(
         }
         loop {
             match stats.receive() {
-                Ok(Some(r)) => match (BarrierReport::from_record(&r.msg), barrier.as_mut()) {
-                    (Some(report), Some(b)) => b.on_report(r.producer(), report),
-                    (Some(report), None) => {
+                Ok(Some(r)) => match (Stats::decode(&r.msg), barrier.as_mut()) {
+                    (Ok(Stats::Barrier(report)), Some(b)) => b.on_report(r.producer(), report),
+                    (Ok(Stats::Barrier(report)), None) => {
                         tracing::warn!("{}: {report:?} outside a barrier", r.producer())
                     }
-                    (None, _) => col.on_record(r.producer(), &r.msg),
+                    (Ok(stats), _) => col.on_stats(r.producer(), stats),
+                    (Err(e), _) => tracing::warn!("stats from {}: {e}", r.producer()),
                 },
                 Ok(None) => break,
                 Err(e) => tracing::warn!("stats: {e}"),
@@ -787,7 +788,7 @@ fn start_barrier(
 /// abandon work the cut does not need, such as a model training under way).
 fn send_pause(control: &ControlPublisher<ipc::Service>, stop_after: bool) -> anyhow::Result<()> {
     let to_stop = if stop_after {
-        mbpo_service_kit::barrier::PAUSE_TO_STOP
+        mbpo_runtime::barrier::PAUSE_TO_STOP
     } else {
         0
     };

@@ -33,17 +33,17 @@
 use std::marker::PhantomData;
 use std::path::Path;
 
-use mbpo_core::Rng;
+use mbpo_core::{Batch, Rng};
 use mbpo_train::checkpoint;
 use mbpo_train::mpc::{PlanningActorState, PlanningEvaluatorState};
 use mbpo_train::roles::{ActorState, ModelTrainerState, RolloutState};
 use mbpo_train::Algo;
-use mbpo_wire::{ipc, StatsPublisher, Waiter};
+use mbpo_wire::{BarrierReport, StatsPublisher, TransitionSubscriber, Transport, Waiter};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 
-use crate::{wait_for, ControlInbox, RealInbox};
-use mbpo_core::Batch;
-use mbpo_wire::TransitionSubscriber;
+use crate::error::ensure_protocol;
+use crate::inbox::{wait_for, ControlInbox, RealInbox};
+use crate::{Result, RuntimeError};
 
 /// The Pause's `request_id` of a barrier the run stops after (SIGINT/SIGTERM); 0 for a
 /// periodic one. (Sent again when a stop is requested during a periodic barrier.)
@@ -190,14 +190,14 @@ pub fn pausing_processes(algo: Algo, actors: u16) -> usize {
 
 /// Report the pause with the process's own counter, then sleep until the cut arrives.
 /// `Ok(None)`: stopped instead.
-pub fn report_paused(
-    waiter: &Waiter<'_, ipc::Service>,
-    control: &ControlInbox,
-    stats: &StatsPublisher,
+pub fn report_paused<S: Transport>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    stats: &StatsPublisher<S>,
     counter: u64,
-) -> anyhow::Result<Option<Cut>> {
+) -> Result<Option<Cut>> {
     if control.cut().is_none() {
-        stats.send(&crate::stats::BarrierReport::Paused(counter).record())?;
+        stats.report(BarrierReport::Paused(counter))?;
         tracing::info!("checkpoint barrier: paused at {counter}");
     }
     let arrived = wait_for(waiter, control, &|| "the checkpoint cut".into(), || {
@@ -227,7 +227,7 @@ impl FileTarget {
         }
     }
     /// Read this file of the checkpoint directory `dir` (`--resume-from`).
-    pub fn read<S: DeserializeOwned>(&self, dir: &Path) -> anyhow::Result<S> {
+    pub fn read<T: DeserializeOwned>(&self, dir: &Path) -> Result<T> {
         let path = dir.join(&self.file);
         let state = checkpoint::read(&path, self.kind)?;
         tracing::info!("resuming from {}", path.display());
@@ -237,18 +237,21 @@ impl FileTarget {
 
 /// Write `state` into checkpoint `cut` at `target`, report it, then sleep until the supervisor
 /// says resume (`Ok(true)`) or stop (`Ok(false)`).
-pub fn write_and_await_resume<S: Serialize>(
-    waiter: &Waiter<'_, ipc::Service>,
-    control: &ControlInbox,
-    stats: &StatsPublisher,
+pub fn write_and_await_resume<S: Transport, T: Serialize>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    stats: &StatsPublisher<S>,
     target: &FileTarget,
     cut: Cut,
-    state: &S,
-) -> anyhow::Result<bool> {
+    state: &T,
+) -> Result<bool> {
     let dir = checkpoint::dir_for(&target.run_dir, cut.env_steps);
-    std::fs::create_dir_all(&dir)?;
+    std::fs::create_dir_all(&dir).map_err(|source| RuntimeError::Io {
+        path: dir.clone(),
+        source,
+    })?;
     checkpoint::write(&dir.join(&target.file), target.kind, state)?;
-    stats.send(&crate::stats::BarrierReport::Written(cut.env_steps).record())?;
+    stats.report(BarrierReport::Written(cut.env_steps))?;
     tracing::info!(
         "checkpoint after step {} ({} model trainings): wrote {}",
         cut.env_steps,
@@ -278,18 +281,18 @@ pub enum Gate {
 
 /// True when a barrier holds a producer that has done `done` pieces of work: paused and the
 /// cut not yet known, or known and not needing more work. Use it in a wait's wake-up condition.
-pub fn holds(control: &ControlInbox, done: u64) -> bool {
+pub fn holds<S: Transport>(control: &ControlInbox<S>, done: u64) -> bool {
     control.pause_requested() && control.cut().is_none_or(|c| done >= c.model_trainings)
 }
 
 /// Look at the barrier before the `done + 1`-th piece of work: report the pause (once) and
 /// wait for the cut if a barrier is under way.
-pub fn gate(
-    waiter: &Waiter<'_, ipc::Service>,
-    control: &ControlInbox,
-    stats: &StatsPublisher,
+pub fn gate<S: Transport>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    stats: &StatsPublisher<S>,
     done: u64,
-) -> anyhow::Result<Gate> {
+) -> Result<Gate> {
     if !control.pause_requested() {
         return Ok(Gate::Work);
     }
@@ -309,14 +312,14 @@ pub fn gate(
 
 /// Wait until the first `env_steps` real transitions of the run arrived and hand out those not
 /// yet taken into `rows` (a consumer at the cut holds every transition ≤ T). `Ok(false)`: stopped.
-pub fn take_upto(
-    waiter: &Waiter<'_, ipc::Service>,
-    control: &ControlInbox,
-    real: &TransitionSubscriber<ipc::Service>,
+pub fn take_upto<S: Transport>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    real: &TransitionSubscriber<S>,
     inbox: &mut RealInbox,
     rows: &mut Batch,
     env_steps: u64,
-) -> anyhow::Result<bool> {
+) -> Result<bool> {
     let arrived = wait_for(
         waiter,
         control,
@@ -327,7 +330,7 @@ pub fn take_upto(
         },
     )?;
     if arrived {
-        anyhow::ensure!(
+        ensure_protocol!(
             inbox.received() == env_steps,
             "checkpoint after step {env_steps}: {} real transitions arrived although the actors are paused",
             inbox.received()
@@ -340,13 +343,13 @@ pub fn take_upto(
 /// After its work, sleep until the supervisor's Stop while still taking part in checkpoint
 /// barriers: `pause_counter` is reported at a pause (`None` for the learner and evaluator,
 /// which never pause), `at_cut` writes the file and waits for the resume (`Ok(false)`: stop).
-pub fn idle_until_stop(
-    waiter: &Waiter<'_, ipc::Service>,
-    control: &ControlInbox,
-    stats: &StatsPublisher,
+pub fn idle_until_stop<S: Transport>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    stats: &StatsPublisher<S>,
     pause_counter: Option<u64>,
-    mut at_cut: impl FnMut(Cut) -> anyhow::Result<bool>,
-) -> anyhow::Result<()> {
+    mut at_cut: impl FnMut(Cut) -> Result<bool>,
+) -> Result<()> {
     loop {
         let what = || "the supervisor's stop".to_string();
         if !wait_for(waiter, control, &what, || Ok(control.pause_requested()))? {
@@ -369,25 +372,25 @@ pub fn idle_until_stop(
 /// barrier: its ports, and `at_cut(role, rows, cut)`, called at the cut with every transition
 /// ≤ T not yet taken in `rows`, which adds them to the role, writes the role's file and waits
 /// for the resume (`Ok(false)`: stopped).
-pub struct DataGate<'w, 'a, R, F> {
-    waiter: &'w Waiter<'a, ipc::Service>,
-    control: &'w ControlInbox,
-    stats: &'w StatsPublisher,
-    real: &'w TransitionSubscriber<ipc::Service>,
+pub struct DataGate<'w, 'a, S: Transport, R, F> {
+    waiter: &'w Waiter<'a, S>,
+    control: &'w ControlInbox<S>,
+    stats: &'w StatsPublisher<S>,
+    real: &'w TransitionSubscriber<S>,
     at_cut: F,
     role: PhantomData<fn(&mut R)>,
 }
 
-impl<'w, 'a, R, F> DataGate<'w, 'a, R, F>
+impl<'w, 'a, S: Transport, R, F> DataGate<'w, 'a, S, R, F>
 where
-    F: Fn(&mut R, &Batch, Cut) -> anyhow::Result<bool>,
+    F: Fn(&mut R, &Batch, Cut) -> Result<bool>,
 {
     /// The gate of a process with these ports.
     pub fn new(
-        waiter: &'w Waiter<'a, ipc::Service>,
-        control: &'w ControlInbox,
-        stats: &'w StatsPublisher,
-        real: &'w TransitionSubscriber<ipc::Service>,
+        waiter: &'w Waiter<'a, S>,
+        control: &'w ControlInbox<S>,
+        stats: &'w StatsPublisher<S>,
+        real: &'w TransitionSubscriber<S>,
         at_cut: F,
     ) -> Self {
         Self {
@@ -407,7 +410,7 @@ where
         rows: &mut Batch,
         role: &mut R,
         cut: Cut,
-    ) -> anyhow::Result<bool> {
+    ) -> Result<bool> {
         let n = cut.env_steps;
         if !take_upto(self.waiter, self.control, self.real, inbox, rows, n)? {
             return Ok(false);
@@ -425,8 +428,8 @@ where
         role: &mut R,
         done: u64,
         what: &dyn Fn() -> String,
-        mut ready: impl FnMut(&mut R, &RealInbox) -> anyhow::Result<bool>,
-    ) -> anyhow::Result<bool> {
+        mut ready: impl FnMut(&mut R, &RealInbox) -> Result<bool>,
+    ) -> Result<bool> {
         loop {
             let mut is_ready = false;
             let woke = wait_for(self.waiter, self.control, what, || {
@@ -458,7 +461,7 @@ where
         role: &mut R,
         need: u64,
         done: u64,
-    ) -> anyhow::Result<bool> {
+    ) -> Result<bool> {
         let what = || format!("{need} real transitions");
         self.wait_until(inbox, rows, role, done, &what, |_, inbox| {
             Ok(inbox.received() >= need)
@@ -472,7 +475,7 @@ where
         rows: &mut Batch,
         role: &mut R,
         pause_counter: Option<u64>,
-    ) -> anyhow::Result<()> {
+    ) -> Result<()> {
         idle_until_stop(
             self.waiter,
             self.control,

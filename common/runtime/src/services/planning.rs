@@ -12,7 +12,7 @@
 //! acknowledgements of every eval point that uses the current one (weights are latest-value, so
 //! this is what keeps a version from being overwritten unseen).
 //!
-//! Checkpoints (`mbpo_service_kit::barrier`): an actor pauses between steps like the SAC actor
+//! Checkpoints (`mbpo_runtime::barrier`): an actor pauses between steps like the SAC actor
 //! and writes its env, streams and the controller's warm start (not the model: a resumed model
 //! trainer publishes its version again). The evaluator writes its streams as they were before
 //! its first eval point after the cut (it may have gone past the cut, see `evaluate`). The
@@ -20,24 +20,29 @@
 
 use std::time::{Duration, Instant};
 
-use mbpo_service_kit::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
-use mbpo_service_kit::{stats, *};
 use mbpo_train::actor::Behaviour;
 use mbpo_train::mpc::{PlanningActorRole, PlanningEvaluator};
-use mbpo_train::roles::{ModelSnapshot, Schedule};
+use mbpo_train::roles::ModelSnapshot;
+use mbpo_train::Schedule;
 use mbpo_wire::*;
+
+use crate::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
+use crate::error::ensure_protocol;
+use crate::{Result, *};
 
 /// The model version the sequential run plans with at step `g`, minus the allowed lag.
 fn needed_model(schedule: &Schedule, g: u64, model_lag: u64) -> u64 {
-    train_points_upto(schedule, g.saturating_sub(model_lag)).max(1)
+    schedule
+        .train_points_upto(g.saturating_sub(model_lag))
+        .max(1)
 }
 
 /// Load the newest published model into `set` if there is one; returns its version.
-fn pull_model(
-    model: &WeightsSubscriber<ipc::Service>,
+fn pull_model<S: Transport>(
+    model: &WeightsSubscriber<S>,
     d: &Dims,
-    mut set: impl FnMut(&ModelSnapshot) -> anyhow::Result<()>,
-) -> anyhow::Result<Option<u64>> {
+    mut set: impl FnMut(&ModelSnapshot) -> Result<()>,
+) -> Result<Option<u64>> {
     let Some(w) = model.receive_latest()? else {
         return Ok(None);
     };
@@ -49,10 +54,12 @@ fn pull_model(
     Ok(Some(snapshot.version))
 }
 
-pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
+/// A planning actor's service loop (`s`: its opened process).
+pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
+    let args = &s.args;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::create(&s.node)?;
+    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
     let model = WeightsSubscriber::create(
         &s.node,
         WeightsKind::Model,
@@ -67,8 +74,8 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     waiter.attach(&control.sub).attach(&model);
 
     let mut role = PlanningActorRole::new(cfg, args.index as u64)?;
-    let schedule = Schedule::of(cfg);
-    let mut lag = stats::SlackTracker::default();
+    let schedule = s.schedule;
+    let mut lag = SlackTracker::default();
     let mut plan_seconds = Vec::new();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
@@ -93,7 +100,7 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
     // At a barrier: report the steps done, then as above.
-    let at_barrier = |role: &PlanningActorRole, done: u64| -> anyhow::Result<bool> {
+    let at_barrier = |role: &PlanningActorRole, done: u64| -> Result<bool> {
         match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
             Some(cut) => write_at(role, done, cut),
             None => Ok(false),
@@ -136,9 +143,9 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
             if control.pause_requested() {
                 continue;
             }
-            let exact = train_points_upto(&schedule, g);
+            let exact = schedule.train_points_upto(g);
             if s.mode == Mode::Lockstep {
-                anyhow::ensure!(
+                ensure_protocol!(
                     role.model_version() == exact,
                     "lockstep planning actor at step {g} got model version {} (want {exact})",
                     role.model_version()
@@ -155,7 +162,11 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         let a = role.env_actor();
         if a.episodes > episodes {
             let ret = a.last_return.unwrap_or(f64::NAN);
-            stats_pub.send(&StatsRecord::episode(ret, 0, g, role.model_version()))?;
+            stats_pub.report(EpisodeEnd {
+                env_steps: g,
+                episode_return: ret,
+                version: role.model_version(),
+            })?;
         }
         let meta = TransitionMeta {
             policy_version: 0,
@@ -169,13 +180,17 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         // writes the metrics row of eval point t only once every actor is past t.
         if behaviour == Behaviour::Policy || last_progress.elapsed() >= Duration::from_millis(500) {
             last_progress = Instant::now();
-            stats_pub.send(&stats::progress(g, 0, role.model_version(), 0))?;
+            stats_pub.report(Progress {
+                env_steps: g,
+                model_version: role.model_version(),
+                ..Default::default()
+            })?;
         }
     }
     plan_seconds.sort_by(f64::total_cmp);
     let median = plan_seconds.get(plan_seconds.len() / 2).copied();
     let (lo, hi, mean) = lag.get();
-    let done = stats::Done {
+    let done = Done {
         real: steps,
         work: role.plans(),
         median_step_seconds: median.unwrap_or(0.0) as f32,
@@ -186,7 +201,7 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         wall_seconds: started.elapsed().as_secs_f32(),
         ..Default::default()
     };
-    stats_pub.send(&done.record())?;
+    stats_pub.report(done)?;
     tracing::info!(
         "done: {steps} steps, {} plans (median {:.1} ms), model lag {lo}..{hi} (mean {mean:.2})",
         role.plans(),
@@ -197,11 +212,13 @@ pub fn act(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     })
 }
 
-pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
+/// The planning evaluator's service loop (`s`: its opened process).
+pub fn evaluate<S: Transport>(s: Process<S>) -> Result<()> {
+    let args = &s.args;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::create(&s.node)?;
-    let acks = ControlPublisher::create(&s.node)?;
+    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
+    let acks = ControlPublisher::<S>::create(&s.node)?;
     let model = WeightsSubscriber::create(
         &s.node,
         WeightsKind::Model,
@@ -216,7 +233,7 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
     waiter.attach(&control.sub).attach(&model);
 
     let mut evaluator = PlanningEvaluator::new(cfg)?;
-    let schedule = Schedule::of(cfg);
+    let schedule = s.schedule;
     let trainer = ProducerId::new(Role::ModelTrainer, 0);
     let mut evals = 0;
     let mut after = 0;
@@ -252,8 +269,8 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
         evals,
         env_steps: 0,
     };
-    for t in (after + 1..=cfg.steps).filter(|&t| is_eval_point(cfg, t)) {
-        let need = train_points_upto(&schedule, t);
+    for t in (after + 1..=cfg.steps).filter(|&t| schedule.is_eval_point(t)) {
+        let need = schedule.train_points_upto(t);
         let mut acknowledged = false;
         let ret = loop {
             // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
@@ -288,7 +305,7 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
             }
             before_eval.push((t, state_now(&evaluator, evals)));
             if s.mode == Mode::Lockstep {
-                anyhow::ensure!(
+                ensure_protocol!(
                     evaluator.model_version() == need,
                     "lockstep evaluator at step {t} expected model version {need}, got {}",
                     evaluator.model_version()
@@ -334,25 +351,23 @@ pub fn evaluate(args: &ServiceArgs, s: Process) -> anyhow::Result<()> {
             }
         };
         let (ret, seconds) = ret;
-        stats_pub.send(&stats::eval_model(
-            t,
-            evaluator.model_version(),
-            ret,
-            cfg.eval.episodes,
-        ))?;
+        stats_pub.report(EvalResult {
+            env_steps: t,
+            policy_version: 0,
+            model_version: evaluator.model_version(),
+            mean_return: ret,
+            episodes: cfg.eval.episodes as u32,
+        })?;
         tracing::info!(
             "eval after step {t} (model version {}): {ret:.2} in {seconds:.1} s",
             evaluator.model_version()
         );
         evals += 1;
     }
-    stats_pub.send(
-        &stats::Done {
-            work: evals,
-            ..Default::default()
-        }
-        .record(),
-    )?;
+    stats_pub.report(Done {
+        work: evals,
+        ..Default::default()
+    })?;
     barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
         write_at(&mut before_eval, state_now(&evaluator, evals), cut)
     })

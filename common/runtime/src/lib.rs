@@ -1,0 +1,32 @@
+//! The pipeline's runtime: everything a role needs to run as a service, generic over the
+//! iceoryx2 service type, so the same loops run as separate processes (`ipc::Service`, the
+//! binaries under `services/`) or as threads of one process (`local::Service`, the in-process
+//! pipeline of the tests).
+//!
+//! * [`args`]: [`ServiceArgs`], the command line every service takes; [`Mode`] and [`Slack`].
+//! * [`process`]: [`Process`] (config, schedule, sizes of what crosses, run IPC, node), process
+//!   start and exit code.
+//! * [`inbox`]: [`ControlInbox`] (stops, acknowledgements, barriers), [`RealInbox`] (real
+//!   transitions held back until a role may see them) and [`wait_for`], the one way to sleep.
+//! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
+//! * [`error`]: the one error type, [`RuntimeError`].
+//!
+//! What crosses shared memory (stats records, the model-weights layout) is defined in
+//! `mbpo-wire`; when things happen (train points, eval points, updates owed) in
+//! `mbpo_train::Schedule`.
+#![warn(missing_docs)]
+
+pub mod args;
+pub mod barrier;
+pub mod error;
+pub mod inbox;
+pub mod process;
+pub mod services;
+
+pub use args::{Mode, ServiceArgs, Slack};
+pub use error::{Result, RuntimeError};
+pub use inbox::{send_ack, wait_for, wait_for_stop, ControlInbox, RealInbox};
+pub use process::{
+    actor_steps, configure_run, error_chain, exit_code, global_step, init_logging,
+    init_service_process, load_config, Dims, Process, BINARIES,
+};

@@ -1,0 +1,253 @@
+//! One service: its config, the sizes of what it sends, its run IPC and node ([`Process`]), and
+//! how a service process starts and ends ([`init_service_process`], [`exit_code`]).
+
+use std::path::Path;
+
+use mbpo_core::rng::stream;
+use mbpo_model::ProbabilisticEnsemble;
+use mbpo_sac::TanhGaussianActor;
+use mbpo_train::{ExperimentConfig, Schedule};
+use mbpo_wire::{ModelWireLayout, Role, RowLayout, RunIpc, Transport, WireNode};
+
+use crate::args::{Mode, ServiceArgs, Slack};
+use crate::{Result, RuntimeError};
+
+/// Logs to stderr (the launcher redirects it to `<run-dir>/logs/<process>.log`).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(false)
+        .try_init();
+}
+
+/// What a service *process* does before its loop: log to stderr, and exit when its launcher
+/// dies. The launcher starts services in their own process group (so a Ctrl-C reaches only it);
+/// should it die without stopping them, SIGTERM makes them exit too. (Roles running as threads
+/// of one process skip this.)
+pub fn init_service_process() {
+    init_logging();
+    // SAFETY: prctl(PR_SET_PDEATHSIG) only sets a flag of this process.
+    unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
+}
+
+/// Load `<run_dir>/config.toml` (written by the launcher).
+pub fn load_config(run_dir: &Path) -> Result<ExperimentConfig> {
+    let path = run_dir.join("config.toml");
+    ExperimentConfig::load(&path).map_err(|source| RuntimeError::Config { path, source })
+}
+
+/// Sizes and layout hashes of everything that crosses shared memory in a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Dims {
+    /// Observation width.
+    pub obs: usize,
+    /// Action width.
+    pub act: usize,
+    /// `ParamLayout::hash` of the SAC actor.
+    pub policy_hash: u64,
+    /// Floats in a policy snapshot.
+    pub policy_len: usize,
+    /// How model snapshots are laid out.
+    pub model: ModelWireLayout,
+}
+
+impl Dims {
+    /// The dimensions of the run configured by `cfg`.
+    pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
+        let env = mbpo_envs::make(&cfg.env)?;
+        let (obs, act) = (env.obs_dim(), env.act_dim());
+        let net = actor_net(cfg, obs, act);
+        // Architecture only; the stream is never used for anything else.
+        let model = ProbabilisticEnsemble::new(
+            obs,
+            act,
+            cfg.model.clone(),
+            &mut stream(cfg.seed, "wire.model-shape", 0),
+        )
+        .map_err(|e| RuntimeError::Model(e.to_string()))?;
+        Ok(Self {
+            obs,
+            act,
+            policy_hash: net.layout().hash(),
+            policy_len: net.num_params(),
+            model: ModelWireLayout::of_model(&model, cfg.model.elites),
+        })
+    }
+    /// The transition row layout.
+    pub fn rows(&self) -> RowLayout {
+        RowLayout::new(self.obs, self.act)
+    }
+}
+
+fn actor_net(cfg: &ExperimentConfig, obs: usize, act: usize) -> TanhGaussianActor {
+    let s = &cfg.sac;
+    TanhGaussianActor::new(obs, act, &s.hidden, s.log_std_min, s.log_std_max)
+}
+
+/// One service: its config, run IPC and node.
+pub struct Process<S: Transport> {
+    /// The resolved config.
+    pub cfg: ExperimentConfig,
+    /// When things happen in the run.
+    pub schedule: Schedule,
+    /// Dimensions and layouts.
+    pub dims: Dims,
+    /// The run's iceoryx2 environment.
+    pub run: RunIpc,
+    /// This process's node.
+    pub node: WireNode<S>,
+    /// Hand-off mode.
+    pub mode: Mode,
+    /// Slack in force (zero in lockstep).
+    pub slack: Slack,
+    /// The arguments it was started with.
+    pub args: ServiceArgs,
+}
+
+impl<S: Transport> Process<S> {
+    /// Load the config, open the run and create the node of `(role, args.index)`.
+    pub fn open(args: &ServiceArgs, role: Role) -> Result<Self> {
+        let cfg = load_config(&args.run_dir)?;
+        let dims = Dims::of(&cfg)?;
+        let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
+        configure_run(&mut run);
+        let node = run.node::<S>(role, args.index)?;
+        tracing::info!(
+            "{} of run {} ({} {}, seed {}, {} steps, mode {}, pid {})",
+            node.name(),
+            args.run_id,
+            cfg.env,
+            cfg.algo.name(),
+            cfg.seed,
+            cfg.steps,
+            args.mode.name(),
+            std::process::id()
+        );
+        Ok(Self {
+            schedule: Schedule::of(&cfg),
+            cfg,
+            dims,
+            run,
+            node,
+            mode: args.mode,
+            slack: args.slack.effective(args.mode),
+            args: args.clone(),
+        })
+    }
+    /// True in lockstep mode.
+    pub fn lockstep(&self) -> bool {
+        self.mode == Mode::Lockstep
+    }
+    /// A fresh SAC actor network of the run (architecture only).
+    pub fn actor_net(&self) -> TanhGaussianActor {
+        actor_net(&self.cfg, self.dims.obs, self.dims.act)
+    }
+}
+
+/// Make the per-run channel limits every process of a run uses (they must agree): a deep real
+/// transition queue, so a consumer busy training does not stall the actors at once.
+pub fn configure_run(run: &mut RunIpc) {
+    let mut q = mbpo_wire::ChannelQos::default_for(mbpo_wire::Channel::Real);
+    q.buffer_size = 1024;
+    run.set_qos(mbpo_wire::Channel::Real, q);
+}
+
+/// Steps taken by actor `index` of `actors` when the run has `steps` real steps in total.
+pub fn actor_steps(steps: u64, actors: u16, index: u16) -> u64 {
+    let n = actors.max(1) as u64;
+    steps / n + u64::from((index as u64) < steps % n)
+}
+
+/// Global env step of actor `index`'s local step `t` (1-based): steps are dealt round-robin.
+pub fn global_step(t: u64, actors: u16, index: u16) -> u64 {
+    (t - 1) * actors.max(1) as u64 + index as u64 + 1
+}
+
+/// Binary names of the services, as installed next to `mbpo`.
+pub const BINARIES: [&str; 4] = [
+    "mbpo-actor",
+    "mbpo-model-trainer",
+    "mbpo-rollout-generator",
+    "mbpo-sac-learner",
+];
+
+/// A service's exit code: success, or the error (with its causes) logged and failure. Every
+/// service `main` ends with it, so a failing service always leaves its reason in its log.
+pub fn exit_code<E: std::error::Error + 'static>(
+    result: std::result::Result<(), E>,
+) -> std::process::ExitCode {
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{}", error_chain(&e));
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// `err` and its causes joined by ": ", like anyhow's `{:#}`, but without a cause whose text
+/// the message already ends with: many errors print their source themselves (`"checkpoint
+/// <path>: {source}"`), and `{:#}` would then say "No such file or directory" twice.
+pub fn error_chain(err: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = String::new();
+    let mut cause = Some(err);
+    while let Some(c) = cause {
+        let part = c.to_string();
+        cause = c.source();
+        if text == part || text.ends_with(&format!(": {part}")) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, thiserror::Error)]
+    #[error("{what}")]
+    struct Outer {
+        what: &'static str,
+        #[source]
+        source: Box<dyn std::error::Error + 'static>,
+    }
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let err = Outer {
+            what: "evaluating run",
+            source: Box::new(mbpo_train::checkpoint::CheckpointError::Io {
+                path: "run/checkpoints/1/learner".into(),
+                source: io,
+            }),
+        };
+        assert_eq!(
+            error_chain(&err),
+            "evaluating run: checkpoint run/checkpoints/1/learner: no such file"
+        );
+        // A cause that merely ends the message's last word is still said.
+        let err = Outer {
+            what: "not found",
+            source: "found".into(),
+        };
+        assert_eq!(error_chain(&err), "not found: found");
+    }
+
+    #[test]
+    fn actors_deal_the_steps_round_robin() {
+        let mut seen: Vec<u64> = (0..3)
+            .flat_map(|i| (1..=actor_steps(10, 3, i)).map(move |t| global_step(t, 3, i)))
+            .collect();
+        seen.sort();
+        assert_eq!(seen, (1..=10).collect::<Vec<_>>());
+    }
+}

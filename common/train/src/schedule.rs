@@ -1,0 +1,156 @@
+//! When things happen in a run, as pure functions of the env step t (1-based): warm-up, model
+//! trainings and rollout branches (train points), evaluations, and the SAC updates owed. The
+//! sequential trainers and every pipeline role ask this one type, so no rule is written twice.
+
+use crate::config::{Algo, ExperimentConfig};
+
+/// The schedule of one run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Schedule {
+    /// Uniform-random warm-up steps.
+    pub init_random_steps: u64,
+    /// Env steps per epoch.
+    pub epoch_length: u64,
+    /// Model retrain period in env steps.
+    pub model_train_freq: u64,
+    /// SAC updates per env step after the warm-up (G; 0 for MPC, which has no learner).
+    pub updates_per_step: u64,
+    /// Evaluate every this many env steps (and after the last one).
+    pub eval_every: u64,
+    /// Env steps of the run.
+    pub steps: u64,
+    /// Skip eval points inside the warm-up (MPC: there is no model to plan with yet).
+    pub skip_warm_up_evals: bool,
+}
+
+impl Schedule {
+    /// The schedule of a config (MPC's warm-up and retrain period for algo = "mpc").
+    pub fn of(cfg: &ExperimentConfig) -> Self {
+        let mpc = cfg.algo == Algo::Mpc;
+        let (init_random_steps, epoch_length, model_train_freq) = match mpc {
+            true => (
+                cfg.mpc.init_random_steps,
+                cfg.mpc.model_train_freq,
+                cfg.mpc.model_train_freq,
+            ),
+            false => (
+                cfg.mbpo.init_random_steps,
+                cfg.mbpo.epoch_length,
+                cfg.mbpo.model_train_freq,
+            ),
+        };
+        Self {
+            init_random_steps,
+            epoch_length,
+            model_train_freq,
+            updates_per_step: if mpc {
+                0
+            } else {
+                cfg.mbpo.updates_per_step as u64
+            },
+            eval_every: cfg.eval.every,
+            steps: cfg.steps,
+            skip_warm_up_evals: mpc,
+        }
+    }
+    /// Is step `t` a warm-up step?
+    pub fn is_warm_up(&self, t: u64) -> bool {
+        t <= self.init_random_steps
+    }
+    /// `Some(epoch)` when the model is trained and rollouts are branched before step `t`.
+    pub fn train_point(&self, t: u64) -> Option<usize> {
+        if self.is_warm_up(t) {
+            return None;
+        }
+        let since = t - self.init_random_steps - 1;
+        since
+            .is_multiple_of(self.model_train_freq)
+            .then_some((since / self.epoch_length) as usize)
+    }
+    /// Number of train points t' ≤ `t`: the model trainings (and imagined batches) that exist
+    /// once step `t` is taken.
+    pub fn train_points_upto(&self, t: u64) -> u64 {
+        if t <= self.init_random_steps {
+            0
+        } else {
+            (t - self.init_random_steps - 1) / self.model_train_freq + 1
+        }
+    }
+    /// The env step of the `n`-th train point (where model version `n` is trained); `None`
+    /// for n = 0 or past the run's last train point.
+    pub fn nth_train_point(&self, n: u64) -> Option<u64> {
+        let t = self.init_random_steps + 1 + n.checked_sub(1)? * self.model_train_freq;
+        (t <= self.steps).then_some(t)
+    }
+    /// Is step `t` an eval point: t a multiple of `eval.every`, or the last step (MPC: not
+    /// inside the warm-up)?
+    pub fn is_eval_point(&self, t: u64) -> bool {
+        let warm_up = self.skip_warm_up_evals && self.is_warm_up(t);
+        !warm_up && (t.is_multiple_of(self.eval_every) || t == self.steps)
+    }
+    /// Every eval point of the run, in order.
+    pub fn eval_points(&self) -> impl Iterator<Item = u64> + '_ {
+        (1..=self.steps).filter(|&t| self.is_eval_point(t))
+    }
+    /// SAC updates owed once step `t` is consumed: G per step after the warm-up.
+    pub fn updates_owed(&self, t: u64) -> u64 {
+        t.saturating_sub(self.init_random_steps) * self.updates_per_step
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mpc() -> ExperimentConfig {
+        let mut cfg = ExperimentConfig {
+            algo: Algo::Mpc,
+            steps: 1000,
+            ..Default::default()
+        };
+        cfg.mpc.init_random_steps = 100;
+        cfg.mpc.model_train_freq = 250;
+        cfg.eval.every = 50;
+        cfg
+    }
+
+    #[test]
+    fn train_points_counted_listed_and_numbered_agree() {
+        for cfg in [mpc(), ExperimentConfig::default()] {
+            let s = Schedule::of(&cfg);
+            let points: Vec<u64> = (1..=s.steps)
+                .filter(|&t| s.train_point(t).is_some())
+                .collect();
+            for t in 0..=s.steps {
+                let upto = points.iter().filter(|&&p| p <= t).count() as u64;
+                assert_eq!(s.train_points_upto(t), upto, "t = {t}");
+            }
+            for (i, &p) in points.iter().enumerate() {
+                assert_eq!(s.nth_train_point(i as u64 + 1), Some(p));
+            }
+            assert_eq!(s.nth_train_point(0), None, "no model: no train point");
+            assert_eq!(s.nth_train_point(points.len() as u64 + 1), None);
+        }
+        let s = Schedule::of(&mpc());
+        let firsts: Vec<_> = (1..=4).map(|n| s.nth_train_point(n).unwrap()).collect();
+        // The first model right after the warm-up, then one every 250 steps.
+        assert_eq!(firsts, [101, 351, 601, 851]);
+    }
+
+    #[test]
+    fn eval_points_skip_the_warm_up_only_for_mpc() {
+        let s = Schedule::of(&mpc());
+        let points: Vec<u64> = s.eval_points().take(3).collect();
+        assert_eq!(points, [150, 200, 250]);
+        let mut cfg = ExperimentConfig {
+            steps: 130,
+            ..Default::default()
+        };
+        cfg.eval.every = 50;
+        cfg.mbpo.init_random_steps = 100;
+        let s = Schedule::of(&cfg);
+        assert_eq!(s.eval_points().collect::<Vec<_>>(), [50, 100, 130]);
+        assert_eq!(s.updates_owed(100), 0);
+        assert_eq!(s.updates_owed(103), 3 * cfg.mbpo.updates_per_step as u64);
+    }
+}

@@ -1,0 +1,146 @@
+//! How a model snapshot ([`ModelWeights`]) crosses shared memory: one flat `[f32]`,
+//!
+//! ```text
+//! [ θ (n_params, ParamLayout order) | normaliser mean (obs+act) | normaliser std (obs+act) | elites (as f32) ]
+//! ```
+//!
+//! The weights header's layout hash is the ensemble's `ParamLayout::hash`; the lengths of the
+//! other parts follow from the config (obs+act inputs, `model.elites` elites), so a mismatch in
+//! any of them changes the total length and is rejected by the subscriber.
+
+use mbpo_model::{InputNormalizer, ModelWeights, ProbabilisticEnsemble};
+
+use crate::error::DecodeError;
+
+/// The flat layout of the model snapshots of one run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelWireLayout {
+    /// `ParamLayout::hash` of the ensemble.
+    pub layout_hash: u64,
+    /// Floats of θ.
+    pub n_params: usize,
+    /// Model input width (obs + act).
+    pub in_dim: usize,
+    /// Number of elites.
+    pub elites: usize,
+}
+
+impl ModelWireLayout {
+    /// The layout of `model`'s snapshots with `elites` elites.
+    pub fn of_model(model: &ProbabilisticEnsemble, elites: usize) -> Self {
+        Self {
+            layout_hash: model.layout().hash(),
+            n_params: model.params().len(),
+            in_dim: model.obs_dim() + model.act_dim(),
+            elites,
+        }
+    }
+    /// Total floats.
+    pub fn len(&self) -> usize {
+        self.n_params + 2 * self.in_dim + self.elites
+    }
+    /// Never empty.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+    /// Write `w` into `out` (resized to [`ModelWireLayout::len`]).
+    pub fn encode(&self, w: &ModelWeights, out: &mut Vec<f32>) -> Result<(), DecodeError> {
+        if w.layout_hash != self.layout_hash
+            || w.params.len() != self.n_params
+            || w.normalizer.mean.len() != self.in_dim
+            || w.normalizer.std.len() != self.in_dim
+            || w.elites.len() != self.elites
+        {
+            return Err(DecodeError::ModelWeights(format!(
+                "layout {self:?}, weights with hash {:#x}, {} params, {} inputs, {} elites",
+                w.layout_hash,
+                w.params.len(),
+                w.normalizer.mean.len(),
+                w.elites.len()
+            )));
+        }
+        out.clear();
+        out.extend_from_slice(&w.params);
+        out.extend_from_slice(&w.normalizer.mean);
+        out.extend_from_slice(&w.normalizer.std);
+        out.extend(w.elites.iter().map(|&e| e as f32));
+        Ok(())
+    }
+    /// Read weights from `flat` into `w`, reusing its buffers: the one copy a receiver makes
+    /// out of shared memory.
+    pub fn decode_into(&self, flat: &[f32], w: &mut ModelWeights) -> Result<(), DecodeError> {
+        if flat.len() != self.len() {
+            return Err(DecodeError::ModelLength {
+                expected: self.len(),
+                found: flat.len(),
+            });
+        }
+        let (p, rest) = flat.split_at(self.n_params);
+        let (mean, rest) = rest.split_at(self.in_dim);
+        let (std, elites) = rest.split_at(self.in_dim);
+        w.layout_hash = self.layout_hash;
+        copy_into(&mut w.params, p);
+        copy_into(&mut w.normalizer.mean, mean);
+        copy_into(&mut w.normalizer.std, std);
+        w.elites.clear();
+        w.elites.extend(elites.iter().map(|&e| e as usize));
+        Ok(())
+    }
+    /// Read weights back from `flat`.
+    pub fn decode(&self, flat: &[f32]) -> Result<ModelWeights, DecodeError> {
+        let mut w = ModelWeights {
+            layout_hash: self.layout_hash,
+            params: Vec::new(),
+            normalizer: InputNormalizer {
+                mean: Vec::new(),
+                std: Vec::new(),
+            },
+            elites: Vec::new(),
+        };
+        self.decode_into(flat, &mut w)?;
+        Ok(w)
+    }
+}
+
+fn copy_into(dst: &mut Vec<f32>, src: &[f32]) {
+    dst.clear();
+    dst.extend_from_slice(src);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_core::rng::stream;
+    use mbpo_model::ModelConfig;
+
+    #[test]
+    fn model_weights_round_trip_through_the_flat_layout() {
+        let cfg = ModelConfig {
+            members: 3,
+            elites: 2,
+            hidden: vec![8, 8],
+            weight_decay: vec![1e-5, 1e-5, 1e-5],
+            ..ModelConfig::default()
+        };
+        let model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "t", 0)).unwrap();
+        let l = ModelWireLayout::of_model(&model, 2);
+        let w = ModelWeights {
+            layout_hash: l.layout_hash,
+            params: (0..l.n_params).map(|i| i as f32 * 0.5).collect(),
+            normalizer: InputNormalizer {
+                mean: vec![1.0, 2.0, 3.0, 4.0],
+                std: vec![0.5, 0.25, 2.0, 1.0],
+            },
+            elites: vec![2, 0],
+        };
+        let mut flat = Vec::new();
+        l.encode(&w, &mut flat).unwrap();
+        assert_eq!(flat.len(), l.len());
+        assert_eq!(l.decode(&flat).unwrap(), w);
+        let e = l.decode(&flat[1..]).unwrap_err();
+        assert!(e.to_string().contains(&format!("needs {}", l.len())), "{e}");
+        let mut bad = w.clone();
+        bad.elites.pop();
+        assert!(l.encode(&bad, &mut flat).is_err());
+    }
+}
