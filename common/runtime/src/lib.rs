@@ -18,7 +18,9 @@
 
 pub mod args;
 pub mod barrier;
+pub mod coordinator;
 pub mod error;
+pub mod in_process;
 pub mod inbox;
 pub mod process;
 pub mod services;
@@ -28,5 +30,5 @@ pub use error::{Result, RuntimeError};
 pub use inbox::{send_ack, wait_for, wait_for_stop, ControlInbox, RealInbox};
 pub use process::{
     actor_steps, configure_run, error_chain, exit_code, global_step, init_logging,
-    init_service_process, load_config, Dims, Process, BINARIES,
+    init_service_process, load_config, Dims, Process,
 };

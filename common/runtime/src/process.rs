@@ -166,14 +166,6 @@ pub fn global_step(t: u64, actors: u16, index: u16) -> u64 {
     (t - 1) * actors.max(1) as u64 + index as u64 + 1
 }
 
-/// Binary names of the services, as installed next to `mbpo`.
-pub const BINARIES: [&str; 4] = [
-    "mbpo-actor",
-    "mbpo-model-trainer",
-    "mbpo-rollout-generator",
-    "mbpo-sac-learner",
-];
-
 /// A service's exit code: success, or the error (with its causes) logged and failure. Every
 /// service `main` ends with it, so a failing service always leaves its reason in its log.
 pub fn exit_code<E: std::error::Error + 'static>(

@@ -39,7 +39,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         .attach(&policy);
 
     let mut role = LearnerRole::new(cfg, d.obs, d.act);
-    // More than one thread competes with the other services for the cores (ARCHITECTURE.md).
+    // More than one thread competes with the other services for the cores (results/measurements.md).
     tracing::info!("SAC updates on {} thread(s) (sac.threads)", cfg.sac.threads);
     let schedule = s.schedule;
     let g = cfg.mbpo.updates_per_step as f64;

@@ -3,16 +3,16 @@
 //! Writes the resolved config into the run directory, gives the run its own iceoryx2
 //! environment (unique run id -> own prefix and root path; stale resources cleaned at start,
 //! everything removed and checked at the end), spawns the service binaries found next to this
-//! executable (stderr -> `<run-dir>/logs/<process>.log`), reaps them, restarts or fails on a
-//! crash, forwards SIGINT/SIGTERM as a Stop, and turns the services' [`StatsRecord`]s into
-//! `metrics.csv` rows (same columns as `mbpo train`) and `summary.json`.
+//! executable (stderr -> `<run-dir>/logs/<process>.log`), reaps them, restarts the pipeline or
+//! fails the run on a crash, and stops every process at the end.
+//!
+//! This file is the *launcher*: it starts, reaps and restarts processes. Everything the run's
+//! protocol needs -- reports, rows, barriers, the stop, the summary -- is the coordinator's
+//! (`mbpo_runtime::coordinator`), which talks to the roles only over the wire.
 //!
 //! Child processes, signals and timers are handled with plain `std::process` + `libc`: the
 //! supervisor sleeps in the same [`Waiter`] as the services (stats and policy channels, 250 ms
 //! timeout for reaping and the progress bar), so it needs no async runtime.
-
-mod checkpoints;
-mod collect;
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
@@ -20,19 +20,16 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
+use mbpo_runtime::coordinator::checkpoints::{self, SupervisorCheckpoint};
+use mbpo_runtime::coordinator::collect::PipelineSummary;
+use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
 use mbpo_runtime::{configure_run, Mode};
 use mbpo_train::progress::{Display, Progress};
-use mbpo_train::{policy_sha256, Algo, RunDir};
-use mbpo_wire::{
-    ipc, ControlCommand, ControlMsg, ControlPublisher, Role, RunIpc, StatsSubscriber, WaitOutcome,
-    Waiter, WeightsKind, WeightsSubscriber, CONTROL_TARGET_ALL,
-};
-use mbpo_wire::{policy_wire_version, Stats};
+use mbpo_train::{Algo, RunDir};
+use mbpo_wire::{ipc, RunIpc, WaitOutcome, Waiter};
 
 use crate::cli::{RestartPolicy, RunArgs};
 use crate::train_cmd::{fresh_run_dir, overwrite_earlier_run, resolve_config, resumed_config};
-use checkpoints::{Barrier, SupervisorCheckpoint};
-use collect::Collector;
 
 /// One supervised process.
 struct Proc {
@@ -148,12 +145,79 @@ fn make_run_id(env: &str, seed: u64) -> String {
 
 /// Run the pipeline per `args`.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
+    let (args, cfg, out, resume) = plan_run(args)?;
+    let args = &args;
+    let mut run_dir = open_run_dir(args, &cfg, &out, resume.as_ref())?;
+    let out = out.canonicalize()?;
+    let logs = out.join("logs");
+    std::fs::create_dir_all(&logs)?;
+    crate::logging::also_to_file(&logs.join("supervisor.log"))?;
+    let bin_dir = std::env::current_exe()?
+        .parent()
+        .map(Path::to_path_buf)
+        .context("locating the service binaries")?;
+    let run_id = make_run_id(&cfg.env, cfg.seed);
+    let ipc = open_ipc(args, &cfg, &run_id, &out)?;
+    // A resumed run's clock continues from its checkpoint.
+    let elapsed = resume.as_ref().map_or(0.0, |r| r.2.elapsed_seconds);
+    let now = Instant::now();
+    let started = now
+        .checked_sub(Duration::from_secs_f64(elapsed))
+        .unwrap_or(now);
+    let cx = AttemptCtx {
+        args,
+        cfg: &cfg,
+        ipc: &ipc,
+        run_id: &run_id,
+        out: &out,
+        logs: &logs,
+        bin_dir: &bin_dir,
+        started,
+    };
+    let outcome = attempts(&cx, &mut run_dir, resume);
+    // Every node of the run is gone now (children reaped, ours dropped): remove everything.
+    let removed = ipc.remove_all::<ipc::Service>();
+    let leftovers = ipc.leftovers();
+    let (outcome, report) = match outcome {
+        Ok((report, None)) => (Ok(()), Some(report)),
+        Ok((report, Some(err))) => (Err(err), Some(report)),
+        Err(e) => (Err(e), None),
+    };
+    match &removed {
+        Ok(n) => tracing::info!("removed {n} iceoryx2 file(s) of the run"),
+        Err(e) => tracing::error!("cleaning up the run's shared memory failed: {e}"),
+    }
+    if !leftovers.is_empty() {
+        tracing::error!("shared-memory leftovers: {leftovers:?}");
+    }
+    if let Some(mut r) = report {
+        r.ipc_files_removed = removed.as_ref().map_or(0, |n| *n);
+        r.ipc_leftovers = leftovers.iter().map(|p| p.display().to_string()).collect();
+        r.summary.wall_seconds = started.elapsed().as_secs_f64();
+        let tmp = out.join("summary.json.tmp");
+        std::fs::write(&tmp, serde_json::to_string_pretty(&r)? + "\n")?;
+        std::fs::rename(tmp, out.join("summary.json"))?;
+        if outcome.is_ok() {
+            println!("{}", serde_json::to_string(&r)?);
+        }
+    }
+    outcome
+}
+
+/// The run `args` asks for: a resumed run's config, newest checkpoint (every file checked)
+/// and the mode, actors and slack it ran with; or a fresh run's config and directory.
+fn plan_run(
+    args: &RunArgs,
+) -> anyhow::Result<(
+    RunArgs,
+    mbpo_train::ExperimentConfig,
+    PathBuf,
+    Option<ResumePoint>,
+)> {
     let mut args = args.clone();
     if let Some(k) = args.actors_per_core {
         args.actors = k.saturating_mul(ncpu() as u16);
     }
-    // A resumed run: its config, its newest checkpoint (every file checked), and the mode,
-    // actors and slack it ran with.
     let (cfg, out, resume) = match args.resume.clone() {
         Some(dir) => {
             let cfg = resumed_config(&dir, args.common.steps)?;
@@ -171,37 +235,41 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
             (cfg, out, None)
         }
     };
-    let args = &args;
-    check_run_args(args, &cfg)?;
-    let mut run_dir = match &resume {
-        Some((_, env_steps, state)) => {
-            // (At N = T there is nothing left to run: every process would only wait for the
-            // others' last records, which an MPC run's processes already sent before the cut.)
-            if *env_steps >= cfg.steps {
-                bail!(
-                    "the checkpoint is after step {env_steps}, and the run has {} steps; give --steps N with N > {env_steps}",
-                    cfg.steps
-                );
-            }
-            RunDir::reopen_with_config(&out, &cfg, state.book.rows_upto(*env_steps))
-                .with_context(|| format!("reopening {}", out.display()))?
-        }
-        None => {
-            overwrite_earlier_run(&args.common, &cfg, &out)?;
-            RunDir::create(&out, &cfg).with_context(|| format!("creating {}", out.display()))?
-        }
-    };
-    let out = out.canonicalize()?;
-    let logs = out.join("logs");
-    std::fs::create_dir_all(&logs)?;
-    crate::logging::also_to_file(&logs.join("supervisor.log"))?;
-    let bin_dir = std::env::current_exe()?
-        .parent()
-        .map(Path::to_path_buf)
-        .context("locating the service binaries")?;
+    check_run_args(&args, &cfg)?;
+    Ok((args, cfg, out, resume))
+}
 
-    let run_id = make_run_id(&cfg.env, cfg.seed);
-    let mut ipc = RunIpc::new(&run_id, &args.ipc_root)?;
+/// The run directory: reopened at a checkpoint, or created.
+fn open_run_dir(
+    args: &RunArgs,
+    cfg: &mbpo_train::ExperimentConfig,
+    out: &Path,
+    resume: Option<&ResumePoint>,
+) -> anyhow::Result<RunDir> {
+    let Some((_, env_steps, state)) = resume else {
+        overwrite_earlier_run(&args.common, cfg, out)?;
+        return RunDir::create(out, cfg).with_context(|| format!("creating {}", out.display()));
+    };
+    // (At N = T there is nothing left to run: every process would only wait for the others'
+    // last records, which an MPC run's processes already sent before the cut.)
+    if *env_steps >= cfg.steps {
+        bail!(
+            "the checkpoint is after step {env_steps}, and the run has {} steps; give --steps N with N > {env_steps}",
+            cfg.steps
+        );
+    }
+    RunDir::reopen_with_config(out, cfg, state.book.rows_upto(*env_steps))
+        .with_context(|| format!("reopening {}", out.display()))
+}
+
+/// The run's own iceoryx2 environment, a dead predecessor's leftovers removed.
+fn open_ipc(
+    args: &RunArgs,
+    cfg: &mbpo_train::ExperimentConfig,
+    run_id: &str,
+    out: &Path,
+) -> anyhow::Result<RunIpc> {
+    let mut ipc = RunIpc::new(run_id, &args.ipc_root)?;
     configure_run(&mut ipc);
     let stale = ipc.remove_stale_nodes::<ipc::Service>()?;
     if stale.removed > 0 {
@@ -217,72 +285,28 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         out.display(),
         ipc.root_path().display()
     );
+    Ok(ipc)
+}
 
-    // A resumed run's clock continues from its checkpoint.
-    let elapsed = resume.as_ref().map_or(0.0, |r| r.2.elapsed_seconds);
-    let now = Instant::now();
-    let started = now
-        .checked_sub(Duration::from_secs_f64(elapsed))
-        .unwrap_or(now);
+/// Attempts of the pipeline until one ends: a crashed process restarts the whole pipeline
+/// from its newest checkpoint (`--restart on-failure`, see [`roll_back`]).
+fn attempts(
+    cx: &AttemptCtx,
+    run_dir: &mut RunDir,
+    mut resume: Option<ResumePoint>,
+) -> anyhow::Result<(PipelineSummary, Option<anyhow::Error>)> {
     let mut restarts = Restarts::default();
-    let mut resume = resume;
-    let outcome = loop {
-        let attempt = supervise(
-            args,
-            &cfg,
-            &ipc,
-            &run_id,
-            &out,
-            &logs,
-            &bin_dir,
-            &mut run_dir,
-            started,
-            resume.take(),
-            &restarts,
-        );
-        match attempt {
-            Ok(Attempt::Finished(report, err)) => break Ok((*report, err)),
-            Err(e) => break Err(e),
-            Ok(Attempt::RollBack { process }) => {
+    loop {
+        match supervise(cx, run_dir, resume.take(), &restarts)? {
+            Attempt::Finished(report, err) => return Ok((*report, err)),
+            Attempt::RollBack { process } => {
                 restarts.count(&process);
-                match roll_back(&ipc, &out, &cfg) {
-                    Ok((dir, from)) => {
-                        run_dir = dir;
-                        resume = from;
-                    }
-                    Err(e) => break Err(e),
-                }
+                let (dir, from) = roll_back(cx.ipc, cx.out, cx.cfg)?;
+                *run_dir = dir;
+                resume = from;
             }
         }
-    };
-
-    // Every node of the run is gone now (children reaped, ours dropped): remove everything.
-    let removed = ipc.remove_all::<ipc::Service>();
-    let leftovers = ipc.leftovers();
-    let (outcome, mut report) = match outcome {
-        Ok((report, None)) => (Ok(()), Some(report)),
-        Ok((report, Some(err))) => (Err(err), Some(report)),
-        Err(e) => (Err(e), None),
-    };
-    match &removed {
-        Ok(n) => tracing::info!("removed {n} iceoryx2 file(s) of the run"),
-        Err(e) => tracing::error!("cleaning up the run's shared memory failed: {e}"),
     }
-    if !leftovers.is_empty() {
-        tracing::error!("shared-memory leftovers: {leftovers:?}");
-    }
-    if let Some(r) = report.as_mut() {
-        r.ipc_files_removed = removed.as_ref().map_or(0, |n| *n);
-        r.ipc_leftovers = leftovers.iter().map(|p| p.display().to_string()).collect();
-        r.summary.wall_seconds = started.elapsed().as_secs_f64();
-        let tmp = out.join("summary.json.tmp");
-        std::fs::write(&tmp, serde_json::to_string_pretty(r)? + "\n")?;
-        std::fs::rename(tmp, out.join("summary.json"))?;
-        if outcome.is_ok() {
-            println!("{}", serde_json::to_string(r)?);
-        }
-    }
-    outcome
 }
 
 /// A checkpoint to start from: its directory, its env steps, the supervisor's state in it.
@@ -291,7 +315,7 @@ type ResumePoint = (PathBuf, u64, SupervisorCheckpoint);
 /// How one attempt of the pipeline ended.
 enum Attempt {
     /// The run ended: its report, and the error that failed it, if any.
-    Finished(Box<collect::PipelineSummary>, Option<anyhow::Error>),
+    Finished(Box<PipelineSummary>, Option<anyhow::Error>),
     /// `process` crashed and may be restarted: every process has been stopped, and the whole
     /// pipeline starts again from the newest checkpoint (see [`roll_back`]).
     RollBack { process: String },
@@ -348,46 +372,26 @@ fn roll_back(
     Ok((dir, Some((ckpt, env_steps, state))))
 }
 
-#[allow(clippy::too_many_arguments)]
-fn supervise(
-    args: &RunArgs,
-    cfg: &mbpo_train::ExperimentConfig,
-    ipc: &RunIpc,
-    run_id: &str,
-    out: &Path,
-    logs: &Path,
-    bin_dir: &Path,
-    run_dir: &mut RunDir,
+/// Everything one attempt of the pipeline needs.
+struct AttemptCtx<'a> {
+    args: &'a RunArgs,
+    cfg: &'a mbpo_train::ExperimentConfig,
+    ipc: &'a RunIpc,
+    run_id: &'a str,
+    out: &'a Path,
+    logs: &'a Path,
+    bin_dir: &'a Path,
     started: Instant,
-    resume: Option<ResumePoint>,
-    restarts: &Restarts,
-) -> anyhow::Result<Attempt> {
-    let node = ipc.node::<ipc::Service>(Role::Supervisor, 0)?;
-    let stats = StatsSubscriber::create(&node)?;
-    let dims = mbpo_runtime::Dims::of(cfg)?;
-    // The run's final "policy": the SAC actor (MBPO), or the last model version (MPC).
-    let policy = if cfg.algo == Algo::Mpc {
-        WeightsSubscriber::create(
-            &node,
-            WeightsKind::Model,
-            dims.model.layout_hash,
-            dims.model.len(),
-        )?
-    } else {
-        WeightsSubscriber::create(
-            &node,
-            WeightsKind::Policy,
-            dims.policy_hash,
-            dims.policy_len,
-        )?
-    };
-    let control = ControlPublisher::create(&node)?;
+}
 
-    let common: Vec<String> = vec![
+/// The role processes of the run, not yet started.
+fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
+    let args = cx.args;
+    let mut common: Vec<String> = vec![
         "--run-dir".into(),
-        out.display().to_string(),
+        cx.out.display().to_string(),
         "--run-id".into(),
-        run_id.into(),
+        cx.run_id.into(),
         "--ipc-root".into(),
         args.ipc_root.display().to_string(),
         "--mode".into(),
@@ -401,9 +405,7 @@ fn supervise(
         "--model-lag".into(),
         args.slack.model_lag.to_string(),
     ];
-    let mut common = common;
-    if let Some((dir, env_steps, _)) = &resume {
-        tracing::info!("resuming from {} (after step {env_steps})", dir.display());
+    if let Some(dir) = resume {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
     let mut procs = Vec::new();
@@ -412,9 +414,9 @@ fn supervise(
         a.extend(extra);
         let cpu = args.pin_cpus.then(|| procs.len() % ncpu());
         procs.push(Proc {
-            log: logs.join(format!("{name}.log")),
+            log: cx.logs.join(format!("{name}.log")),
             name,
-            bin: bin_dir.join(bin),
+            bin: cx.bin_dir.join(bin),
             args: a,
             child: None,
             exit: None,
@@ -422,7 +424,7 @@ fn supervise(
         });
     };
     // MPC plans on the model trainer's ensemble: no SAC learner, no rollout generator.
-    let mpc = cfg.algo == Algo::Mpc;
+    let mpc = cx.cfg.algo == Algo::Mpc;
     if !mpc {
         add("learner".into(), "mbpo-sac-learner", vec![]);
     }
@@ -432,214 +434,179 @@ fn supervise(
     }
     add("evaluator".into(), "mbpo-actor", vec!["--eval".into()]);
     for i in 0..args.actors {
-        add(
-            format!("actor-{i}"),
-            "mbpo-actor",
-            vec!["--index".into(), i.to_string()],
-        );
+        let index = vec!["--index".into(), i.to_string()];
+        add(format!("actor-{i}"), "mbpo-actor", index);
     }
+    procs
+}
+
+/// How the loop of one attempt ended.
+#[derive(Default)]
+struct LoopEnd {
+    failure: Option<anyhow::Error>,
+    crashed: Option<String>,
+    interrupted: bool,
+    stopped: bool,
+}
+
+/// One attempt: start every role process, coordinate the run until it ends, fails, is
+/// interrupted or a process crashes, then stop every process.
+fn supervise(
+    cx: &AttemptCtx,
+    run_dir: &mut RunDir,
+    resume: Option<ResumePoint>,
+    restarts: &Restarts,
+) -> anyhow::Result<Attempt> {
+    let node = coordinator::node::<ipc::Service>(cx.ipc)?;
+    let ports = CoordinatorPorts::create(&node, cx.cfg, &mbpo_runtime::Dims::of(cx.cfg)?)?;
+    let plan = RunPlan {
+        run_id: cx.run_id.into(),
+        mode: cx.args.mode,
+        actors: cx.args.actors,
+        slack: cx.args.slack,
+    };
+    if let Some((dir, env_steps, _)) = &resume {
+        tracing::info!("resuming from {} (after step {env_steps})", dir.display());
+    }
+    let mut procs = role_processes(cx, resume.as_ref().map(|r| r.0.as_path()));
     for p in &mut procs {
         p.spawn()?;
     }
-
-    let mut col = Collector::new(cfg, args, run_id);
-    let schedule = mbpo_train::roles::Schedule::of(cfg);
-    let every = cfg.checkpoint.every;
-    let mut next_checkpoint = every;
-    if let Some((_, env_steps, state)) = resume {
-        col.restore(state.book);
-        next_checkpoint = env_steps + every;
+    let from = resume.map(|(_, env_steps, state)| (env_steps, state));
+    let mut coord = Coordinator::new(cx.cfg, plan, cx.out, from, restarts.total())?;
+    let end = coordinate(cx, &ports, &mut coord, &mut procs, run_dir, restarts)?;
+    coord.send_stop(&ports, procs.iter().filter(|p| p.child.is_some()).count());
+    stop_processes(&mut procs, end.interrupted)?;
+    if let Some(process) = end.crashed {
+        return Ok(Attempt::RollBack { process });
     }
-    col.book.restarts = restarts.total();
-    let mut barrier: Option<Barrier> = None;
-    let mut stopped = false;
-    let final_wire = if cfg.algo == Algo::Mpc {
-        let schedule = mbpo_train::roles::Schedule::of(cfg);
-        schedule.train_points_upto(cfg.steps)
-    } else {
-        policy_wire_version(cfg.steps)
+    let mut failure = end.failure;
+    for p in &procs {
+        match p.exit {
+            Some(s) if !s.success() && failure.is_none() && !end.interrupted => {
+                failure = Some(anyhow::anyhow!(
+                    "{} exited with {s}; see {}",
+                    p.name,
+                    p.log.display()
+                ))
+            }
+            _ => {}
+        }
+    }
+    if end.interrupted && failure.is_none() {
+        failure = Some(anyhow::anyhow!(
+            "interrupted (SIGINT/SIGTERM) after {} env steps; all processes stopped",
+            coord.env_steps()
+        ));
+    }
+    let status = match (&failure, end.interrupted, end.stopped) {
+        (Some(_), true, _) => "interrupted",
+        (Some(_), false, _) => "failed",
+        (None, _, true) => "stopped",
+        (None, _, false) => "completed",
     };
-    // An MPC run shorter than its warm-up trains no model: nothing to wait for.
-    let mut final_params: Option<Vec<f32>> = (final_wire == 0).then(Vec::new);
+    let report = coord.finish(status, run_dir, cx.started)?;
+    Ok(Attempt::Finished(Box::new(report), failure))
+}
+
+/// The attempt's loop: sleep on the coordinator's ports, answer signals, let the coordinator
+/// take reports and drive barriers, and watch the processes.
+fn coordinate(
+    cx: &AttemptCtx,
+    ports: &CoordinatorPorts<ipc::Service>,
+    coord: &mut Coordinator,
+    procs: &mut [Proc],
+    run_dir: &mut RunDir,
+    restarts: &Restarts,
+) -> anyhow::Result<LoopEnd> {
     let mut waiter = Waiter::new()?;
-    waiter.attach(&stats).attach(&policy);
-    let display = if args.quiet {
-        Display::lines()
-    } else {
-        Display::auto()
+    ports.attach(&mut waiter);
+    let display = match cx.args.quiet {
+        true => Display::lines(),
+        false => Display::auto(),
     };
-    let label = format!("mbpo run {} s{}", cfg.env, cfg.seed);
-    let mut progress = Progress::new(label, cfg.steps, display);
-    let mut failure: Option<anyhow::Error> = None;
-    let mut crashed: Option<String> = None;
-    let mut interrupted = false;
-    let mut finishing = false;
+    let label = format!("mbpo run {} s{}", cx.cfg.env, cx.cfg.seed);
+    let mut progress = Progress::new(label, cx.cfg.steps, display);
+    let mut end = LoopEnd::default();
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
             mbpo_wire::take_termination_request();
-            let state = RunState {
-                barrier: barrier.as_ref().map(|b| b.stop_after),
-                all_done: col.all_done(args.actors),
-                actors_done: col.actors_done(args.actors),
-                finishing,
-            };
-            match on_signal(state) {
-                OnSignal::CheckpointAndStop => {
-                    tracing::warn!("stopping: writing a checkpoint first (press Ctrl-C again to stop at once, without one)");
-                    barrier = Some(start_barrier(&control, cfg.algo, args.actors, true)?);
-                }
-                OnSignal::StopAfterBarrier => {
-                    tracing::warn!("stopping after the checkpoint under way (press Ctrl-C again to stop at once)");
-                    if let Some(b) = barrier.as_mut() {
-                        b.stop_after = true;
-                    }
-                    send_pause(&control, true)?;
-                }
-                OnSignal::Finish => {
-                    tracing::warn!("the actors are done: finishing the run's last updates and evaluations (press Ctrl-C again to stop at once, without a checkpoint)");
-                    finishing = true;
-                }
-                OnSignal::StopNow => {
-                    interrupted = true;
-                    break;
-                }
+            if coord.on_signal(ports)? == OnSignal::StopNow {
+                end.interrupted = true;
+                break;
             }
         }
-        loop {
-            match stats.receive() {
-                Ok(Some(r)) => match (Stats::decode(&r.msg), barrier.as_mut()) {
-                    (Ok(Stats::Barrier(report)), Some(b)) => b.on_report(r.producer(), report),
-                    (Ok(Stats::Barrier(report)), None) => {
-                        tracing::warn!("{}: {report:?} outside a barrier", r.producer())
-                    }
-                    (Ok(stats), _) => col.on_stats(r.producer(), stats),
-                    (Err(e), _) => tracing::warn!("stats from {}: {e}", r.producer()),
-                },
-                Ok(None) => break,
-                Err(e) => tracing::warn!("stats: {e}"),
-            }
-        }
-        match policy.receive_latest() {
-            Ok(Some(w)) if w.version() == final_wire => final_params = Some(w.params().to_vec()),
-            Ok(_) => {}
-            Err(e) => tracing::warn!("policy: {e}"),
-        }
-        col.write_rows(run_dir, started)?;
-        col.show_progress(&mut progress);
-        for p in procs.iter_mut() {
-            let Some(status) = p.poll()? else { continue };
-            let tail = p.log_tail(8);
-            let why = format!(
-                "{} exited with {status} before the run finished; last lines of {}:\n{tail}",
-                p.name,
-                p.log.display()
-            );
-            let before = restarts.of(&p.name);
-            if args.restart == RestartPolicy::OnFailure && before < args.max_restarts {
-                tracing::warn!(
-                    "{why}\nrestart {}/{} of {}: stopping every process to restart the pipeline from its newest checkpoint",
-                    before + 1,
-                    args.max_restarts,
-                    p.name
-                );
-                crashed = Some(p.name.clone());
-            } else {
-                let more = if args.restart == RestartPolicy::OnFailure {
-                    format!(" after {before} restart(s)")
-                } else {
-                    String::new()
-                };
-                failure = Some(anyhow::anyhow!("{why}\nthe run failed{more}"));
+        coord.pump(ports, run_dir, cx.started)?;
+        coord.collector.show_progress(&mut progress);
+        if let Some(crash) = first_crash(cx.args, procs, restarts)? {
+            match crash {
+                Crash::Restart(name) => end.crashed = Some(name),
+                Crash::Fail(why) => end.failure = Some(why),
             }
             break;
         }
-        if failure.is_some() || crashed.is_some() {
-            break;
-        }
-        if col.all_done(args.actors) && final_params.is_some() {
-            break;
-        }
-        // Periodic checkpoints (`[checkpoint] every` env steps).
-        if barrier.is_none()
-            && every > 0
-            && col.env_steps() >= next_checkpoint
-            && !col.all_done(args.actors)
-        {
-            barrier = Some(start_barrier(&control, cfg.algo, args.actors, false)?);
-        }
-        if let Some(b) = barrier.as_mut() {
-            if let Some(cut) = b.take_cut(&schedule, args.mode) {
-                tracing::info!(
-                    "checkpoint cut: after step {} with {} model trainings",
-                    cut.env_steps,
-                    cut.model_trainings
-                );
-                control.send(&ControlMsg::request(
-                    ControlCommand::Checkpoint,
-                    cut.model_trainings,
-                    CONTROL_TARGET_ALL,
-                    cut.env_steps,
-                ))?;
-            }
-            if let Some(cut) = b.complete() {
-                col.write_rows(run_dir, started)?;
-                let missing = col.missing_at_cut(cut.env_steps);
-                anyhow::ensure!(
-                    missing == 0,
-                    "checkpoint after step {}: the records of {missing} eval point(s) up to it are not in",
-                    cut.env_steps
-                );
-                let state = SupervisorCheckpoint {
-                    mode: args.mode,
-                    actors: args.actors,
-                    slack: args.slack,
-                    book: col.book_at(cut.env_steps),
-                    elapsed_seconds: started.elapsed().as_secs_f64(),
-                };
-                checkpoints::finish(out, cfg.algo, cut, &state, cfg.checkpoint.keep)?;
-                tracing::info!(
-                    "checkpoint after step {} complete ({:.2} s barrier): {}",
-                    cut.env_steps,
-                    b.started.elapsed().as_secs_f64(),
-                    mbpo_train::checkpoint::dir_for(out, cut.env_steps).display()
-                );
-                next_checkpoint = cut.env_steps + every.max(1);
-                if b.stop_after {
-                    stopped = true;
-                    break;
-                }
-                control.send(&ControlMsg::request(
-                    ControlCommand::Resume,
-                    cut.model_trainings,
-                    CONTROL_TARGET_ALL,
-                    cut.env_steps,
-                ))?;
-                barrier = None;
-            } else if b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1) {
-                b.warnings += 1;
-                tracing::warn!("checkpoint barrier still waiting for {}", b.waiting_for());
+        match coord.advance(ports, run_dir, cx.started)? {
+            Phase::Running => {}
+            Phase::Finished => break,
+            Phase::Stopped => {
+                end.stopped = true;
+                break;
             }
         }
     }
     progress.finish();
-    // Stop everyone: a Stop message (services wait for it after their work), SIGTERM after 3 s,
-    // SIGKILL after 10 s.
-    let _ = control.wait_for_subscribers(
-        procs.iter().filter(|p| p.child.is_some()).count(),
-        Duration::from_secs(2),
-    );
-    if let Err(e) = control.send(&ControlMsg::request(
-        ControlCommand::Stop,
-        1,
-        CONTROL_TARGET_ALL,
-        cfg.steps,
-    )) {
-        tracing::warn!("sending stop: {e}");
-    }
-    if interrupted {
-        for p in &procs {
-            p.signal(libc::SIGTERM);
+    Ok(end)
+}
+
+/// A process that exited before the run finished.
+enum Crash {
+    /// Restart the pipeline from its newest checkpoint (`--restart on-failure`).
+    Restart(String),
+    /// Fail the run.
+    Fail(anyhow::Error),
+}
+
+/// Reap the processes; the first one that exited decides what happens.
+fn first_crash(
+    args: &RunArgs,
+    procs: &mut [Proc],
+    restarts: &Restarts,
+) -> anyhow::Result<Option<Crash>> {
+    for p in procs.iter_mut() {
+        let Some(status) = p.poll()? else { continue };
+        let tail = p.log_tail(8);
+        let why = format!(
+            "{} exited with {status} before the run finished; last lines of {}:\n{tail}",
+            p.name,
+            p.log.display()
+        );
+        let before = restarts.of(&p.name);
+        let on_failure = args.restart == RestartPolicy::OnFailure;
+        if on_failure && before < args.max_restarts {
+            tracing::warn!(
+                "{why}\nrestart {}/{} of {}: stopping every process to restart the pipeline from its newest checkpoint",
+                before + 1,
+                args.max_restarts,
+                p.name
+            );
+            return Ok(Some(Crash::Restart(p.name.clone())));
         }
+        let more = match on_failure {
+            true => format!(" after {before} restart(s)"),
+            false => String::new(),
+        };
+        return Ok(Some(Crash::Fail(anyhow::anyhow!(
+            "{why}\nthe run failed{more}"
+        ))));
+    }
+    Ok(None)
+}
+
+/// Wait for every process to exit after the Stop: SIGTERM after 3 s (at once when
+/// `interrupted`), SIGKILL after 10 s.
+fn stop_processes(procs: &mut [Proc], interrupted: bool) -> anyhow::Result<()> {
+    if interrupted {
+        procs.iter().for_each(|p| p.signal(libc::SIGTERM));
     }
     let stop_started = Instant::now();
     let mut termed = interrupted;
@@ -668,56 +635,7 @@ fn supervise(
         "all processes exited {:.2} s after the stop",
         stop_started.elapsed().as_secs_f64()
     );
-    drop(waiter);
-    if let Some(process) = crashed {
-        return Ok(Attempt::RollBack { process });
-    }
-    for p in &procs {
-        if let Some(s) = p.exit {
-            if !s.success() && failure.is_none() && !interrupted {
-                failure = Some(anyhow::anyhow!(
-                    "{} exited with {s}; see {}",
-                    p.name,
-                    p.log.display()
-                ));
-            }
-        }
-    }
-    if interrupted && failure.is_none() {
-        failure = Some(anyhow::anyhow!(
-            "interrupted (SIGINT/SIGTERM) after {} env steps; all processes stopped",
-            col.env_steps()
-        ));
-    }
-    let status = if failure.is_some() {
-        if interrupted {
-            "interrupted"
-        } else {
-            "failed"
-        }
-    } else if stopped {
-        "stopped"
-    } else {
-        "completed"
-    };
-    // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
-    let hashed = if cfg.algo == Algo::Mpc {
-        dims.model.n_params
-    } else {
-        dims.policy_len
-    };
-    let sha = final_params
-        .as_deref()
-        .map(|p| policy_sha256(&p[..hashed.min(p.len())]))
-        .unwrap_or_default();
-    // The policy the run ended with: periodic checkpoints rarely fall on the last step.
-    if let (Some(p), "completed", false) = (&final_params, status, cfg.algo == Algo::Mpc) {
-        let actor = &p[..hashed.min(p.len())];
-        mbpo_train::policy_file::write_final_policy(out, col.env_steps(), actor)?;
-    }
-    let to_target = run_dir.env_steps_to_target(cfg.target_return())?;
-    let report = col.summary(status, sha, started, to_target);
-    Ok(Attempt::Finished(Box::new(report), failure))
+    Ok(())
 }
 
 /// What `mbpo run` cannot run: SAC, lockstep with several actors, no actors.
@@ -732,110 +650,4 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
         bail!("--actors must be at least 1");
     }
     Ok(())
-}
-
-/// What the supervisor knows when a SIGINT/SIGTERM arrives.
-#[derive(Debug, Clone, Copy)]
-struct RunState {
-    /// The checkpoint barrier under way, if any: whether the run stops after it.
-    barrier: Option<bool>,
-    /// Every process sent its Done record.
-    all_done: bool,
-    /// Every actor sent its Done record.
-    actors_done: bool,
-    /// An earlier signal chose [`OnSignal::Finish`].
-    finishing: bool,
-}
-
-/// What a SIGINT/SIGTERM does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum OnSignal {
-    /// Write a checkpoint, then stop (resumable with `--resume`).
-    CheckpointAndStop,
-    /// A periodic checkpoint is under way: stop after it.
-    StopAfterBarrier,
-    /// Every actor is done: a checkpoint would be at the run's last step, which no resume
-    /// continues (`--resume` needs steps left), while what is left -- the learner's last
-    /// updates, the last evaluations -- is short. Finish the run instead.
-    Finish,
-    /// A second signal, or nothing left to do: stop at once, without a checkpoint.
-    StopNow,
-}
-
-fn on_signal(run: RunState) -> OnSignal {
-    match run.barrier {
-        _ if run.finishing => OnSignal::StopNow,
-        // A periodic barrier at the last step resumes the run, which then finishes.
-        Some(false) | None if run.actors_done && !run.all_done => OnSignal::Finish,
-        Some(false) => OnSignal::StopAfterBarrier,
-        None if !run.all_done => OnSignal::CheckpointAndStop,
-        Some(true) | None => OnSignal::StopNow,
-    }
-}
-
-/// Broadcast the Pause that starts a checkpoint barrier.
-fn start_barrier(
-    control: &ControlPublisher<ipc::Service>,
-    algo: Algo,
-    actors: u16,
-    stop_after: bool,
-) -> anyhow::Result<Barrier> {
-    send_pause(control, stop_after)?;
-    Ok(Barrier::new(algo, actors, stop_after))
-}
-
-/// Broadcast a Pause, saying whether the run stops after the barrier (processes may then
-/// abandon work the cut does not need, such as a model training under way).
-fn send_pause(control: &ControlPublisher<ipc::Service>, stop_after: bool) -> anyhow::Result<()> {
-    let to_stop = if stop_after {
-        mbpo_runtime::barrier::PAUSE_TO_STOP
-    } else {
-        0
-    };
-    control.send(&ControlMsg::request(
-        ControlCommand::Pause,
-        to_stop,
-        CONTROL_TARGET_ALL,
-        0,
-    ))?;
-    Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn state(barrier: Option<bool>, actors_done: bool, all_done: bool) -> RunState {
-        RunState {
-            barrier,
-            all_done,
-            actors_done,
-            finishing: false,
-        }
-    }
-
-    #[test]
-    fn a_signal_checkpoints_unless_the_actors_are_done_then_the_run_finishes() {
-        use OnSignal::*;
-        let cases = [
-            // (barrier under way, actors done, all done) -> first signal
-            (None, false, false, CheckpointAndStop),
-            (Some(false), false, false, StopAfterBarrier),
-            (Some(true), false, false, StopNow),
-            (None, true, false, Finish),
-            (Some(false), true, false, Finish),
-            (None, true, true, StopNow),
-            (Some(false), true, true, StopAfterBarrier),
-        ];
-        for (barrier, actors_done, all_done, want) in cases {
-            let run = state(barrier, actors_done, all_done);
-            assert_eq!(on_signal(run), want, "{run:?}");
-        }
-        // A second signal while finishing stops at once.
-        let finishing = RunState {
-            finishing: true,
-            ..state(None, true, false)
-        };
-        assert_eq!(on_signal(finishing), StopNow);
-    }
 }

@@ -1,4 +1,4 @@
-//! The supervisor's side of pipeline checkpoints (protocol in `mbpo_runtime::barrier`):
+//! The coordinator's side of pipeline checkpoints (protocol in `crate::barrier`):
 //! start a barrier (periodically, or on SIGINT/SIGTERM for a clean stop), turn the processes'
 //! pause reports into the cut, and write its own file and `COMPLETE` once every file is in.
 
@@ -6,11 +6,11 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::time::Instant;
 
-use mbpo_runtime::barrier::{self, Cut};
-use mbpo_runtime::{Mode, Slack};
+use crate::barrier::{self, Cut};
+use crate::{Mode, Result, RuntimeError, Slack};
 use mbpo_train::checkpoint;
-use mbpo_train::roles::Schedule;
 use mbpo_train::Algo;
+use mbpo_train::Schedule;
 use mbpo_wire::BarrierReport;
 use mbpo_wire::{ProducerId, Role};
 use serde::{Deserialize, Serialize};
@@ -150,7 +150,7 @@ pub fn finish(
     cut: Cut,
     state: &SupervisorCheckpoint,
     keep: usize,
-) -> anyhow::Result<()> {
+) -> Result<()> {
     let dir = checkpoint::dir_for(run, cut.env_steps);
     checkpoint::write(
         &dir.join(barrier::file::SUPERVISOR),
@@ -169,21 +169,21 @@ pub fn finish(
 pub fn latest_verified(
     run: &Path,
     algo: Algo,
-) -> anyhow::Result<(std::path::PathBuf, u64, SupervisorCheckpoint)> {
+) -> Result<(std::path::PathBuf, u64, SupervisorCheckpoint)> {
     let Some((dir, manifest)) = checkpoint::latest(run)? else {
-        anyhow::bail!(
+        return Err(RuntimeError::Resume(format!(
             "{} has no complete checkpoint (nothing under {}); start a new run instead",
             run.display(),
             checkpoint::root(run).display()
-        );
+        )));
     };
     let sup_path = dir.join(barrier::file::SUPERVISOR);
     if !sup_path.is_file() {
-        anyhow::bail!(
+        return Err(RuntimeError::Resume(format!(
             "{} is not a checkpoint of `mbpo run` (no {} file); resume it with `mbpo train --resume`",
             dir.display(),
             barrier::file::SUPERVISOR
-        );
+        )));
     }
     let state: SupervisorCheckpoint = checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?;
     for (name, kind) in barrier::pipeline_files(algo, state.actors) {

@@ -15,7 +15,7 @@ use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{Done, LearnerRow, ProducerId, Role, Stats};
 use serde::{Deserialize, Serialize};
 
-use crate::cli::RunArgs;
+use super::RunPlan;
 
 /// Real transitions: produced, received by each consumer, lost.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -122,7 +122,7 @@ pub struct CollectorBook {
 
 impl CollectorBook {
     /// The book of a run that has not started.
-    fn start() -> Self {
+    pub fn start() -> Self {
         Self {
             next_row: 0,
             episodes: Vec::new(),
@@ -154,7 +154,7 @@ pub struct Collector {
     mode: String,
     actors: u16,
     run_id: String,
-    slack: mbpo_runtime::Slack,
+    slack: crate::Slack,
     eval_points: Vec<u64>,
     evals: BTreeMap<u64, f64>,
     learner: BTreeMap<u64, LearnerRow>,
@@ -166,14 +166,14 @@ pub struct Collector {
 }
 
 impl Collector {
-    /// For the run `cfg` started with `args`.
-    pub fn new(cfg: &ExperimentConfig, args: &RunArgs, run_id: &str) -> Self {
+    /// For the run `cfg` of `plan`.
+    pub fn new(cfg: &ExperimentConfig, plan: &RunPlan) -> Self {
         Self {
             cfg: cfg.clone(),
-            mode: args.mode.name().into(),
-            actors: args.actors,
-            run_id: run_id.into(),
-            slack: args.slack.effective(args.mode),
+            mode: plan.mode.name().into(),
+            actors: plan.actors,
+            run_id: plan.run_id.clone(),
+            slack: plan.slack.effective(plan.mode),
             eval_points: mbpo_train::Schedule::of(cfg).eval_points().collect(),
             evals: BTreeMap::new(),
             learner: BTreeMap::new(),
@@ -284,13 +284,13 @@ impl Collector {
         self.book.progress.0
     }
 
-    /// True when every process reported done (MPC runs have no learner or rollout generator).
     /// Every actor sent its Done record (all real transitions exist).
     pub fn actors_done(&self, actors: u16) -> bool {
         let done = self.done.keys().filter(|p| p.role() == Some(Role::Actor));
         done.count() == actors as usize
     }
 
+    /// True when every process reported done (MPC runs have no learner or rollout generator).
     pub fn all_done(&self, actors: u16) -> bool {
         let others = if self.mpc() { 2 } else { 4 };
         self.done.len() == actors as usize + others

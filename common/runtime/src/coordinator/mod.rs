@@ -1,0 +1,408 @@
+//! The coordinator of a pipeline run: it owns the run directory (metrics rows, checkpoints,
+//! the summary) and drives the run's protocol -- checkpoint barriers, the clean stop, the end
+//! -- talking to the roles **only over the wire** (stats in, control out, the final policy
+//! read off the policy channel). It never starts or watches a process: the launcher of
+//! `mbpo run` does that for processes it spawned, a test for threads it started, and later a
+//! remote host for processes of its own.
+//!
+//! A launcher's loop: sleep in a [`Waiter`] on the [`CoordinatorPorts`], hand a signal to
+//! [`Coordinator::on_signal`], then [`Coordinator::pump`] (drain reports, write rows) and
+//! [`Coordinator::advance`] (barriers; is the run over?); at the end [`Coordinator::send_stop`]
+//! and [`Coordinator::finish`] for the summary.
+
+pub mod checkpoints;
+pub mod collect;
+mod signal;
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use mbpo_train::{policy_sha256, Algo, ExperimentConfig, RunDir, Schedule};
+use mbpo_wire::{
+    policy_wire_version, ControlCommand, ControlMsg, ControlPublisher, Role, Stats,
+    StatsSubscriber, Transport, Waiter, WeightsKind, WeightsSubscriber, WireNode,
+    CONTROL_TARGET_ALL,
+};
+
+use crate::args::{Mode, Slack};
+use crate::error::ensure_protocol;
+use crate::process::Dims;
+use crate::{Result, RuntimeError};
+use checkpoints::{Barrier, SupervisorCheckpoint};
+use collect::{Collector, PipelineSummary};
+pub use signal::{on_signal, OnSignal, RunState};
+
+/// What a run is: its id and how its roles hand work to each other.
+#[derive(Debug, Clone)]
+pub struct RunPlan {
+    /// Run id (the run's iceoryx2 services `mbpo/<run id>/...`).
+    pub run_id: String,
+    /// Hand-off mode.
+    pub mode: Mode,
+    /// Training actors.
+    pub actors: u16,
+    /// Slack of pipelined mode (as given; zero is used in lockstep).
+    pub slack: Slack,
+}
+
+/// The coordinator's ports; attach them to the launcher's [`Waiter`].
+pub struct CoordinatorPorts<S: Transport> {
+    /// Every role's reports.
+    pub stats: StatsSubscriber<S>,
+    /// The run's final "policy": the SAC actor (MBPO), or the model versions (MPC).
+    pub policy: WeightsSubscriber<S>,
+    /// Pause, cut, resume and stop to every role.
+    pub control: ControlPublisher<S>,
+}
+
+impl<S: Transport> CoordinatorPorts<S> {
+    /// The ports of the coordinator's `node` for a run of `cfg`.
+    pub fn create(node: &WireNode<S>, cfg: &ExperimentConfig, dims: &Dims) -> Result<Self> {
+        let policy = match cfg.algo == Algo::Mpc {
+            true => WeightsSubscriber::create(
+                node,
+                WeightsKind::Model,
+                dims.model.layout_hash,
+                dims.model.len(),
+            )?,
+            false => WeightsSubscriber::create(
+                node,
+                WeightsKind::Policy,
+                dims.policy_hash,
+                dims.policy_len,
+            )?,
+        };
+        Ok(Self {
+            stats: StatsSubscriber::create(node)?,
+            policy,
+            control: ControlPublisher::create(node)?,
+        })
+    }
+    /// Wake `waiter` on the reports and the final policy.
+    pub fn attach<'a>(&'a self, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&self.stats).attach(&self.policy);
+    }
+}
+
+/// Where a run stands after [`Coordinator::advance`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Work goes on.
+    Running,
+    /// Every role is done and the final policy is in.
+    Finished,
+    /// A checkpoint the run stops after is complete.
+    Stopped,
+}
+
+/// The coordinator's state (see the module docs).
+pub struct Coordinator {
+    cfg: ExperimentConfig,
+    plan: RunPlan,
+    out: PathBuf,
+    schedule: Schedule,
+    dims: Dims,
+    /// The metrics bookkeeping.
+    pub collector: Collector,
+    barrier: Option<Barrier>,
+    next_checkpoint: u64,
+    final_wire: u64,
+    final_params: Option<Vec<f32>>,
+    finishing: bool,
+}
+
+impl Coordinator {
+    /// The coordinator of the run `cfg` in `out`, from the start or from a checkpoint after
+    /// `resume.0` env steps; `restarts` so far (`--restart on-failure`).
+    pub fn new(
+        cfg: &ExperimentConfig,
+        plan: RunPlan,
+        out: &Path,
+        resume: Option<(u64, SupervisorCheckpoint)>,
+        restarts: u32,
+    ) -> Result<Self> {
+        let schedule = Schedule::of(cfg);
+        let mut collector = Collector::new(cfg, &plan);
+        let every = cfg.checkpoint.every;
+        let mut next_checkpoint = every;
+        if let Some((env_steps, state)) = resume {
+            collector.restore(state.book);
+            next_checkpoint = env_steps + every;
+        }
+        collector.book.restarts = restarts;
+        let final_wire = match cfg.algo == Algo::Mpc {
+            true => schedule.train_points_upto(cfg.steps),
+            false => policy_wire_version(cfg.steps),
+        };
+        Ok(Self {
+            dims: Dims::of(cfg)?,
+            cfg: cfg.clone(),
+            plan,
+            out: out.to_path_buf(),
+            schedule,
+            collector,
+            barrier: None,
+            next_checkpoint,
+            // An MPC run shorter than its warm-up trains no model: nothing to wait for.
+            final_params: (final_wire == 0).then(Vec::new),
+            final_wire,
+            finishing: false,
+        })
+    }
+
+    /// Every role sent its Done record.
+    pub fn all_done(&self) -> bool {
+        self.collector.all_done(self.plan.actors)
+    }
+
+    /// Take every report and the final policy that arrived, and write the rows that are
+    /// complete.
+    pub fn pump<S: Transport>(
+        &mut self,
+        ports: &CoordinatorPorts<S>,
+        run: &mut RunDir,
+        started: Instant,
+    ) -> Result<()> {
+        loop {
+            match ports.stats.receive() {
+                Ok(Some(r)) => match (Stats::decode(&r.msg), self.barrier.as_mut()) {
+                    (Ok(Stats::Barrier(report)), Some(b)) => b.on_report(r.producer(), report),
+                    (Ok(Stats::Barrier(report)), None) => {
+                        tracing::warn!("{}: {report:?} outside a barrier", r.producer())
+                    }
+                    (Ok(stats), _) => self.collector.on_stats(r.producer(), stats),
+                    (Err(e), _) => tracing::warn!("stats from {}: {e}", r.producer()),
+                },
+                Ok(None) => break,
+                Err(e) => tracing::warn!("stats: {e}"),
+            }
+        }
+        match ports.policy.receive_latest() {
+            Ok(Some(w)) if w.version() == self.final_wire => {
+                self.final_params = Some(w.params().to_vec())
+            }
+            Ok(_) => {}
+            Err(e) => tracing::warn!("policy: {e}"),
+        }
+        self.write_rows(run, started)
+    }
+
+    fn write_rows(&mut self, run: &mut RunDir, started: Instant) -> Result<()> {
+        let out = &self.out;
+        self.collector
+            .write_rows(run, started)
+            .map_err(|source| RuntimeError::Io {
+                path: out.join("metrics.csv"),
+                source,
+            })
+    }
+
+    /// Drive the barrier (start a periodic one, send the cut, complete it) and tell whether
+    /// the run is over.
+    pub fn advance<S: Transport>(
+        &mut self,
+        ports: &CoordinatorPorts<S>,
+        run: &mut RunDir,
+        started: Instant,
+    ) -> Result<Phase> {
+        if self.all_done() && self.final_params.is_some() {
+            return Ok(Phase::Finished);
+        }
+        let every = self.cfg.checkpoint.every;
+        if self.barrier.is_none()
+            && every > 0
+            && self.collector.env_steps() >= self.next_checkpoint
+            && !self.all_done()
+        {
+            self.start_barrier(ports, false)?;
+        }
+        let Some(b) = self.barrier.as_mut() else {
+            return Ok(Phase::Running);
+        };
+        if let Some(cut) = b.take_cut(&self.schedule, self.plan.mode) {
+            tracing::info!(
+                "checkpoint cut: after step {} with {} model trainings",
+                cut.env_steps,
+                cut.model_trainings
+            );
+            send(
+                ports,
+                ControlCommand::Checkpoint,
+                cut.model_trainings,
+                cut.env_steps,
+            )?;
+        }
+        let Some(cut) = b.complete() else {
+            if b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1) {
+                b.warnings += 1;
+                tracing::warn!("checkpoint barrier still waiting for {}", b.waiting_for());
+            }
+            return Ok(Phase::Running);
+        };
+        let (barrier_started, stop_after) = (b.started, b.stop_after);
+        self.write_rows(run, started)?;
+        let missing = self.collector.missing_at_cut(cut.env_steps);
+        ensure_protocol!(
+            missing == 0,
+            "checkpoint after step {}: the records of {missing} eval point(s) up to it are not in",
+            cut.env_steps
+        );
+        let state = SupervisorCheckpoint {
+            mode: self.plan.mode,
+            actors: self.plan.actors,
+            slack: self.plan.slack,
+            book: self.collector.book_at(cut.env_steps),
+            elapsed_seconds: started.elapsed().as_secs_f64(),
+        };
+        checkpoints::finish(
+            &self.out,
+            self.cfg.algo,
+            cut,
+            &state,
+            self.cfg.checkpoint.keep,
+        )?;
+        tracing::info!(
+            "checkpoint after step {} complete ({:.2} s barrier): {}",
+            cut.env_steps,
+            barrier_started.elapsed().as_secs_f64(),
+            mbpo_train::checkpoint::dir_for(&self.out, cut.env_steps).display()
+        );
+        self.next_checkpoint = cut.env_steps + every.max(1);
+        if stop_after {
+            return Ok(Phase::Stopped);
+        }
+        send(
+            ports,
+            ControlCommand::Resume,
+            cut.model_trainings,
+            cut.env_steps,
+        )?;
+        self.barrier = None;
+        Ok(Phase::Running)
+    }
+
+    /// Answer a SIGINT/SIGTERM (see [`on_signal`]); the launcher stops at once on
+    /// [`OnSignal::StopNow`].
+    pub fn on_signal<S: Transport>(&mut self, ports: &CoordinatorPorts<S>) -> Result<OnSignal> {
+        let state = RunState {
+            barrier: self.barrier.as_ref().map(|b| b.stop_after),
+            all_done: self.all_done(),
+            actors_done: self.collector.actors_done(self.plan.actors),
+            finishing: self.finishing,
+        };
+        let decision = on_signal(state);
+        match decision {
+            OnSignal::CheckpointAndStop => {
+                tracing::warn!("stopping: writing a checkpoint first (press Ctrl-C again to stop at once, without one)");
+                self.start_barrier(ports, true)?;
+            }
+            OnSignal::StopAfterBarrier => {
+                tracing::warn!(
+                    "stopping after the checkpoint under way (press Ctrl-C again to stop at once)"
+                );
+                if let Some(b) = self.barrier.as_mut() {
+                    b.stop_after = true;
+                }
+                send_pause(ports, true)?;
+            }
+            OnSignal::Finish => {
+                tracing::warn!("the actors are done: finishing the run's last updates and evaluations (press Ctrl-C again to stop at once, without a checkpoint)");
+                self.finishing = true;
+            }
+            OnSignal::StopNow => {}
+        }
+        Ok(decision)
+    }
+
+    /// Broadcast the Pause that starts a checkpoint barrier.
+    fn start_barrier<S: Transport>(
+        &mut self,
+        ports: &CoordinatorPorts<S>,
+        stop_after: bool,
+    ) -> Result<()> {
+        send_pause(ports, stop_after)?;
+        self.barrier = Some(Barrier::new(self.cfg.algo, self.plan.actors, stop_after));
+        Ok(())
+    }
+
+    /// Tell every role to stop (they wait for it after their work, so nothing in flight is
+    /// lost), after giving the `roles` still alive up to 2 s to be connected.
+    pub fn send_stop<S: Transport>(&self, ports: &CoordinatorPorts<S>, roles: usize) {
+        let _ = ports
+            .control
+            .wait_for_subscribers(roles, Duration::from_secs(2));
+        if let Err(e) = send(ports, ControlCommand::Stop, 1, self.cfg.steps) {
+            tracing::warn!("sending stop: {e}");
+        }
+    }
+
+    /// Env steps the learner (MPC: the actors) reported.
+    pub fn env_steps(&self) -> u64 {
+        self.collector.env_steps()
+    }
+
+    /// The run's summary with `status`; a completed MBPO run also leaves its final policy in
+    /// `<run>/policy.ckpt`.
+    pub fn finish(
+        &self,
+        status: &str,
+        run: &mut RunDir,
+        started: Instant,
+    ) -> Result<PipelineSummary> {
+        let mpc = self.cfg.algo == Algo::Mpc;
+        // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
+        let hashed = match mpc {
+            true => self.dims.model.n_params,
+            false => self.dims.policy_len,
+        };
+        let params = self
+            .final_params
+            .as_deref()
+            .map(|p| &p[..hashed.min(p.len())]);
+        let sha = params.map(policy_sha256).unwrap_or_default();
+        // The policy the run ended with: periodic checkpoints rarely fall on the last step.
+        if let (Some(actor), "completed", false) = (params, status, mpc) {
+            mbpo_train::policy_file::write_final_policy(&self.out, self.env_steps(), actor)?;
+        }
+        let to_target = run
+            .env_steps_to_target(self.cfg.target_return())
+            .map_err(|source| RuntimeError::Io {
+                path: self.out.join("metrics.csv"),
+                source,
+            })?;
+        Ok(self.collector.summary(status, sha, started, to_target))
+    }
+
+    /// Roles of the run: learner, model trainer, rollout generator, evaluator and the actors
+    /// (MPC: no learner or rollout generator).
+    pub fn roles(&self) -> usize {
+        let others = if self.cfg.algo == Algo::Mpc { 2 } else { 4 };
+        self.plan.actors as usize + others
+    }
+}
+
+fn send<S: Transport>(
+    ports: &CoordinatorPorts<S>,
+    command: ControlCommand,
+    request_id: u64,
+    step: u64,
+) -> Result<()> {
+    let msg = ControlMsg::request(command, request_id, CONTROL_TARGET_ALL, step);
+    ports.control.send(&msg)?;
+    Ok(())
+}
+
+/// Broadcast a Pause, saying whether the run stops after the barrier (roles may then abandon
+/// work the cut does not need, such as a model training under way).
+fn send_pause<S: Transport>(ports: &CoordinatorPorts<S>, stop_after: bool) -> Result<()> {
+    let to_stop = match stop_after {
+        true => crate::barrier::PAUSE_TO_STOP,
+        false => 0,
+    };
+    send(ports, ControlCommand::Pause, to_stop, 0)
+}
+
+/// The coordinator's node of a run.
+pub fn node<S: Transport>(run: &mbpo_wire::RunIpc) -> Result<WireNode<S>> {
+    Ok(run.node::<S>(Role::Supervisor, 0)?)
+}

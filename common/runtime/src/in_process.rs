@@ -1,0 +1,194 @@
+//! The whole pipeline in one process: every role's service loop on its own thread and the
+//! coordinator on the caller's, all on iceoryx2's `local::Service`. The same loops and the
+//! same coordinator as `mbpo run`, without spawning binaries, so a test can run the lockstep
+//! ≡ sequential oracle in the normal suite (and a debugger sees every role at once).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use mbpo_train::{Algo, ExperimentConfig, RunDir};
+use mbpo_wire::{local, RunIpc, WaitOutcome, Waiter};
+
+use crate::coordinator::collect::PipelineSummary;
+use crate::coordinator::{self, Coordinator, CoordinatorPorts, Phase, RunPlan};
+use crate::services::{actor, learner, model_trainer, rollout};
+use crate::{configure_run, Dims, Mode, Result, RuntimeError, ServiceArgs, Slack};
+
+/// How to run a pipeline in this process.
+#[derive(Debug, Clone)]
+pub struct InProcessRun {
+    /// The run directory (created; `config.toml` is written into it).
+    pub out: PathBuf,
+    /// Base directory of the run's iceoryx2 files.
+    pub ipc_root: PathBuf,
+    /// Hand-off mode.
+    pub mode: Mode,
+    /// Training actors (1 in lockstep).
+    pub actors: u16,
+    /// Slack of pipelined mode.
+    pub slack: Slack,
+    /// Give up after this long (a hung role fails the run instead of the test).
+    pub timeout: Duration,
+}
+
+type RoleThread = (String, JoinHandle<Result<()>>);
+
+/// Run `cfg` to its end with every role as a thread; returns the run's summary (also in
+/// `<out>/summary.json`).
+pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<PipelineSummary> {
+    static RUNS: AtomicU64 = AtomicU64::new(0);
+    let run_id = format!(
+        "inproc-{}-{}",
+        std::process::id(),
+        RUNS.fetch_add(1, Ordering::Relaxed)
+    );
+    let mut run_dir = RunDir::create(&how.out, cfg).map_err(|source| RuntimeError::Io {
+        path: how.out.clone(),
+        source,
+    })?;
+    let mut ipc = RunIpc::new(&run_id, &how.ipc_root)?;
+    configure_run(&mut ipc);
+    let result = coordinate(cfg, how, &run_id, &ipc, &mut run_dir);
+    ipc.remove_all::<local::Service>()?;
+    let summary = result?;
+    let text = serde_json::to_string_pretty(&summary).map_err(|e| RuntimeError::Io {
+        path: how.out.join("summary.json"),
+        source: e.into(),
+    })?;
+    std::fs::write(how.out.join("summary.json"), text + "\n").map_err(|source| {
+        RuntimeError::Io {
+            path: how.out.join("summary.json"),
+            source,
+        }
+    })?;
+    Ok(summary)
+}
+
+fn coordinate(
+    cfg: &ExperimentConfig,
+    how: &InProcessRun,
+    run_id: &str,
+    ipc: &RunIpc,
+    run_dir: &mut RunDir,
+) -> Result<PipelineSummary> {
+    // The coordinator's ports first: the roles wait for the stats subscriber.
+    let node = coordinator::node::<local::Service>(ipc)?;
+    let ports = CoordinatorPorts::create(&node, cfg, &Dims::of(cfg)?)?;
+    let plan = RunPlan {
+        run_id: run_id.into(),
+        mode: how.mode,
+        actors: how.actors,
+        slack: how.slack,
+    };
+    let mut coord = Coordinator::new(cfg, plan, &how.out, None, 0)?;
+    let args = ServiceArgs {
+        run_dir: how.out.clone(),
+        run_id: run_id.into(),
+        ipc_root: how.ipc_root.clone(),
+        index: 0,
+        mode: how.mode,
+        actors: how.actors,
+        slack: how.slack,
+        resume_from: None,
+    };
+    let mut threads = start_roles(cfg, &args)?;
+    let started = Instant::now();
+    let mut waiter = Waiter::new()?;
+    ports.attach(&mut waiter);
+    let outcome = loop {
+        if waiter.wait(Duration::from_millis(100))? == WaitOutcome::Terminate {
+            break Err(RuntimeError::protocol("interrupted (SIGINT/SIGTERM)"));
+        }
+        coord.pump(&ports, run_dir, started)?;
+        if let Some(name) = threads
+            .iter()
+            .find(|t| t.1.is_finished())
+            .map(|t| t.0.clone())
+        {
+            break Err(RuntimeError::protocol(format!(
+                "{name} ended before the run finished"
+            )));
+        }
+        if started.elapsed() > how.timeout {
+            break Err(RuntimeError::protocol(format!(
+                "the run did not finish within {:?}",
+                how.timeout
+            )));
+        }
+        match coord.advance(&ports, run_dir, started)? {
+            Phase::Finished => break Ok(()),
+            Phase::Running => {}
+            Phase::Stopped => break Err(RuntimeError::protocol("stopped at a checkpoint")),
+        }
+    };
+    coord.send_stop(&ports, coord.roles());
+    let ended = join_roles(&mut threads);
+    outcome?;
+    ended?;
+    coord.finish("completed", run_dir, started)
+}
+
+/// Start every role's loop on a thread of its own (ports are created on it: they are not `Send`).
+fn start_roles(cfg: &ExperimentConfig, args: &ServiceArgs) -> Result<Vec<RoleThread>> {
+    type Loop = fn(&ServiceArgs) -> Result<()>;
+    let mut roles: Vec<(String, Loop, ServiceArgs)> = Vec::new();
+    if cfg.algo != Algo::Mpc {
+        roles.push((
+            "learner".into(),
+            learner::run::<local::Service>,
+            args.clone(),
+        ));
+        roles.push((
+            "rollout-generator".into(),
+            rollout::run::<local::Service>,
+            args.clone(),
+        ));
+    }
+    roles.push((
+        "model-trainer".into(),
+        model_trainer::run::<local::Service>,
+        args.clone(),
+    ));
+    roles.push((
+        "evaluator".into(),
+        actor::evaluate::<local::Service>,
+        args.clone(),
+    ));
+    for i in 0..args.actors {
+        let a = ServiceArgs {
+            index: i,
+            ..args.clone()
+        };
+        roles.push((format!("actor-{i}"), actor::act::<local::Service>, a));
+    }
+    roles
+        .into_iter()
+        .map(|(name, run, a)| {
+            let handle = std::thread::Builder::new()
+                .name(name.clone())
+                .spawn(move || run(&a))
+                .map_err(|source| RuntimeError::Io {
+                    path: Path::new("<thread>").join(&name),
+                    source,
+                })?;
+            Ok((name, handle))
+        })
+        .collect()
+}
+
+/// Wait for every role thread; the first error (or panic) is the run's.
+fn join_roles(threads: &mut Vec<RoleThread>) -> Result<()> {
+    let mut first = Ok(());
+    for (name, handle) in threads.drain(..) {
+        let ended = match handle.join() {
+            Ok(r) => r,
+            Err(_) => Err(RuntimeError::protocol(format!("{name} panicked"))),
+        };
+        if let (Err(e), true) = (ended, first.is_ok()) {
+            first = Err(RuntimeError::protocol(format!("{name}: {e}")));
+        }
+    }
+    first
+}

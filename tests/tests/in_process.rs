@@ -1,0 +1,84 @@
+//! The pipeline as threads of one process on iceoryx2's `local::Service`
+//! (`mbpo_runtime::in_process`): the same role loops and coordinator as `mbpo run`, no binaries.
+//! The correctness oracle runs here too: lockstep equals the sequential reference bit for bit.
+
+use std::time::Duration;
+
+use mbpo_integration_tests::*;
+use mbpo_runtime::in_process::{run_in_process, InProcessRun};
+use mbpo_runtime::{Mode, Slack};
+use mbpo_train::{train_mbpo, train_mpc};
+
+fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessRun {
+    InProcessRun {
+        out: dir.join(name),
+        ipc_root: ipc_root(&format!("ip-{}", &name[..2])),
+        mode,
+        actors,
+        slack: Slack {
+            policy_lag: 2,
+            update_buffer: 40,
+            model_lag: 25,
+        },
+        timeout: Duration::from_secs(240),
+    }
+}
+
+#[test]
+fn in_process_lockstep_mbpo_equals_sequential() {
+    let cfg = tiny_config(500);
+    let dir = scratch("in-process-mbpo");
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let run = how(&dir, "lockstep", Mode::Lockstep, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(s.summary.status, "completed");
+    assert_eq!(
+        s.summary.policy_sha256, seq.policy_sha256,
+        "lockstep != sequential"
+    );
+    assert_eq!(s.summary.sac_updates, seq.sac_updates);
+    assert_eq!(
+        metrics_without_timing(&run.out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    assert_eq!(s.real_transitions.produced, 500);
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(s.real_transitions.received[consumer], 500, "{consumer}");
+    }
+    assert_eq!(s.real_transitions.lost, 0);
+    assert_eq!(s.ratios.rollout_batches, 3, "train points 201, 301, 401");
+}
+
+#[test]
+fn in_process_lockstep_mpc_equals_sequential() {
+    let cfg = tiny_mpc_config(400);
+    let dir = scratch("in-process-mpc");
+    let seq = train_mpc(&cfg, &dir.join("sequential")).unwrap();
+    let run = how(&dir, "lockstep", Mode::Lockstep, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(
+        s.summary.policy_sha256, seq.policy_sha256,
+        "lockstep != sequential"
+    );
+    assert_eq!(
+        metrics_without_timing(&run.out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+}
+
+#[test]
+fn in_process_pipelined_run_with_two_actors_loses_nothing() {
+    let cfg = tiny_config(400);
+    let dir = scratch("in-process-pipelined");
+    let run = how(&dir, "pipelined", Mode::Pipelined, 2);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(s.summary.status, "completed");
+    assert_eq!(s.summary.env_steps, 400);
+    assert_eq!(s.real_transitions.produced, 400);
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
+    }
+    assert_eq!(s.real_transitions.lost, 0);
+    // Rows 200 and 400 (eval.every = 200).
+    assert_eq!(metrics_without_timing(&run.out).len(), 3);
+}
