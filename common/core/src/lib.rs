@@ -17,5 +17,8 @@ pub mod replay;
 pub mod rng;
 
 pub use policy::{BatchPolicy, UniformPolicy};
-pub use replay::{sample_mixed, Batch, ReplayBuffer, ReplaySnapshot, SnapshotMismatch};
+pub use replay::{
+    sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, SnapshotMismatch,
+    TransitionSink,
+};
 pub use rng::{stream, Rng};

@@ -58,6 +58,51 @@ impl Batch {
     }
 }
 
+/// Where an env step's transition goes: appended to a replay buffer, or held as the last
+/// transition of an actor that sends it on ([`LastTransition`]).
+pub trait TransitionSink {
+    /// Take one transition `(s, a, r, s', terminated)`.
+    fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool);
+}
+
+impl TransitionSink for ReplayBuffer {
+    fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
+        ReplayBuffer::push(self, obs, act, reward, next_obs, terminated)
+    }
+}
+
+/// The transition of an actor's last env step as a one-row [`Batch`], overwritten by each
+/// step: what a pipeline actor publishes, without a ring buffer or an allocation per step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LastTransition {
+    row: Batch,
+}
+
+impl LastTransition {
+    /// Room for one transition of these widths.
+    pub fn new(obs_dim: usize, act_dim: usize) -> Self {
+        Self {
+            row: Batch::new(obs_dim, act_dim, 1),
+        }
+    }
+    /// The last transition (one row; zeros before the first step).
+    pub fn batch(&self) -> &Batch {
+        &self.row
+    }
+}
+
+impl TransitionSink for LastTransition {
+    fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
+        let b = &mut self.row;
+        let (o, a) = (b.obs_dim, b.act_dim);
+        b.obs.copy_from_slice(&obs[..o]);
+        b.act.copy_from_slice(&act[..a]);
+        b.reward[0] = reward;
+        b.next_obs.copy_from_slice(&next_obs[..o]);
+        b.terminated[0] = if terminated { 1.0 } else { 0.0 };
+    }
+}
+
 /// A ring buffer of transitions.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReplayBuffer {

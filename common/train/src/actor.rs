@@ -2,7 +2,7 @@
 //! process) that turns a policy into stored transitions.
 
 use mbpo_core::rng::{stream, uniform_range_f32};
-use mbpo_core::{BatchPolicy, ReplayBuffer, Rng};
+use mbpo_core::{BatchPolicy, Rng, TransitionSink};
 use mbpo_envs::{make, Env, EnvError};
 use mbpo_sac::ActionScale;
 use serde::{Deserialize, Serialize};
@@ -143,7 +143,7 @@ impl EnvActor {
         &mut self,
         behaviour: Behaviour,
         policy: &mut dyn BatchPolicy,
-        replay: &mut ReplayBuffer,
+        replay: &mut dyn TransitionSink,
     ) {
         match behaviour {
             Behaviour::Uniform => self

@@ -32,7 +32,6 @@ use crate::run_control::RunOptions;
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
 use crate::run_dir::{MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
-use mbpo_core::Batch;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
 use serde::{Deserialize, Serialize};
@@ -85,8 +84,9 @@ impl Mbpo {
         self.learner.sac()
     }
 
-    /// Hand a real transition to every role that keeps real data.
-    fn distribute_real(&mut self, rows: &Batch) {
+    /// One env step with `behaviour`, its transition handed to every role that keeps real data.
+    fn act_and_distribute(&mut self, behaviour: Behaviour) {
+        let rows = self.actor.act(behaviour);
         self.model_trainer.add_real(rows);
         self.rollout.add_real(rows);
         self.learner.add_real(rows);
@@ -94,8 +94,7 @@ impl Mbpo {
 
     /// One uniform-random env step into D_env (the warm-up before the loop).
     pub fn warm_up_step(&mut self) {
-        let rows = self.actor.act(Behaviour::Uniform);
-        self.distribute_real(&rows);
+        self.act_and_distribute(Behaviour::Uniform);
         self.learner.finish_step();
     }
 
@@ -139,8 +138,7 @@ impl Mbpo {
     /// One real env step with a ~ π(·|s) into D_env.
     pub fn env_step(&mut self) {
         self.actor.set_policy(&self.learner.policy());
-        let rows = self.actor.act(Behaviour::Policy);
-        self.distribute_real(&rows);
+        self.act_and_distribute(Behaviour::Policy);
     }
 
     /// G SAC updates on batches of `real_ratio` D_env and the rest D_model.

@@ -24,7 +24,7 @@ use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, Run
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, BatchPolicy, ReplayBuffer, Rng};
+use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
 use mbpo_envs::{make, termination_fn, Env};
 use mbpo_model::{ProbabilisticEnsemble, TrainReport};
 use mbpo_plan::{build, EnsembleModel, Mpc, MpcState, PlanError, RewardSource};
@@ -133,7 +133,7 @@ pub struct PlanningActorRole {
     actor: EnvActor,
     mpc: Mpc,
     model: VersionedModel,
-    staged: ReplayBuffer,
+    staged: LastTransition,
     /// Wall seconds of the last plan (0 for a warm-up step).
     pub last_plan_seconds: f64,
 }
@@ -146,7 +146,7 @@ impl PlanningActorRole {
         Ok(Self {
             model: VersionedModel::new(cfg, env.as_ref())?,
             mpc: controller(cfg, env.act_dim())?,
-            staged: ReplayBuffer::new(env.obs_dim(), env.act_dim(), 1),
+            staged: LastTransition::new(env.obs_dim(), env.act_dim()),
             actor,
             last_plan_seconds: 0.0,
         })
@@ -182,7 +182,7 @@ impl PlanningActorRole {
     }
     /// One real env step (uniform, or the planner's action); returns the transition. The
     /// planner's warm start is dropped at every episode end.
-    pub fn act(&mut self, behaviour: Behaviour) -> Result<Batch, TrainError> {
+    pub fn act(&mut self, behaviour: Behaviour) -> Result<&Batch, TrainError> {
         let episodes = self.actor.episodes;
         let mut policy = MpcPolicy {
             mpc: &mut self.mpc,
@@ -198,7 +198,11 @@ impl PlanningActorRole {
         if self.actor.episodes > episodes {
             self.mpc.reset();
         }
-        Ok(self.staged.to_batch())
+        Ok(self.staged.batch())
+    }
+    /// The transition of the last [`Self::act`].
+    pub fn last_transition(&self) -> &Batch {
+        self.staged.batch()
     }
 }
 
@@ -379,7 +383,7 @@ impl MpcRun {
             Behaviour::Policy
         };
         let rows = self.actor.act(behaviour)?;
-        self.model_trainer.add_real(&rows);
+        self.model_trainer.add_real(rows);
         Ok(true)
     }
 

@@ -18,7 +18,7 @@ use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::ExperimentConfig;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
-use mbpo_core::{sample_mixed, Batch, ReplayBuffer, ReplaySnapshot, Rng};
+use mbpo_core::{sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng};
 use mbpo_envs::{termination_fn, EnvError, TerminationFn};
 use mbpo_model::{
     rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
@@ -171,7 +171,7 @@ pub struct ActorRole {
     actor: EnvActor,
     policy: ActorPolicy,
     policy_version: u64,
-    staged: ReplayBuffer,
+    staged: LastTransition,
 }
 
 impl ActorRole {
@@ -191,7 +191,7 @@ impl ActorRole {
             actor,
             policy: ActorPolicy::new(net, params, false),
             policy_version: 0,
-            staged: ReplayBuffer::new(o, a, 1),
+            staged: LastTransition::new(o, a),
         })
     }
     /// Take a newer policy.
@@ -232,11 +232,15 @@ impl ActorRole {
         self.policy_version = s.policy_version;
         Ok(())
     }
-    /// One real env step; returns the transition as a one-row batch.
-    pub fn act(&mut self, behaviour: Behaviour) -> Batch {
+    /// One real env step; returns the transition as a one-row batch (no allocation).
+    pub fn act(&mut self, behaviour: Behaviour) -> &Batch {
         self.actor
             .step(behaviour, &mut self.policy, &mut self.staged);
-        self.staged.to_batch()
+        self.staged.batch()
+    }
+    /// The transition of the last [`Self::act`].
+    pub fn last_transition(&self) -> &Batch {
+        self.staged.batch()
     }
 }
 

@@ -125,7 +125,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        let rows = role.act(behaviour);
+        role.act(behaviour);
         let a = role.env_actor();
         if a.episodes > episodes {
             // Before the transition: the supervisor may rely on having every episode ≤ t.
@@ -142,7 +142,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             env_steps: g,
         };
         let t0 = Instant::now();
-        real.send_batch(&rows, meta)?;
+        real.send_batch(role.last_transition(), meta)?;
         ipc += t0.elapsed();
         if last_progress.elapsed() >= Duration::from_millis(500) {
             last_progress = Instant::now();

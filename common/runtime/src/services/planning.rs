@@ -155,7 +155,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        let rows = role.act(behaviour)?;
+        role.act(behaviour)?;
         if behaviour == Behaviour::Policy {
             plan_seconds.push(role.last_plan_seconds);
         }
@@ -174,7 +174,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
             env_steps: g,
         };
         let t0 = Instant::now();
-        real.send_batch(&rows, meta)?;
+        real.send_batch(role.last_transition(), meta)?;
         ipc += t0.elapsed();
         // After every planned step (planning takes far longer than a record): the supervisor
         // writes the metrics row of eval point t only once every actor is past t.
