@@ -15,7 +15,8 @@
 //! ```
 //!
 //! With the cargo feature `mujoco`, [`make`] also builds the Gymnasium v5 MuJoCo tasks
-//! ([`MUJOCO_ENV_IDS`]; module [`mujoco`]). Without it those ids give
+//! ([`MUJOCO_ENV_IDS`]; module [`mujoco`]). Every task and what depends on it (termination
+//! rule, known reward, target return) is one row of the [`registry`]. Without it those ids give
 //! [`EnvError::MujocoNotBuilt`], so the default build needs no MuJoCo library.
 #![warn(missing_docs)]
 
@@ -24,15 +25,20 @@ mod mountain_car;
 pub mod mujoco;
 pub mod numpy_sum;
 mod pendulum;
-mod reward;
+pub mod registry;
+pub mod reward;
 mod space;
-mod termination;
+pub mod termination;
 
 pub use mountain_car::MountainCarContinuous;
 pub use pendulum::Pendulum;
-pub use reward::{reward_fn, RewardFn, RewardGradFn, RewardValueFn, REWARD_ENV_IDS};
+pub use registry::{
+    make, register, reward_fn, target_return, task, tasks, termination_fn, TaskSpec, ENV_IDS,
+    MUJOCO_ENV_IDS, REWARD_ENV_IDS, TERMINATION_ENV_IDS,
+};
+pub use reward::{RewardFn, RewardGradFn, RewardValueFn};
 pub use space::BoxSpace;
-pub use termination::{termination_fn, TerminationFn, TERMINATION_ENV_IDS};
+pub use termination::TerminationFn;
 
 use mbpo_core::Rng;
 
@@ -63,8 +69,11 @@ pub enum EnvError {
         layout: &'static str,
     },
     /// The environment id is not known.
-    #[error("unknown environment '{0}'; known: {known}", known = ENV_IDS.join(", "))]
+    #[error("unknown environment '{0}'; known: {known}", known = registry::known_ids())]
     UnknownEnv(String),
+    /// A task registered with an id that is already taken.
+    #[error("a task with id '{0}' is already registered: give yours another id")]
+    DuplicateTask(String),
     /// A MuJoCo task in a build without the `mujoco` feature.
     #[error(
         "{0} is a MuJoCo task and this build has no MuJoCo: run `bash deploy/setup_mujoco.sh`, \
@@ -146,64 +155,5 @@ pub trait Env: Send {
     /// tasks return float64 observations, which [`Env::step`] rounds to f32); `None` otherwise.
     fn observation_f64(&self) -> Option<&[f64]> {
         None
-    }
-}
-
-/// Ids of the Gymnasium v5 MuJoCo tasks (built only with the `mujoco` feature). Ant-v5 has MBPO's
-/// truncated observation (`include_cfrc_ext_in_observation=False`: 27 values, no contact forces).
-pub const MUJOCO_ENV_IDS: &[&str] = &[
-    "InvertedPendulum-v5",
-    "HalfCheetah-v5",
-    "Hopper-v5",
-    "Walker2d-v5",
-    "Ant-v5",
-];
-
-/// Ids of every environment [`make`] knows.
-#[cfg(not(feature = "mujoco"))]
-pub const ENV_IDS: &[&str] = &["Pendulum-v1", "MountainCarContinuous-v0"];
-
-/// Ids of every environment [`make`] knows.
-#[cfg(feature = "mujoco")]
-pub const ENV_IDS: &[&str] = &[
-    "Pendulum-v1",
-    "MountainCarContinuous-v0",
-    "InvertedPendulum-v5",
-    "HalfCheetah-v5",
-    "Hopper-v5",
-    "Walker2d-v5",
-    "Ant-v5",
-];
-
-/// The return a task counts as solved at, for "env steps to reach the target" in run summaries
-/// and learning benchmarks: Gymnasium's registered `reward_threshold` (`gymnasium.spec(id)`),
-/// and for Pendulum-v1, which has none, the −200 line this project's sample-efficiency targets
-/// use. `None` for tasks without either (Walker2d-v5); a config's `eval.target_return` overrides.
-pub fn target_return(id: &str) -> Option<f64> {
-    match id {
-        "Pendulum-v1" => Some(-200.0),
-        "MountainCarContinuous-v0" => Some(90.0),
-        "InvertedPendulum-v5" => Some(950.0),
-        "HalfCheetah-v5" => Some(4800.0),
-        "Hopper-v5" => Some(3800.0),
-        "Ant-v5" => Some(6000.0),
-        _ => None,
-    }
-}
-
-/// Build an environment by its Gymnasium id.
-pub fn make(id: &str) -> Result<Box<dyn Env>, EnvError> {
-    match id {
-        "Pendulum-v1" => Ok(Box::new(Pendulum::new())),
-        "MountainCarContinuous-v0" => Ok(Box::new(MountainCarContinuous::new())),
-        #[cfg(feature = "mujoco")]
-        other if MUJOCO_ENV_IDS.contains(&other) => {
-            let task = mujoco::Task::from_id(other).expect("every MuJoCo id has a task");
-            Ok(Box::new(mujoco::MujocoEnv::new(task)?))
-        }
-        other if MUJOCO_ENV_IDS.contains(&other) => {
-            Err(EnvError::MujocoNotBuilt(other.to_string()))
-        }
-        other => Err(EnvError::UnknownEnv(other.to_string())),
     }
 }

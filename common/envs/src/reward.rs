@@ -43,25 +43,6 @@ pub struct RewardFn {
     pub grad: RewardGradFn,
 }
 
-/// Ids with a known reward function (see [`reward_fn`]).
-pub const REWARD_ENV_IDS: &[&str] = &["Pendulum-v1", "MountainCarContinuous-v0"];
-
-/// The known reward of the task `env_id`, or `None` when there is none (then plan with the
-/// model's reward head).
-pub fn reward_fn(env_id: &str) -> Option<RewardFn> {
-    Some(match env_id {
-        "Pendulum-v1" => RewardFn {
-            value: pendulum,
-            grad: pendulum_grad,
-        },
-        "MountainCarContinuous-v0" => RewardFn {
-            value: mountain_car,
-            grad: mountain_car_grad,
-        },
-        _ => return None,
-    })
-}
-
 /// Pendulum-v1: `−(θ² + 0.1·θ̇² + 0.001·u²)` on the pre-step observation `[cos θ, sin θ, θ̇]`.
 pub fn pendulum(obs: &[f32], act: &[f32], _next_obs: &[f32]) -> f32 {
     let theta = obs[1].atan2(obs[0]);
@@ -120,8 +101,7 @@ pub fn mountain_car_grad(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
-    use crate::make;
+    use crate::{make, reward_fn};
     use mbpo_core::rng::{stream, uniform_range_f32};
 
     /// Every step of random-action episodes: the known reward from (obs, a, next_obs) equals

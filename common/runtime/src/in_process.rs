@@ -102,13 +102,15 @@ fn coordinate(
             break Err(RuntimeError::protocol("interrupted (SIGINT/SIGTERM)"));
         }
         coord.pump(&ports, run_dir, started)?;
-        if let Some(name) = threads
-            .iter()
-            .find(|t| t.1.is_finished())
-            .map(|t| t.0.clone())
-        {
+        if let Some(i) = threads.iter().position(|t| t.1.is_finished()) {
+            let (name, handle) = threads.swap_remove(i);
+            let why = match handle.join() {
+                Ok(Ok(())) => "stopped".to_string(),
+                Ok(Err(e)) => crate::error_chain(&e),
+                Err(_) => "panicked".to_string(),
+            };
             break Err(RuntimeError::protocol(format!(
-                "{name} ended before the run finished"
+                "{name} ended before the run finished: {why}"
             )));
         }
         if started.elapsed() > how.timeout {

@@ -353,22 +353,23 @@ impl ExperimentConfig {
             expected: expected.to_string(),
             found,
         };
-        if mbpo_envs::MUJOCO_ENV_IDS.contains(&self.env.as_str())
-            && !mbpo_envs::ENV_IDS.contains(&self.env.as_str())
-        {
-            return Err(bad(
-                "env",
-                "an environment of this build (MuJoCo tasks need `bash deploy/setup_mujoco.sh` \
-                 and a build with `--features mujoco`)",
-                format!("{:?}", self.env),
-            ));
-        }
-        if !mbpo_envs::ENV_IDS.contains(&self.env.as_str()) {
-            return Err(bad(
-                "env",
-                &format!("one of {}", mbpo_envs::ENV_IDS.join(", ")),
-                format!("{:?}", self.env),
-            ));
+        match mbpo_envs::task(&self.env) {
+            Ok(task) if !task.builds() => {
+                return Err(bad(
+                    "env",
+                    "an environment of this build (MuJoCo tasks need `bash deploy/setup_mujoco.sh` \
+                     and a build with `--features mujoco`)",
+                    format!("{:?}", self.env),
+                ));
+            }
+            Ok(_) => {}
+            Err(_) => {
+                return Err(bad(
+                    "env",
+                    &format!("one of {}", mbpo_envs::registry::known_ids()),
+                    format!("{:?}", self.env),
+                ));
+            }
         }
         let positive = [
             ("steps", self.steps as f64),
