@@ -196,8 +196,13 @@ impl ActorRole {
     }
     /// Take a newer policy.
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
-        self.policy.params.copy_from_slice(&snapshot.params);
-        self.policy_version = snapshot.version;
+        self.set_policy_params(&snapshot.params, snapshot.version);
+    }
+    /// Take policy `version` straight from `params` (a receiver copies a snapshot once, out
+    /// of shared memory into the policy).
+    pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
+        self.policy.params.copy_from_slice(params);
+        self.policy_version = version;
     }
     /// Version of the policy acting.
     pub fn policy_version(&self) -> u64 {
@@ -418,8 +423,13 @@ impl RolloutRole {
     }
     /// Take a newer policy.
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
-        self.policy.params.copy_from_slice(&snapshot.params);
-        self.policy_version = snapshot.version;
+        self.set_policy_params(&snapshot.params, snapshot.version);
+    }
+    /// Take policy `version` straight from `params` (a receiver copies a snapshot once, out
+    /// of shared memory into the policy).
+    pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
+        self.policy.params.copy_from_slice(params);
+        self.policy_version = version;
     }
     /// The role's state (for checkpoints).
     pub fn checkpoint(&self) -> RolloutState {
@@ -457,6 +467,10 @@ impl RolloutRole {
         self.policy_version = s.policy_version;
         self.rng = s.rng;
         Ok(())
+    }
+    /// Version of the policy it branches with.
+    pub fn policy_version(&self) -> u64 {
+        self.policy_version
     }
     /// Version of the model it branches with.
     pub fn model_version(&self) -> u64 {

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use mbpo_core::rng::stream;
 use mbpo_sac::ActorPolicy;
 use mbpo_train::actor::Behaviour;
-use mbpo_train::roles::{ActorRole, PolicySnapshot};
+use mbpo_train::roles::ActorRole;
 use mbpo_wire::*;
 
 use crate::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
@@ -40,10 +40,6 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
 
     let mut role = ActorRole::new(cfg, args.index as u64)?;
     let schedule = s.schedule;
-    let mut snap = PolicySnapshot {
-        version: 0,
-        params: vec![0.0; d.policy_len],
-    };
     let mut lag = SlackTracker::default();
     let mut last_progress = Instant::now();
     let steps = actor_steps(cfg.steps, args.actors, args.index);
@@ -100,9 +96,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 &|| format!("policy version {need}"),
                 || {
                     if let Some(w) = policy.receive_latest()? {
-                        snap.version = policy_version_of(w.version());
-                        snap.params.copy_from_slice(w.params());
-                        role.set_policy(&snap);
+                        role.set_policy_params(w.params(), policy_version_of(w.version()));
                     }
                     Ok(role.policy_version() >= need || control.pause_requested())
                 },

@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use mbpo_core::Batch;
-use mbpo_train::roles::{ModelSnapshot, PolicySnapshot, RolloutRole};
+use mbpo_train::roles::{ModelSnapshot, RolloutRole};
 use mbpo_wire::*;
 
 use crate::barrier::{self, RolloutCheckpoint};
@@ -46,10 +46,6 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let schedule = s.schedule;
     let mut inbox = RealInbox::new(d.rows());
     let mut rows = Batch::default();
-    let mut snap = PolicySnapshot {
-        version: 0,
-        params: vec![0.0; d.policy_len],
-    };
     let mut model_version = 0;
     let mut staleness = SlackTracker::default();
     let mut branches = 0;
@@ -60,8 +56,6 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     );
     if let Some(dir) = &args.resume_from {
         let state: RolloutCheckpoint = file.read(dir)?;
-        snap.version = state.role.policy_version;
-        snap.params.copy_from_slice(&state.role.policy);
         branches = state.branches;
         role.restore(state.role)?;
         model_version = role.model_version();
@@ -98,24 +92,24 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 })?;
             }
             if let Some(w) = policy.receive_latest()? {
-                snap.version = policy_version_of(w.version());
-                snap.params.copy_from_slice(w.params());
-                role.set_policy(&snap);
+                role.set_policy_params(w.params(), policy_version_of(w.version()));
             }
-            Ok(model_version >= v && snap.version >= need_policy && inbox.received() >= t - 1)
+            Ok(model_version >= v
+                && role.policy_version() >= need_policy
+                && inbox.received() >= t - 1)
         };
         if !gate.wait_until(&mut inbox, &mut rows, &mut role, branches, &what, ready)? {
             return Ok(());
         }
         if s.mode == Mode::Lockstep {
             ensure_protocol!(
-                model_version == v && snap.version == t - 1,
+                model_version == v && role.policy_version() == t - 1,
                 "lockstep rollouts for step {t}: model v{model_version} (want v{v}), policy v{} (want v{})",
-                snap.version,
+                role.policy_version(),
                 t - 1
             );
         }
-        staleness.see((t - 1) as f64 - snap.version as f64);
+        staleness.see((t - 1) as f64 - role.policy_version() as f64);
         let n = match s.mode {
             Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
             Mode::Pipelined => inbox.pending(),
