@@ -234,31 +234,57 @@ impl ProbabilisticEnsemble {
 
     /// Load [`ModelWeights`] from a model of the same architecture.
     pub fn load_weights(&mut self, w: &ModelWeights) -> Result<(), ParamsError> {
-        if w.layout_hash != self.layout().hash() {
+        let elites = w.elites.iter().copied();
+        let normalizer = &w.normalizer;
+        self.load_parts(
+            w.layout_hash,
+            &w.params,
+            &normalizer.mean,
+            &normalizer.std,
+            elites,
+        )
+    }
+
+    /// Load weights given as their parts -- θ, the normaliser's mean and std, the elites --
+    /// from a model of the same architecture: a receiver loads a snapshot straight out of
+    /// shared memory with one copy and, once sized, no allocation.
+    pub fn load_parts(
+        &mut self,
+        layout_hash: u64,
+        params: &[f32],
+        mean: &[f32],
+        std: &[f32],
+        elites: impl Iterator<Item = usize> + Clone,
+    ) -> Result<(), ParamsError> {
+        if layout_hash != self.layout().hash() {
             return Err(ParamsError::Layout {
                 expected: self.layout().hash(),
-                found: w.layout_hash,
+                found: layout_hash,
                 layout: self.layout().describe(),
             });
         }
         let dim = self.obs_dim + self.act_dim;
-        if w.normalizer.mean.len() != dim || w.normalizer.std.len() != dim {
+        if mean.len() != dim || std.len() != dim {
             return Err(ParamsError::Inconsistent(format!(
                 "normaliser has {} means / {} stds for {dim} inputs",
-                w.normalizer.mean.len(),
-                w.normalizer.std.len()
+                mean.len(),
+                std.len()
             )));
         }
-        if w.elites.is_empty() || w.elites.iter().any(|&e| e >= self.members()) {
+        let members = self.members();
+        if elites.clone().next().is_none() || elites.clone().any(|e| e >= members) {
             return Err(ParamsError::Inconsistent(format!(
-                "elites {:?} for {} members",
-                w.elites,
-                self.members()
+                "elites {:?} for {members} members",
+                elites.collect::<Vec<_>>()
             )));
         }
-        self.set_params(&w.params)?;
-        self.normalizer = w.normalizer.clone();
-        self.elites = w.elites.clone();
+        self.set_params(params)?;
+        self.normalizer.mean.clear();
+        self.normalizer.mean.extend_from_slice(mean);
+        self.normalizer.std.clear();
+        self.normalizer.std.extend_from_slice(std);
+        self.elites.clear();
+        self.elites.extend(elites);
         Ok(())
     }
 

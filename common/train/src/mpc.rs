@@ -117,6 +117,15 @@ impl VersionedModel {
         self.version = snapshot.version;
         Ok(())
     }
+    fn load<E: std::fmt::Display>(
+        &mut self,
+        version: u64,
+        load: impl FnOnce(&mut ProbabilisticEnsemble) -> Result<(), E>,
+    ) -> Result<(), TrainError> {
+        load(self.model.ensemble_mut()).map_err(|e| TrainError::Config(e.to_string()))?;
+        self.version = version;
+        Ok(())
+    }
 }
 
 /// A checkpointed [`PlanningActorRole`] (its model is the model trainer's current one).
@@ -154,6 +163,15 @@ impl PlanningActorRole {
     /// Take a newer model.
     pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
         self.model.set(snapshot)
+    }
+    /// Take model `version`, loaded in place by `load` (a receiver's one copy out of shared
+    /// memory; `load` checks the snapshot before it writes anything).
+    pub fn load_model<E: std::fmt::Display>(
+        &mut self,
+        version: u64,
+        load: impl FnOnce(&mut ProbabilisticEnsemble) -> Result<(), E>,
+    ) -> Result<(), TrainError> {
+        self.model.load(version, load)
     }
     /// Version of the model planned with (0: none yet).
     pub fn model_version(&self) -> u64 {
@@ -243,6 +261,15 @@ impl PlanningEvaluator {
     /// Take a newer model.
     pub fn set_model(&mut self, snapshot: &ModelSnapshot) -> Result<(), TrainError> {
         self.model.set(snapshot)
+    }
+    /// Take model `version`, loaded in place by `load` (a receiver's one copy out of shared
+    /// memory; `load` checks the snapshot before it writes anything).
+    pub fn load_model<E: std::fmt::Display>(
+        &mut self,
+        version: u64,
+        load: impl FnOnce(&mut ProbabilisticEnsemble) -> Result<(), E>,
+    ) -> Result<(), TrainError> {
+        self.model.load(version, load)
     }
     /// Version of the model evaluated.
     pub fn model_version(&self) -> u64 {

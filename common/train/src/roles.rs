@@ -421,6 +421,17 @@ impl RolloutRole {
         self.model_version = snapshot.version;
         Ok(())
     }
+    /// Take model `version`, loaded in place by `load` (a receiver's one copy out of shared
+    /// memory; `load` checks the snapshot before it writes anything).
+    pub fn load_model<E: std::fmt::Display>(
+        &mut self,
+        version: u64,
+        load: impl FnOnce(&mut ProbabilisticEnsemble) -> Result<(), E>,
+    ) -> Result<(), TrainError> {
+        load(&mut self.model).map_err(|e| TrainError::Config(e.to_string()))?;
+        self.model_version = version;
+        Ok(())
+    }
     /// Take a newer policy.
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) {
         self.set_policy_params(&snapshot.params, snapshot.version);

@@ -86,6 +86,27 @@ impl ModelWireLayout {
         w.elites.extend(elites.iter().map(|&e| e as usize));
         Ok(())
     }
+    /// Load the snapshot `flat` into `model` in place: the one copy a receiver makes out of
+    /// shared memory (no intermediate [`ModelWeights`]).
+    pub fn load_into(
+        &self,
+        flat: &[f32],
+        model: &mut ProbabilisticEnsemble,
+    ) -> Result<(), DecodeError> {
+        if flat.len() != self.len() {
+            return Err(DecodeError::ModelLength {
+                expected: self.len(),
+                found: flat.len(),
+            });
+        }
+        let (p, rest) = flat.split_at(self.n_params);
+        let (mean, rest) = rest.split_at(self.in_dim);
+        let (std, elites) = rest.split_at(self.in_dim);
+        let elites = elites.iter().map(|&e| e as usize);
+        model
+            .load_parts(self.layout_hash, p, mean, std, elites)
+            .map_err(|e| DecodeError::ModelWeights(e.to_string()))
+    }
     /// Read weights back from `flat`.
     pub fn decode(&self, flat: &[f32]) -> Result<ModelWeights, DecodeError> {
         let mut w = ModelWeights {
@@ -137,6 +158,9 @@ mod tests {
         l.encode(&w, &mut flat).unwrap();
         assert_eq!(flat.len(), l.len());
         assert_eq!(l.decode(&flat).unwrap(), w);
+        let mut loaded = model.clone();
+        l.load_into(&flat, &mut loaded).unwrap();
+        assert_eq!(loaded.weights(), w, "loaded in place = decoded");
         let e = l.decode(&flat[1..]).unwrap_err();
         assert!(e.to_string().contains(&format!("needs {}", l.len())), "{e}");
         let mut bad = w.clone();

@@ -20,9 +20,9 @@
 
 use std::time::{Duration, Instant};
 
+use mbpo_model::ProbabilisticEnsemble;
 use mbpo_train::actor::Behaviour;
 use mbpo_train::mpc::{PlanningActorRole, PlanningEvaluator};
-use mbpo_train::roles::ModelSnapshot;
 use mbpo_train::Schedule;
 use mbpo_wire::*;
 
@@ -37,21 +37,19 @@ fn needed_model(schedule: &Schedule, g: u64, model_lag: u64) -> u64 {
         .max(1)
 }
 
-/// Load the newest published model into `set` if there is one; returns its version.
+/// Load the newest published model, if there is one, with `load(version, loader)` (the
+/// role's `load_model`: one copy out of shared memory); returns its version.
 fn pull_model<S: Transport>(
     model: &WeightsSubscriber<S>,
     d: &Dims,
-    mut set: impl FnMut(&ModelSnapshot) -> Result<()>,
+    load: impl FnOnce(u64, &dyn Fn(&mut ProbabilisticEnsemble) -> Result<()>) -> Result<()>,
 ) -> Result<Option<u64>> {
     let Some(w) = model.receive_latest()? else {
         return Ok(None);
     };
-    let snapshot = ModelSnapshot {
-        version: w.version(),
-        weights: d.model.decode(w.params())?,
-    };
-    set(&snapshot)?;
-    Ok(Some(snapshot.version))
+    let loader = |m: &mut ProbabilisticEnsemble| Ok(d.model.load_into(w.params(), m)?);
+    load(w.version(), &loader)?;
+    Ok(Some(w.version()))
 }
 
 /// A planning actor's service loop (`s`: its opened process).
@@ -132,7 +130,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
                 &control,
                 &|| format!("model version {need}"),
                 || {
-                    pull_model(&model, &d, |snap| Ok(role.set_model(snap)?))?;
+                    pull_model(&model, &d, |v, load| Ok(role.load_model(v, load)?))?;
                     Ok(role.model_version() >= need || control.pause_requested())
                 },
             )?;
@@ -284,7 +282,7 @@ pub fn evaluate<S: Transport>(s: Process<S>) -> Result<()> {
                     &|| format!("model version {need} to evaluate step {t}"),
                     || {
                         if s.mode == Mode::Pipelined || evaluator.model_version() < need {
-                            pull_model(&model, &d, |snap| Ok(evaluator.set_model(snap)?))?;
+                            pull_model(&model, &d, |v, load| Ok(evaluator.load_model(v, load)?))?;
                         }
                         Ok(evaluator.model_version() >= need
                             || control.cut().is_some_and(|c| c.env_steps < t))

@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use mbpo_core::Batch;
-use mbpo_train::roles::{ModelSnapshot, RolloutRole};
+use mbpo_train::roles::RolloutRole;
 use mbpo_wire::*;
 
 use crate::barrier::{self, RolloutCheckpoint};
@@ -84,12 +84,8 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         };
         let ready = |role: &mut RolloutRole, inbox: &RealInbox| {
             if let Some(w) = model.receive_latest()? {
-                let weights = d.model.decode(w.params())?;
+                role.load_model(w.version(), |m| d.model.load_into(w.params(), m))?;
                 model_version = w.version();
-                role.set_model(&ModelSnapshot {
-                    version: model_version,
-                    weights,
-                })?;
             }
             if let Some(w) = policy.receive_latest()? {
                 role.set_policy_params(w.params(), policy_version_of(w.version()));
