@@ -162,30 +162,19 @@ pub fn actor_file(index: u16) -> String {
 }
 
 /// Every file of a checkpoint of a pipeline running `algo` with `actors` actors, with its
-/// kind: MBPO has a learner and a rollout generator, MPC planning actors and a planning
-/// evaluator instead.
+/// kind: one per role ([`crate::pipeline::roles`]) and the coordinator's.
 pub fn pipeline_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
-    let mpc = algo == Algo::Mpc;
-    let mut f: Vec<(String, &'static str)> = Vec::new();
-    if !mpc {
-        f.push((file::LEARNER.into(), kind::LEARNER));
-        f.push((file::ROLLOUT.into(), kind::ROLLOUT));
-    }
-    f.push((file::MODEL_TRAINER.into(), kind::MODEL_TRAINER));
-    let (evaluator, actor) = match mpc {
-        true => (kind::PLANNING_EVALUATOR, kind::PLANNING_ACTOR),
-        false => (kind::EVALUATOR, kind::ACTOR),
-    };
-    f.push((file::EVALUATOR.into(), evaluator));
-    f.extend((0..actors).map(|i| (actor_file(i), actor)));
-    f.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
-    f
+    let roles = crate::pipeline::roles(algo, actors).into_iter();
+    let mut files: Vec<_> = roles.map(|r| (r.name, r.checkpoint_kind)).collect();
+    files.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
+    files
 }
 
 /// The processes that pause at a barrier and report a counter: the actors, the model trainer
 /// and (MBPO) the rollout generator. The learner and evaluator only follow the cut.
 pub fn pausing_processes(algo: Algo, actors: u16) -> usize {
-    actors as usize + if algo == Algo::Mpc { 1 } else { 2 }
+    let roles = crate::pipeline::roles(algo, actors);
+    roles.iter().filter(|r| r.pauses()).count()
 }
 
 /// Report the pause with the process's own counter, then sleep until the cut arrives.
@@ -502,8 +491,8 @@ mod tests {
             names(Algo::Mbpo, 2),
             [
                 "learner",
-                "rollout-generator",
                 "model-trainer",
+                "rollout-generator",
                 "evaluator",
                 "actor-0",
                 "actor-1",

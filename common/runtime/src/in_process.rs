@@ -8,12 +8,12 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use mbpo_train::{Algo, ExperimentConfig, RunDir};
+use mbpo_train::{ExperimentConfig, RunDir};
 use mbpo_wire::{local, RunIpc, WaitOutcome, Waiter};
 
 use crate::coordinator::collect::PipelineSummary;
 use crate::coordinator::{self, Coordinator, CoordinatorPorts, Phase, RunPlan};
-use crate::services::{actor, learner, model_trainer, rollout};
+use crate::pipeline;
 use crate::{configure_run, Dims, Mode, Result, RuntimeError, ServiceArgs, Slack};
 
 /// How to run a pipeline in this process.
@@ -134,48 +134,22 @@ fn coordinate(
 
 /// Start every role's loop on a thread of its own (ports are created on it: they are not `Send`).
 fn start_roles(cfg: &ExperimentConfig, args: &ServiceArgs) -> Result<Vec<RoleThread>> {
-    type Loop = fn(&ServiceArgs) -> Result<()>;
-    let mut roles: Vec<(String, Loop, ServiceArgs)> = Vec::new();
-    if cfg.algo != Algo::Mpc {
-        roles.push((
-            "learner".into(),
-            learner::run::<local::Service>,
-            args.clone(),
-        ));
-        roles.push((
-            "rollout-generator".into(),
-            rollout::run::<local::Service>,
-            args.clone(),
-        ));
-    }
-    roles.push((
-        "model-trainer".into(),
-        model_trainer::run::<local::Service>,
-        args.clone(),
-    ));
-    roles.push((
-        "evaluator".into(),
-        actor::evaluate::<local::Service>,
-        args.clone(),
-    ));
-    for i in 0..args.actors {
-        let a = ServiceArgs {
-            index: i,
-            ..args.clone()
-        };
-        roles.push((format!("actor-{i}"), actor::act::<local::Service>, a));
-    }
-    roles
+    pipeline::roles(cfg.algo, args.actors)
         .into_iter()
-        .map(|(name, run, a)| {
+        .map(|role| {
+            let run = role.service_loop::<local::Service>();
+            let a = ServiceArgs {
+                index: role.index,
+                ..args.clone()
+            };
             let handle = std::thread::Builder::new()
-                .name(name.clone())
+                .name(role.name.clone())
                 .spawn(move || run(&a))
                 .map_err(|source| RuntimeError::Io {
-                    path: Path::new("<thread>").join(&name),
+                    path: Path::new("<thread>").join(&role.name),
                     source,
                 })?;
-            Ok((name, handle))
+            Ok((role.name, handle))
         })
         .collect()
 }

@@ -8,6 +8,7 @@
 //!   start and exit code.
 //! * [`inbox`]: [`ControlInbox`] (stops, acknowledgements, barriers), [`RealInbox`] (real
 //!   transitions held back until a role may see them) and [`wait_for`], the one way to sleep.
+//! * [`pipeline`]: which roles a run has (the one list every launcher and count reads).
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
 //!
@@ -22,6 +23,7 @@ pub mod coordinator;
 pub mod error;
 pub mod in_process;
 pub mod inbox;
+pub mod pipeline;
 pub mod process;
 pub mod services;
 

@@ -66,9 +66,8 @@ impl ModelWireLayout {
         out.extend(w.elites.iter().map(|&e| e as f32));
         Ok(())
     }
-    /// Read weights from `flat` into `w`, reusing its buffers: the one copy a receiver makes
-    /// out of shared memory.
-    pub fn decode_into(&self, flat: &[f32], w: &mut ModelWeights) -> Result<(), DecodeError> {
+    /// θ, normaliser mean, normaliser std and elites (as f32) of the snapshot `flat`.
+    fn parts<'f>(&self, flat: &'f [f32]) -> Result<[&'f [f32]; 4], DecodeError> {
         if flat.len() != self.len() {
             return Err(DecodeError::ModelLength {
                 expected: self.len(),
@@ -78,6 +77,12 @@ impl ModelWireLayout {
         let (p, rest) = flat.split_at(self.n_params);
         let (mean, rest) = rest.split_at(self.in_dim);
         let (std, elites) = rest.split_at(self.in_dim);
+        Ok([p, mean, std, elites])
+    }
+    /// Read weights from `flat` into `w`, reusing its buffers: the one copy a receiver makes
+    /// out of shared memory.
+    pub fn decode_into(&self, flat: &[f32], w: &mut ModelWeights) -> Result<(), DecodeError> {
+        let [p, mean, std, elites] = self.parts(flat)?;
         w.layout_hash = self.layout_hash;
         copy_into(&mut w.params, p);
         copy_into(&mut w.normalizer.mean, mean);
@@ -93,15 +98,7 @@ impl ModelWireLayout {
         flat: &[f32],
         model: &mut ProbabilisticEnsemble,
     ) -> Result<(), DecodeError> {
-        if flat.len() != self.len() {
-            return Err(DecodeError::ModelLength {
-                expected: self.len(),
-                found: flat.len(),
-            });
-        }
-        let (p, rest) = flat.split_at(self.n_params);
-        let (mean, rest) = rest.split_at(self.in_dim);
-        let (std, elites) = rest.split_at(self.in_dim);
+        let [p, mean, std, elites] = self.parts(flat)?;
         let elites = elites.iter().map(|&e| e as usize);
         model
             .load_parts(self.layout_hash, p, mean, std, elites)

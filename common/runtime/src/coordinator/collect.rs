@@ -292,8 +292,7 @@ impl Collector {
 
     /// True when every process reported done (MPC runs have no learner or rollout generator).
     pub fn all_done(&self, actors: u16) -> bool {
-        let others = if self.mpc() { 2 } else { 4 };
-        self.done.len() == actors as usize + others
+        self.done.len() == crate::pipeline::roles(self.cfg.algo, actors).len()
     }
 
     fn mpc(&self) -> bool {

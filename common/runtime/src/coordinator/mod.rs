@@ -376,8 +376,7 @@ impl Coordinator {
     /// Roles of the run: learner, model trainer, rollout generator, evaluator and the actors
     /// (MPC: no learner or rollout generator).
     pub fn roles(&self) -> usize {
-        let others = if self.cfg.algo == Algo::Mpc { 2 } else { 4 };
-        self.plan.actors as usize + others
+        crate::pipeline::roles(self.cfg.algo, self.plan.actors).len()
     }
 }
 

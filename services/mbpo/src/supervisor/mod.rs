@@ -23,7 +23,7 @@ use anyhow::{bail, Context};
 use mbpo_runtime::coordinator::checkpoints::{self, SupervisorCheckpoint};
 use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
-use mbpo_runtime::{configure_run, Mode};
+use mbpo_runtime::{configure_run, pipeline, Mode};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::{Algo, RunDir};
 use mbpo_wire::{ipc, RunIpc, WaitOutcome, Waiter};
@@ -408,36 +408,24 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
     if let Some(dir) = resume {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
-    let mut procs = Vec::new();
-    let mut add = |name: String, bin: &str, extra: Vec<String>| {
-        let mut a = common.clone();
-        a.extend(extra);
-        let cpu = args.pin_cpus.then(|| procs.len() % ncpu());
-        procs.push(Proc {
-            log: cx.logs.join(format!("{name}.log")),
-            name,
-            bin: cx.bin_dir.join(bin),
-            args: a,
-            child: None,
-            exit: None,
-            cpu,
-        });
-    };
-    // MPC plans on the model trainer's ensemble: no SAC learner, no rollout generator.
-    let mpc = cx.cfg.algo == Algo::Mpc;
-    if !mpc {
-        add("learner".into(), "mbpo-sac-learner", vec![]);
-    }
-    add("model-trainer".into(), "mbpo-model-trainer", vec![]);
-    if !mpc {
-        add("rollout-generator".into(), "mbpo-rollout-generator", vec![]);
-    }
-    add("evaluator".into(), "mbpo-actor", vec!["--eval".into()]);
-    for i in 0..args.actors {
-        let index = vec!["--index".into(), i.to_string()];
-        add(format!("actor-{i}"), "mbpo-actor", index);
-    }
-    procs
+    let roles = pipeline::roles(cx.cfg.algo, args.actors);
+    roles
+        .into_iter()
+        .enumerate()
+        .map(|(i, role)| {
+            let mut a = common.clone();
+            a.extend(role.binary_args());
+            Proc {
+                log: cx.logs.join(format!("{}.log", role.name)),
+                bin: cx.bin_dir.join(role.binary()),
+                name: role.name,
+                args: a,
+                child: None,
+                exit: None,
+                cpu: args.pin_cpus.then(|| i % ncpu()),
+            }
+        })
+        .collect()
 }
 
 /// How the loop of one attempt ended.
