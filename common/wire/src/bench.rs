@@ -1,4 +1,4 @@
-//! `mbpo bench ipc`: transition throughput and weight-broadcast latency over iceoryx2.
+//! The IPC benchmark (`cargo run --release -p mbpo-wire --example ipc_bench`): transition throughput and weight-broadcast latency over iceoryx2.
 //!
 //! Each measurement runs a producer in the calling thread and a consumer in a second thread,
 //! each with its own node on [`ipc::Service`](crate::ipc::Service) (the same shared-memory path
@@ -159,7 +159,7 @@ pub struct LatencyResult {
     pub publish_p50_us: f64,
 }
 
-/// Everything `mbpo bench ipc` reports.
+/// Everything the IPC benchmark reports.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct IpcBenchReport {
     /// iceoryx2 version linked.

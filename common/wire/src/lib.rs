@@ -21,7 +21,7 @@
 //!   - [`StatsPublisher`] / [`StatsSubscriber`], [`ControlPublisher`] / [`ControlSubscriber`]:
 //!     reliable fixed-size messages.
 //! * [`Waiter`]: sleep until any attached port has news, a deadline passes or SIGINT/SIGTERM.
-//! * [`bench`](mod@bench): throughput and latency measurements behind `mbpo bench ipc`.
+//! * [`bench`](mod@bench): throughput and latency measurements (`cargo run --release -p mbpo-wire --example ipc_bench`).
 //!
 //! All ports are generic over the iceoryx2 service type: [`ipc::Service`] between processes
 //! (the default), [`local::Service`] for single-process tests. Ports are not `Send`: create them

@@ -30,11 +30,12 @@ pub enum Channel {
     Real,
     /// Imagined (model rollout) transitions, rollout generator -> learner.
     Imagined,
-    /// Policy weights, learner -> actors, rollout generator.
+    /// Policy weights, learner -> actors, evaluator, rollout generator, coordinator (final policy).
     Policy,
-    /// Dynamics-model weights (ensemble, normaliser, elites), model trainer -> rollout generator.
+    /// Dynamics-model weights (ensemble, normaliser, elites), model trainer -> rollout generator;
+    /// MPC: -> planning actors, planning evaluator, coordinator (final model).
     Model,
-    /// Episode returns, evaluation returns and counters, everyone -> supervisor.
+    /// Reports (`crate::stats::Stats`), everyone -> coordinator.
     Stats,
     /// Stop / checkpoint commands and their acknowledgements, supervisor <-> everyone.
     Control,
