@@ -95,13 +95,32 @@ fn coordinate(
     };
     let mut threads = start_roles(cfg, &args)?;
     let started = Instant::now();
+    // Whatever ends the run, every role is told to stop and joined before the caller removes
+    // the run's shared memory.
+    let outcome = drive(&mut coord, &ports, &mut threads, how, run_dir, started);
+    coord.send_stop(&ports, coord.roles());
+    let ended = join_roles(&mut threads);
+    outcome?;
+    ended?;
+    coord.finish("completed", run_dir, started)
+}
+
+/// The coordinator's loop, until every role is done (or one ended early, or the timeout).
+fn drive(
+    coord: &mut Coordinator,
+    ports: &CoordinatorPorts<local::Service>,
+    threads: &mut Vec<RoleThread>,
+    how: &InProcessRun,
+    run_dir: &mut RunDir,
+    started: Instant,
+) -> Result<()> {
     let mut waiter = Waiter::new()?;
     ports.attach(&mut waiter);
-    let outcome = loop {
+    loop {
         if waiter.wait(Duration::from_millis(100))? == WaitOutcome::Terminate {
-            break Err(RuntimeError::protocol("interrupted (SIGINT/SIGTERM)"));
+            return Err(RuntimeError::protocol("interrupted (SIGINT/SIGTERM)"));
         }
-        coord.pump(&ports, run_dir, started)?;
+        coord.pump(ports, run_dir, started)?;
         if let Some(i) = threads.iter().position(|t| t.1.is_finished()) {
             let (name, handle) = threads.swap_remove(i);
             let why = match handle.join() {
@@ -109,27 +128,22 @@ fn coordinate(
                 Ok(Err(e)) => crate::error_chain(&e),
                 Err(_) => "panicked".to_string(),
             };
-            break Err(RuntimeError::protocol(format!(
+            return Err(RuntimeError::protocol(format!(
                 "{name} ended before the run finished: {why}"
             )));
         }
         if started.elapsed() > how.timeout {
-            break Err(RuntimeError::protocol(format!(
+            return Err(RuntimeError::protocol(format!(
                 "the run did not finish within {:?}",
                 how.timeout
             )));
         }
-        match coord.advance(&ports, run_dir, started)? {
-            Phase::Finished => break Ok(()),
+        match coord.advance(ports, run_dir, started)? {
+            Phase::Finished => return Ok(()),
             Phase::Running => {}
-            Phase::Stopped => break Err(RuntimeError::protocol("stopped at a checkpoint")),
+            Phase::Stopped => return Err(RuntimeError::protocol("stopped at a checkpoint")),
         }
-    };
-    coord.send_stop(&ports, coord.roles());
-    let ended = join_roles(&mut threads);
-    outcome?;
-    ended?;
-    coord.finish("completed", run_dir, started)
+    }
 }
 
 /// Start every role's loop on a thread of its own (ports are created on it: they are not `Send`).
