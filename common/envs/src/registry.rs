@@ -5,7 +5,9 @@
 //! [`termination_fn`], [`reward_fn`], [`target_return`] and the id lists all read this table.
 //!
 //! Built-in tasks are [`BUILTIN`]. A program can add its own at run time with [`register`]
-//! (a toy task in a test, a user's environment); ids are unique.
+//! (a toy task in a test, a user's environment); ids are unique. A registered task exists in
+//! the registering process only: the in-process pipeline sees it, the service binaries that
+//! `mbpo run` spawns do not.
 
 use std::sync::RwLock;
 

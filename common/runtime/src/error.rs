@@ -46,6 +46,9 @@ pub enum RuntimeError {
     /// processes of different builds in one run.
     #[error("{0}")]
     Protocol(String),
+    /// Roles of an in-process run did not stop after the Stop (their threads are left running).
+    #[error("roles {0:?} did not stop within 30 s of the stop")]
+    RolesStuck(Vec<String>),
     /// A run cannot be resumed from its checkpoints.
     #[error("{0}")]
     Resume(String),

@@ -51,7 +51,13 @@ pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<Pipe
     let mut ipc = RunIpc::new(&run_id, &how.ipc_root)?;
     configure_run(&mut ipc);
     let result = coordinate(cfg, how, &run_id, &ipc, &mut run_dir);
-    ipc.remove_all::<local::Service>()?;
+    // (Not when a role thread is still running on the run's services: see `join_roles`.)
+    let stuck = matches!(&result, Err(RuntimeError::RolesStuck(_)));
+    if !stuck {
+        if let Err(e) = ipc.remove_all::<local::Service>() {
+            tracing::warn!("removing the in-process run's resources: {e}");
+        }
+    }
     let summary = result?;
     let text = serde_json::to_string_pretty(&summary).map_err(|e| RuntimeError::Io {
         path: how.out.join("summary.json"),
@@ -75,14 +81,15 @@ fn coordinate(
 ) -> Result<PipelineSummary> {
     // The coordinator's ports first: the roles wait for the stats subscriber.
     let node = coordinator::node::<local::Service>(ipc)?;
-    let ports = CoordinatorPorts::create(&node, cfg, &Dims::of(cfg)?)?;
+    let dims = Dims::of(cfg)?;
+    let ports = CoordinatorPorts::create(&node, cfg, &dims)?;
     let plan = RunPlan {
         run_id: run_id.into(),
         mode: how.mode,
         actors: how.actors,
         slack: how.slack,
     };
-    let mut coord = Coordinator::new(cfg, plan, &how.out, None, 0)?;
+    let mut coord = Coordinator::new(cfg, dims, plan, &how.out, None, 0);
     let args = ServiceArgs {
         run_dir: how.out.clone(),
         run_id: run_id.into(),
@@ -93,13 +100,14 @@ fn coordinate(
         slack: how.slack,
         resume_from: None,
     };
-    let mut threads = start_roles(cfg, &args)?;
+    let mut threads = Vec::new();
     let started = Instant::now();
-    // Whatever ends the run, every role is told to stop and joined before the caller removes
-    // the run's shared memory.
-    let outcome = drive(&mut coord, &ports, &mut threads, how, run_dir, started);
-    coord.send_stop(&ports, coord.roles());
-    let ended = join_roles(&mut threads);
+    // Whatever ends the run, every role started is told to stop and joined before the caller
+    // removes the run's shared memory.
+    let outcome = start_roles(cfg, &args, &mut threads)
+        .and_then(|()| drive(&mut coord, &ports, &mut threads, how, run_dir, started));
+    coord.send_stop(&ports, threads.len());
+    let ended = join_roles(&mut threads, STOP_DEADLINE);
     outcome?;
     ended?;
     coord.finish("completed", run_dir, started)
@@ -146,30 +154,51 @@ fn drive(
     }
 }
 
-/// Start every role's loop on a thread of its own (ports are created on it: they are not `Send`).
-fn start_roles(cfg: &ExperimentConfig, args: &ServiceArgs) -> Result<Vec<RoleThread>> {
-    pipeline::roles(cfg.algo, args.actors)
-        .into_iter()
-        .map(|role| {
-            let run = role.service_loop::<local::Service>();
-            let a = ServiceArgs {
-                index: role.index,
-                ..args.clone()
-            };
-            let handle = std::thread::Builder::new()
-                .name(role.name.clone())
-                .spawn(move || run(&a))
-                .map_err(|source| RuntimeError::Io {
-                    path: Path::new("<thread>").join(&role.name),
-                    source,
-                })?;
-            Ok((role.name, handle))
-        })
-        .collect()
+/// Start every role's loop on a thread of its own (ports are created on it: they are not
+/// `Send`), into `threads` (which keeps those started if one cannot be).
+fn start_roles(
+    cfg: &ExperimentConfig,
+    args: &ServiceArgs,
+    threads: &mut Vec<RoleThread>,
+) -> Result<()> {
+    for role in pipeline::roles(cfg.algo, args.actors) {
+        let run = role.service_loop::<local::Service>();
+        let a = ServiceArgs {
+            index: role.index,
+            ..args.clone()
+        };
+        let handle = std::thread::Builder::new()
+            .name(role.name.clone())
+            .spawn(move || run(&a))
+            .map_err(|source| RuntimeError::Io {
+                path: Path::new("<thread>").join(&role.name),
+                source,
+            })?;
+        threads.push((role.name, handle));
+    }
+    Ok(())
 }
 
-/// Wait for every role thread; the first error (or panic) is the run's.
-fn join_roles(threads: &mut Vec<RoleThread>) -> Result<()> {
+/// How long roles get to stop after the Stop before the run fails naming them.
+const STOP_DEADLINE: Duration = Duration::from_secs(30);
+
+/// Wait up to `deadline` for every role thread; the first error (or panic) is the run's. Roles
+/// still running then are named in [`RuntimeError::RolesStuck`] and left detached (a thread
+/// cannot be killed), so a hung role fails the run instead of hanging the caller.
+fn join_roles(threads: &mut Vec<RoleThread>, deadline: Duration) -> Result<()> {
+    let until = Instant::now() + deadline;
+    while Instant::now() < until && threads.iter().any(|t| !t.1.is_finished()) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let stuck: Vec<String> = threads
+        .iter()
+        .filter(|t| !t.1.is_finished())
+        .map(|t| t.0.clone())
+        .collect();
+    if !stuck.is_empty() {
+        threads.clear();
+        return Err(RuntimeError::RolesStuck(stuck));
+    }
     let mut first = Ok(());
     for (name, handle) in threads.drain(..) {
         let ended = match handle.join() {

@@ -79,7 +79,8 @@ impl Schedule {
     /// The env step of the `n`-th train point (where model version `n` is trained); `None`
     /// for n = 0 or past the run's last train point.
     pub fn nth_train_point(&self, n: u64) -> Option<u64> {
-        let t = self.init_random_steps + 1 + n.checked_sub(1)? * self.model_train_freq;
+        let t = (n.checked_sub(1)?.checked_mul(self.model_train_freq)?)
+            .checked_add(self.init_random_steps + 1)?;
         (t <= self.steps).then_some(t)
     }
     /// Is step `t` an eval point: t a multiple of `eval.every`, or the last step (MPC: not

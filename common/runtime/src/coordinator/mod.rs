@@ -112,15 +112,16 @@ pub struct Coordinator {
 }
 
 impl Coordinator {
-    /// The coordinator of the run `cfg` in `out`, from the start or from a checkpoint after
-    /// `resume.0` env steps; `restarts` so far (`--restart on-failure`).
+    /// The coordinator of the run `cfg` (of sizes `dims`) in `out`, from the start or from a
+    /// checkpoint after `resume.0` env steps; `restarts` so far (`--restart on-failure`).
     pub fn new(
         cfg: &ExperimentConfig,
+        dims: Dims,
         plan: RunPlan,
         out: &Path,
         resume: Option<(u64, SupervisorCheckpoint)>,
         restarts: u32,
-    ) -> Result<Self> {
+    ) -> Self {
         let schedule = Schedule::of(cfg);
         let mut collector = Collector::new(cfg, &plan);
         let every = cfg.checkpoint.every;
@@ -134,8 +135,8 @@ impl Coordinator {
             true => schedule.train_points_upto(cfg.steps),
             false => policy_wire_version(cfg.steps),
         };
-        Ok(Self {
-            dims: Dims::of(cfg)?,
+        Self {
+            dims,
             cfg: cfg.clone(),
             plan,
             out: out.to_path_buf(),
@@ -147,7 +148,7 @@ impl Coordinator {
             final_params: (final_wire == 0).then(Vec::new),
             final_wire,
             finishing: false,
-        })
+        }
     }
 
     /// Every role sent its Done record.

@@ -446,7 +446,8 @@ fn supervise(
     restarts: &Restarts,
 ) -> anyhow::Result<Attempt> {
     let node = coordinator::node::<ipc::Service>(cx.ipc)?;
-    let ports = CoordinatorPorts::create(&node, cx.cfg, &mbpo_runtime::Dims::of(cx.cfg)?)?;
+    let dims = mbpo_runtime::Dims::of(cx.cfg)?;
+    let ports = CoordinatorPorts::create(&node, cx.cfg, &dims)?;
     let plan = RunPlan {
         run_id: cx.run_id.into(),
         mode: cx.args.mode,
@@ -461,7 +462,7 @@ fn supervise(
         p.spawn()?;
     }
     let from = resume.map(|(_, env_steps, state)| (env_steps, state));
-    let mut coord = Coordinator::new(cx.cfg, plan, cx.out, from, restarts.total())?;
+    let mut coord = Coordinator::new(cx.cfg, dims, plan, cx.out, from, restarts.total());
     let end = coordinate(cx, &ports, &mut coord, &mut procs, run_dir, restarts)?;
     coord.send_stop(&ports, procs.iter().filter(|p| p.child.is_some()).count());
     stop_processes(&mut procs, end.interrupted)?;
