@@ -157,18 +157,6 @@ pub fn wait_for<S: Transport>(
     }
 }
 
-/// Sleep until the supervisor says stop (or SIGINT/SIGTERM): a finished service stays alive
-/// so that everything it sent is consumed before its ports go away.
-pub fn wait_for_stop<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-) -> Result<()> {
-    wait_for(waiter, control, &|| "the supervisor's stop".into(), || {
-        Ok(false)
-    })?;
-    Ok(())
-}
-
 /// Real transitions received but not yet handed to the role: lockstep roles must see exactly
 /// the first t − 1 transitions at a train point although transition t may already be here.
 pub struct RealInbox {

@@ -137,10 +137,6 @@ impl<S: Transport> Process<S> {
             args: args.clone(),
         })
     }
-    /// True in lockstep mode.
-    pub fn lockstep(&self) -> bool {
-        self.mode == Mode::Lockstep
-    }
     /// A fresh SAC actor network of the run (architecture only).
     pub fn actor_net(&self) -> TanhGaussianActor {
         actor_net(&self.cfg, self.dims.obs, self.dims.act)

@@ -8,7 +8,7 @@
 //! other parts follow from the config (obs+act inputs, `model.elites` elites), so a mismatch in
 //! any of them changes the total length and is rejected by the subscriber.
 
-use mbpo_model::{InputNormalizer, ModelWeights, ProbabilisticEnsemble};
+use mbpo_model::{ModelWeights, ProbabilisticEnsemble};
 
 use crate::error::DecodeError;
 
@@ -79,18 +79,6 @@ impl ModelWireLayout {
         let (std, elites) = rest.split_at(self.in_dim);
         Ok([p, mean, std, elites])
     }
-    /// Read weights from `flat` into `w`, reusing its buffers: the one copy a receiver makes
-    /// out of shared memory.
-    pub fn decode_into(&self, flat: &[f32], w: &mut ModelWeights) -> Result<(), DecodeError> {
-        let [p, mean, std, elites] = self.parts(flat)?;
-        w.layout_hash = self.layout_hash;
-        copy_into(&mut w.params, p);
-        copy_into(&mut w.normalizer.mean, mean);
-        copy_into(&mut w.normalizer.std, std);
-        w.elites.clear();
-        w.elites.extend(elites.iter().map(|&e| e as usize));
-        Ok(())
-    }
     /// Load the snapshot `flat` into `model` in place: the one copy a receiver makes out of
     /// shared memory (no intermediate [`ModelWeights`]).
     pub fn load_into(
@@ -104,32 +92,13 @@ impl ModelWireLayout {
             .load_parts(self.layout_hash, p, mean, std, elites)
             .map_err(|e| DecodeError::ModelWeights(e.to_string()))
     }
-    /// Read weights back from `flat`.
-    pub fn decode(&self, flat: &[f32]) -> Result<ModelWeights, DecodeError> {
-        let mut w = ModelWeights {
-            layout_hash: self.layout_hash,
-            params: Vec::new(),
-            normalizer: InputNormalizer {
-                mean: Vec::new(),
-                std: Vec::new(),
-            },
-            elites: Vec::new(),
-        };
-        self.decode_into(flat, &mut w)?;
-        Ok(w)
-    }
-}
-
-fn copy_into(dst: &mut Vec<f32>, src: &[f32]) {
-    dst.clear();
-    dst.extend_from_slice(src);
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use mbpo_core::rng::stream;
-    use mbpo_model::ModelConfig;
+    use mbpo_model::{InputNormalizer, ModelConfig};
 
     #[test]
     fn model_weights_round_trip_through_the_flat_layout() {
@@ -154,11 +123,10 @@ mod tests {
         let mut flat = Vec::new();
         l.encode(&w, &mut flat).unwrap();
         assert_eq!(flat.len(), l.len());
-        assert_eq!(l.decode(&flat).unwrap(), w);
         let mut loaded = model.clone();
         l.load_into(&flat, &mut loaded).unwrap();
-        assert_eq!(loaded.weights(), w, "loaded in place = decoded");
-        let e = l.decode(&flat[1..]).unwrap_err();
+        assert_eq!(loaded.weights(), w, "loaded in place = the weights encoded");
+        let e = l.load_into(&flat[1..], &mut loaded).unwrap_err();
         assert!(e.to_string().contains(&format!("needs {}", l.len())), "{e}");
         let mut bad = w.clone();
         bad.elites.pop();
