@@ -1,6 +1,8 @@
 //! The extension points, proven: a task the project does not ship, added with one
 //! `mbpo_envs::register` call and one `Env` impl (this file only), runs under the sequential
-//! trainer and under the in-process pipeline, and lockstep equals sequential on it too.
+//! trainer and under the in-process pipeline, and lockstep equals sequential on it too. The toy
+//! does not offer the optional saved-state capability (`RestorableEnv`), as a Python env or a
+//! robot would not: checkpoints still resume, starting a new episode.
 
 use std::time::Duration;
 
@@ -9,7 +11,7 @@ use mbpo_envs::{register, BoxSpace, Env, EnvError, Step, TaskSpec};
 use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
-use mbpo_train::train_mbpo;
+use mbpo_train::{train_mbpo, train_mbpo_with, RunOptions};
 
 /// A point on a line pushed by the action; reward −x² − 0.1·a²; 50-step episodes.
 struct Toy {
@@ -31,12 +33,6 @@ impl Env for Toy {
     fn action_space(&self) -> &BoxSpace {
         &self.act_space
     }
-    fn state_dim(&self) -> usize {
-        1
-    }
-    fn state_layout(&self) -> &'static str {
-        "x"
-    }
     fn max_episode_steps(&self) -> usize {
         50
     }
@@ -45,20 +41,8 @@ impl Env for Toy {
         self.steps = 0;
         obs[0] = self.x as f32;
     }
-    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
-        self.x = state[0];
-        self.steps = 0;
-        obs[0] = self.x as f32;
-        Ok(())
-    }
-    fn state(&self) -> Vec<f64> {
-        vec![self.x]
-    }
     fn elapsed_steps(&self) -> usize {
         self.steps
-    }
-    fn set_elapsed_steps(&mut self, steps: usize) {
-        self.steps = steps;
     }
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
         let a = action[0].clamp(-1.0, 1.0) as f64;
@@ -82,17 +66,25 @@ fn make_toy() -> Result<Box<dyn Env>, EnvError> {
     }))
 }
 
+/// Register the toy once per test binary (tests run on threads of one process).
+fn register_toy() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        register(TaskSpec {
+            id: TOY_ID,
+            make: make_toy,
+            termination: mbpo_envs::termination::never,
+            reward: None,
+            target_return: Some(-5.0),
+            mujoco: false,
+        })
+        .unwrap()
+    });
+}
+
 #[test]
 fn a_registered_task_runs_sequentially_and_in_the_pipeline_with_equal_results() {
-    register(TaskSpec {
-        id: TOY_ID,
-        make: make_toy,
-        termination: mbpo_envs::termination::never,
-        reward: None,
-        target_return: Some(-5.0),
-        mujoco: false,
-    })
-    .unwrap();
+    register_toy();
     let mut cfg = tiny_config(300);
     cfg.env = TOY_ID.into();
     cfg.eval.every = 100;
@@ -113,4 +105,33 @@ fn a_registered_task_runs_sequentially_and_in_the_pipeline_with_equal_results() 
         metrics_without_timing(&run.out),
         metrics_without_timing(&dir.join("sequential"))
     );
+}
+
+#[test]
+fn an_env_that_cannot_save_its_state_resumes_with_a_new_episode() {
+    register_toy();
+    assert!(make_toy().unwrap().restorable().is_none());
+    let dir = scratch("extension-toy-resume");
+    let mut cfg = tiny_config(125);
+    cfg.env = TOY_ID.into();
+    cfg.eval.every = 100;
+    // 125 steps end 25 steps into the third 50-step episode: the checkpoint cannot hold it.
+    let first = train_mbpo(&cfg, &dir).unwrap();
+    assert_eq!((first.env_steps, first.episodes_cut_by_resume), (125, 0));
+    cfg.steps = 300;
+    let resume = RunOptions {
+        resume: true,
+        ..Default::default()
+    };
+    let resumed = train_mbpo_with(&cfg, &dir, resume).unwrap();
+    assert_eq!(resumed.status, "completed");
+    assert_eq!(resumed.env_steps, 300);
+    assert_eq!(resumed.episodes_cut_by_resume, 1);
+    let rows: Vec<String> = metrics_without_timing(&dir)
+        .iter()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().to_string())
+        .collect();
+    // Eval points 100, 200, 300 and the first run's last step.
+    assert_eq!(rows, ["100", "125", "200", "300"]);
 }

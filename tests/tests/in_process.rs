@@ -7,7 +7,7 @@ use std::time::Duration;
 use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
-use mbpo_train::{train_mbpo, train_mpc};
+use mbpo_train::{train_mbpo, train_mpc, Algo};
 
 fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessRun {
     InProcessRun {
@@ -64,6 +64,19 @@ fn in_process_lockstep_mpc_equals_sequential() {
         metrics_without_timing(&run.out),
         metrics_without_timing(&dir.join("sequential"))
     );
+    assert_last_step_checkpointed(&run.out, Algo::Mpc, 1, cfg.steps);
+}
+
+/// A finished run's newest complete checkpoint is its last step's, with every role's file:
+/// extending the run (`--resume RUN --steps N`) continues from its end.
+fn assert_last_step_checkpointed(run: &std::path::Path, algo: Algo, actors: u16, steps: u64) {
+    let (dir, manifest) = mbpo_train::checkpoint::latest(run).unwrap().unwrap();
+    assert_eq!(manifest.env_steps, steps, "{}", dir.display());
+    let want: Vec<String> = mbpo_runtime::barrier::pipeline_files(algo, actors)
+        .into_iter()
+        .map(|(name, _)| name)
+        .collect();
+    assert_eq!(manifest.files, want);
 }
 
 #[test]
@@ -81,4 +94,5 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
     assert_eq!(s.real_transitions.lost, 0);
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);
+    assert_last_step_checkpointed(&run.out, Algo::Mbpo, 2, 400);
 }

@@ -152,6 +152,52 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// A finished run extends: `mbpo run --resume RUN --steps N` continues from the checkpoint of
+/// its last step (not an older periodic one) and ends where an uninterrupted run of N steps
+/// does, every metrics row included (the old last step, 400, is an eval point of both).
+#[test]
+fn a_finished_lockstep_run_extends_from_its_last_step() {
+    let mut cfg = tiny_config(400);
+    cfg.checkpoint.every = 300;
+    let dir = scratch("extend-lockstep");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("ex");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let (status, err) = wait_logged(
+        start(&input, &run, &root, &["--mode", "lockstep"], &log),
+        &log,
+    );
+    assert!(status.success(), "{err}");
+    // A periodic checkpoint (from 300 on, when the coordinator hears of step 300) and 400.
+    let steps = checkpoints(&run);
+    assert!(steps.len() == 2 && steps[1] == 400, "{steps:?}");
+
+    let args = [
+        "--resume",
+        run.to_str().unwrap(),
+        "--steps",
+        "600",
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    let (status, err) = wait_logged(spawn_logged(&args, &log), &log);
+    assert!(status.success(), "{err}");
+    assert!(err.contains("0000000400 (after step 400)"), "{err}");
+    let mut longer = cfg.clone();
+    longer.steps = 600;
+    let seq = train_mbpo(&longer, &dir.join("sequential")).unwrap();
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["policy_sha256"], seq.policy_sha256.as_str());
+    assert_eq!(
+        metrics_without_timing(&run),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    assert_eq!(checkpoints(&run), [400, 600]);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// MPC (planning actors, model trainer, planning evaluator; no learner), lockstep: a SIGINT
 /// stop and a resume change nothing -- the final model and every metrics column but the
 /// timings equal the sequential `train_mpc` run's. On resume the model trainer publishes its
@@ -412,7 +458,13 @@ fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
         &log,
     );
     assert!(status.success(), "{err}");
-    let ckpt: PathBuf = mbpo_train::checkpoint::dir_for(&run, checkpoints(&run)[0]);
+    // A periodic checkpoint (from 250 on) and the last step's at 400; a resume reads the newest.
+    let steps = checkpoints(&run);
+    assert!(
+        steps.len() == 2 && steps[0] >= 250 && steps[1] == 400,
+        "{steps:?}"
+    );
+    let ckpt: PathBuf = mbpo_train::checkpoint::dir_for(&run, 400);
 
     let learner = ckpt.join("learner");
     let bytes = std::fs::read(&learner).unwrap();

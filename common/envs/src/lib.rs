@@ -9,7 +9,8 @@
 //! use mbpo_envs::{make, Env};
 //! let mut env = make("Pendulum-v1").unwrap();
 //! let mut obs = vec![0.0f32; env.obs_dim()];
-//! env.reset_to(&[0.5, 0.0], &mut obs).unwrap();
+//! let restorable = env.restorable_mut().expect("Pendulum can start from a given state");
+//! restorable.reset_to(&[0.5, 0.0], &mut obs).unwrap();
 //! let step = env.step(&[1.0], &mut obs);
 //! assert!(!step.terminated && !step.truncated);
 //! ```
@@ -53,7 +54,7 @@ pub struct Step {
     pub truncated: bool,
 }
 
-/// Errors of [`Env::reset_to`] and [`make`].
+/// Errors of [`RestorableEnv::reset_to`] and [`make`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EnvError {
     /// The state vector has the wrong length.
@@ -80,6 +81,12 @@ pub enum EnvError {
          then build with `--features mujoco`"
     )]
     MujocoNotBuilt(String),
+    /// A checkpoint holds an episode in progress for an environment that cannot restore one.
+    #[error(
+        "{0} cannot restore an episode from a checkpoint (it has no saved-state capability), \
+         but this checkpoint holds one: resume with the build and environment that wrote it"
+    )]
+    NotRestorable(&'static str),
     /// MuJoCo refused a checkpoint's resume state (one written for another model).
     #[error("{env}: cannot restore the checkpoint's MuJoCo state: {message}")]
     ResumeState {
@@ -99,6 +106,11 @@ pub enum EnvError {
 }
 
 /// A single-agent environment with continuous actions.
+///
+/// Saving and restoring the episode in progress is an optional capability,
+/// [`RestorableEnv`], reached through [`Env::restorable`]: an environment in another process (a
+/// Python Gymnasium env) or a real robot cannot offer it. Checkpoints keep the episode of an
+/// environment that can; an actor whose environment cannot starts a new episode when it resumes.
 pub trait Env: Send {
     /// Gymnasium id, e.g. `Pendulum-v1`.
     fn id(&self) -> &'static str;
@@ -106,40 +118,12 @@ pub trait Env: Send {
     fn observation_space(&self) -> &BoxSpace;
     /// Action space; actions outside it are clipped by the environment exactly as Gymnasium does.
     fn action_space(&self) -> &BoxSpace;
-    /// Number of values of the physical state accepted by [`Env::reset_to`].
-    fn state_dim(&self) -> usize;
-    /// Names of the state values, comma-separated (e.g. `theta,thetadot`).
-    fn state_layout(&self) -> &'static str;
     /// Episode length after which `truncated` is reported.
     fn max_episode_steps(&self) -> usize;
     /// Draw a start state from Gymnasium's start distribution and write the observation.
     fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]);
-    /// Start an episode from the given physical state and write the observation.
-    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError>;
-    /// The current physical state (length [`Env::state_dim`]).
-    fn state(&self) -> Vec<f64>;
     /// Steps taken in the current episode (what the time limit counts).
     fn elapsed_steps(&self) -> usize;
-    /// Set the episode's step count (checkpoint restore, after [`Env::reset_to`]).
-    fn set_elapsed_steps(&mut self, steps: usize);
-    /// What the next steps depend on beyond [`Env::state`], so a checkpoint taken mid-episode
-    /// resumes it bit for bit; empty (the default) where `state` is all of it.
-    fn resume_state(&self) -> Vec<f64> {
-        Vec::new()
-    }
-    /// Restore [`Env::resume_state`] (checkpoint restore, after [`Env::reset_to`] with the
-    /// checkpoint's `state`).
-    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
-        if extra.is_empty() {
-            return Ok(());
-        }
-        Err(EnvError::StateDim {
-            env: self.id(),
-            expected: 0,
-            found: extra.len(),
-            layout: "no resume state (this environment's state is all of it)",
-        })
-    }
     /// Advance one step with `action` (length `act_dim`) and write the next observation.
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
 
@@ -155,5 +139,49 @@ pub trait Env: Send {
     /// tasks return float64 observations, which [`Env::step`] rounds to f32); `None` otherwise.
     fn observation_f64(&self) -> Option<&[f64]> {
         None
+    }
+    /// Saving and restoring its state, where the environment can (`None`, the default: it
+    /// cannot, e.g. a Python process or a robot).
+    fn restorable(&self) -> Option<&dyn RestorableEnv> {
+        None
+    }
+    /// [`Env::restorable`], mutably.
+    fn restorable_mut(&mut self) -> Option<&mut dyn RestorableEnv> {
+        None
+    }
+}
+
+/// The optional capability of an [`Env`] to report its physical state and start from one:
+/// checkpoints resume an episode in progress with it, replays against Gymnasium set start
+/// states with it. Implement it and return `Some(self)` from [`Env::restorable`] and
+/// [`Env::restorable_mut`].
+pub trait RestorableEnv: Env {
+    /// Number of values of the physical state accepted by [`RestorableEnv::reset_to`].
+    fn state_dim(&self) -> usize;
+    /// Names of the state values, comma-separated (e.g. `theta,thetadot`).
+    fn state_layout(&self) -> &'static str;
+    /// Start an episode from the given physical state and write the observation.
+    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError>;
+    /// The current physical state (length [`RestorableEnv::state_dim`]).
+    fn state(&self) -> Vec<f64>;
+    /// Set the episode's step count (checkpoint restore, after [`RestorableEnv::reset_to`]).
+    fn set_elapsed_steps(&mut self, steps: usize);
+    /// What the next steps depend on beyond [`RestorableEnv::state`], so a checkpoint taken
+    /// mid-episode resumes it bit for bit; empty (the default) where `state` is all of it.
+    fn resume_state(&self) -> Vec<f64> {
+        Vec::new()
+    }
+    /// Restore [`RestorableEnv::resume_state`] (checkpoint restore, after
+    /// [`RestorableEnv::reset_to`] with the checkpoint's `state`).
+    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
+        if extra.is_empty() {
+            return Ok(());
+        }
+        Err(EnvError::StateDim {
+            env: self.id(),
+            expected: 0,
+            found: extra.len(),
+            layout: "no resume state (this environment's state is all of it)",
+        })
     }
 }

@@ -28,7 +28,7 @@
 use mbpo_core::rng::uniform_range_f64;
 use mbpo_core::Rng;
 
-use crate::{BoxSpace, Env, EnvError, Step};
+use crate::{BoxSpace, Env, EnvError, RestorableEnv, Step};
 
 const ID: &str = "MountainCarContinuous-v0";
 const LAYOUT: &str = "position,velocity";
@@ -65,7 +65,7 @@ pub struct MountainCarContinuous {
 }
 
 impl MountainCarContinuous {
-    /// A car at rest at the valley's usual start (call [`Env::reset`] or [`Env::reset_to`] first).
+    /// A car at rest at the valley's usual start (call [`Env::reset`] or [`RestorableEnv::reset_to`] first).
     pub fn new() -> Self {
         Self {
             position: -0.5,
@@ -133,18 +133,6 @@ impl Env for MountainCarContinuous {
         self.steps
     }
 
-    fn set_elapsed_steps(&mut self, steps: usize) {
-        self.steps = steps;
-    }
-
-    fn state_dim(&self) -> usize {
-        2
-    }
-
-    fn state_layout(&self) -> &'static str {
-        LAYOUT
-    }
-
     fn max_episode_steps(&self) -> usize {
         MAX_EPISODE_STEPS
     }
@@ -156,29 +144,6 @@ impl Env for MountainCarContinuous {
         self.precision = Precision::F64;
         self.steps = 0;
         self.write_obs(obs);
-    }
-
-    /// Sets the state as Gymnasium's reset leaves it: a float64 array, so the next step runs in
-    /// f64 and the observation is the state rounded to f32.
-    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
-        let &[position, velocity] = state else {
-            return Err(EnvError::StateDim {
-                env: ID,
-                expected: 2,
-                found: state.len(),
-                layout: LAYOUT,
-            });
-        };
-        self.position = position;
-        self.velocity = velocity;
-        self.precision = Precision::F64;
-        self.steps = 0;
-        self.write_obs(obs);
-        Ok(())
-    }
-
-    fn state(&self) -> Vec<f64> {
-        vec![self.position, self.velocity]
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
@@ -235,6 +200,51 @@ impl Env for MountainCarContinuous {
             terminated,
             truncated: self.steps >= MAX_EPISODE_STEPS,
         }
+    }
+
+    fn restorable(&self) -> Option<&dyn RestorableEnv> {
+        Some(self)
+    }
+
+    fn restorable_mut(&mut self) -> Option<&mut dyn RestorableEnv> {
+        Some(self)
+    }
+}
+
+impl RestorableEnv for MountainCarContinuous {
+    fn set_elapsed_steps(&mut self, steps: usize) {
+        self.steps = steps;
+    }
+
+    fn state_dim(&self) -> usize {
+        2
+    }
+
+    fn state_layout(&self) -> &'static str {
+        LAYOUT
+    }
+
+    /// Sets the state as Gymnasium's reset leaves it: a float64 array, so the next step runs in
+    /// f64 and the observation is the state rounded to f32.
+    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
+        let &[position, velocity] = state else {
+            return Err(EnvError::StateDim {
+                env: ID,
+                expected: 2,
+                found: state.len(),
+                layout: LAYOUT,
+            });
+        };
+        self.position = position;
+        self.velocity = velocity;
+        self.precision = Precision::F64;
+        self.steps = 0;
+        self.write_obs(obs);
+        Ok(())
+    }
+
+    fn state(&self) -> Vec<f64> {
+        vec![self.position, self.velocity]
     }
 }
 

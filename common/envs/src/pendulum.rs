@@ -18,7 +18,7 @@
 use mbpo_core::rng::uniform_range_f64;
 use mbpo_core::Rng;
 
-use crate::{BoxSpace, Env, EnvError, Step};
+use crate::{BoxSpace, Env, EnvError, RestorableEnv, Step};
 
 const ID: &str = "Pendulum-v1";
 const LAYOUT: &str = "theta,thetadot";
@@ -41,7 +41,7 @@ pub struct Pendulum {
 }
 
 impl Pendulum {
-    /// A pendulum hanging still at θ = 0 (call [`Env::reset`] or [`Env::reset_to`] before use).
+    /// A pendulum hanging still at θ = 0 (call [`Env::reset`] or [`RestorableEnv::reset_to`] before use).
     pub fn new() -> Self {
         let high = [1.0, 1.0, MAX_SPEED as f32];
         Self {
@@ -111,18 +111,6 @@ impl Env for Pendulum {
         self.steps
     }
 
-    fn set_elapsed_steps(&mut self, steps: usize) {
-        self.steps = steps;
-    }
-
-    fn state_dim(&self) -> usize {
-        2
-    }
-
-    fn state_layout(&self) -> &'static str {
-        LAYOUT
-    }
-
     fn max_episode_steps(&self) -> usize {
         MAX_EPISODE_STEPS
     }
@@ -134,26 +122,6 @@ impl Env for Pendulum {
         self.thetadot = uniform_range_f64(rng, -1.0, 1.0);
         self.steps = 0;
         self.write_obs(obs);
-    }
-
-    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
-        let &[theta, thetadot] = state else {
-            return Err(EnvError::StateDim {
-                env: ID,
-                expected: 2,
-                found: state.len(),
-                layout: LAYOUT,
-            });
-        };
-        self.theta = theta;
-        self.thetadot = thetadot;
-        self.steps = 0;
-        self.write_obs(obs);
-        Ok(())
-    }
-
-    fn state(&self) -> Vec<f64> {
-        vec![self.theta, self.thetadot]
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
@@ -179,6 +147,48 @@ impl Env for Pendulum {
             terminated: false,
             truncated: self.steps >= MAX_EPISODE_STEPS,
         }
+    }
+
+    fn restorable(&self) -> Option<&dyn RestorableEnv> {
+        Some(self)
+    }
+
+    fn restorable_mut(&mut self) -> Option<&mut dyn RestorableEnv> {
+        Some(self)
+    }
+}
+
+impl RestorableEnv for Pendulum {
+    fn set_elapsed_steps(&mut self, steps: usize) {
+        self.steps = steps;
+    }
+
+    fn state_dim(&self) -> usize {
+        2
+    }
+
+    fn state_layout(&self) -> &'static str {
+        LAYOUT
+    }
+
+    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
+        let &[theta, thetadot] = state else {
+            return Err(EnvError::StateDim {
+                env: ID,
+                expected: 2,
+                found: state.len(),
+                layout: LAYOUT,
+            });
+        };
+        self.theta = theta;
+        self.thetadot = thetadot;
+        self.steps = 0;
+        self.write_obs(obs);
+        Ok(())
+    }
+
+    fn state(&self) -> Vec<f64> {
+        vec![self.theta, self.thetadot]
     }
 }
 

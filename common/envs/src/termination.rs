@@ -186,7 +186,10 @@ mod tests {
         let (mut obs, mut next) = ([0.0f32; 2], [0.0f32; 2]);
         let mut goals = 0;
         for start in [-0.6, -0.5, -0.4, -0.55] {
-            env.reset_to(&[start, 0.0], &mut obs).unwrap();
+            env.restorable_mut()
+                .unwrap()
+                .reset_to(&[start, 0.0], &mut obs)
+                .unwrap();
             for _ in 0..999 {
                 let a = [if obs[1] >= 0.0 { 1.0f32 } else { -1.0 }];
                 let step = env.step(&a, &mut next);

@@ -85,9 +85,12 @@ fn replay(env_id: &str) -> Deviation {
             "{}",
             ep.name
         );
-        env.reset_to(&ep.state, &mut obs).unwrap();
+        env.restorable_mut()
+            .unwrap()
+            .reset_to(&ep.state, &mut obs)
+            .unwrap();
         assert_eq!(
-            env.state(),
+            env.restorable().unwrap().state(),
             ep.state,
             "{env_id} {}: state after reset_to",
             ep.name
@@ -235,7 +238,11 @@ fn spaces_dims_and_state_layout() {
     for (id, obs, act, state, high) in want {
         let env = make(id).unwrap();
         assert_eq!(
-            (env.obs_dim(), env.act_dim(), env.state_dim()),
+            (
+                env.obs_dim(),
+                env.act_dim(),
+                env.restorable().unwrap().state_dim()
+            ),
             (obs, act, state),
             "{id}"
         );
@@ -250,7 +257,11 @@ fn spaces_dims_and_state_layout() {
 fn reset_to_rejects_a_wrong_state_length_and_state_round_trips() {
     let mut env = make("Hopper-v5").unwrap();
     let mut obs = vec![0.0f32; env.obs_dim()];
-    let err = env.reset_to(&[0.0; 11], &mut obs).unwrap_err();
+    let err = env
+        .restorable_mut()
+        .unwrap()
+        .reset_to(&[0.0; 11], &mut obs)
+        .unwrap_err();
     assert_eq!(
         err.to_string(),
         "Hopper-v5: state has 11 values, expected 12 (qpos[6] (rootx, rootz, rooty, 3 joints), qvel[6])"
@@ -258,8 +269,11 @@ fn reset_to_rejects_a_wrong_state_length_and_state_round_trips() {
     let state: Vec<f64> = (0..12)
         .map(|i| 0.01 * i as f64 + if i == 1 { 1.25 } else { 0.0 })
         .collect();
-    env.reset_to(&state, &mut obs).unwrap();
-    assert_eq!(env.state(), state);
+    env.restorable_mut()
+        .unwrap()
+        .reset_to(&state, &mut obs)
+        .unwrap();
+    assert_eq!(env.restorable().unwrap().state(), state);
     // Observation: qpos[1..] then qvel (clipped to ±10: none is that large here).
     let want: Vec<f32> = state[1..].iter().map(|&x| x as f32).collect();
     assert_eq!(obs, want);
@@ -299,12 +313,15 @@ fn reset_draws_from_gymnasiums_start_distribution() {
     for task in Task::ALL {
         let mut env = MujocoEnv::new(task).unwrap();
         let mut obs = vec![0.0f32; env.obs_dim()];
-        let init = env.state(); // a fresh env sits at qpos0, zero velocity
+        let init = env.restorable().unwrap().state(); // a fresh env sits at qpos0, zero velocity
         let (scale, _) = task.reset_noise();
         let mut draws: Vec<Vec<f64>> = vec![Vec::with_capacity(n); init.len()];
         for _ in 0..n {
             env.reset(&mut rng, &mut obs);
-            for (d, (s, i)) in draws.iter_mut().zip(env.state().iter().zip(&init)) {
+            for (d, (s, i)) in draws
+                .iter_mut()
+                .zip(env.restorable().unwrap().state().iter().zip(&init))
+            {
                 d.push(s - i);
             }
         }

@@ -10,7 +10,7 @@
 
 use fixture::Episode;
 use mbpo_core::rng::stream;
-use mbpo_envs::{make, Env, EnvError, MountainCarContinuous, Pendulum, ENV_IDS};
+use mbpo_envs::{make, Env, EnvError, MountainCarContinuous, Pendulum, RestorableEnv, ENV_IDS};
 use serde::Deserialize;
 
 mod fixture;
@@ -75,7 +75,10 @@ fn replay(env_id: &str) -> Deviation {
         assert_eq!(ep.terminated.len(), n, "{}", ep.name);
         assert_eq!(ep.truncated.len(), n, "{}", ep.name);
 
-        env.reset_to(&ep.state, &mut obs).unwrap();
+        env.restorable_mut()
+            .unwrap()
+            .reset_to(&ep.state, &mut obs)
+            .unwrap();
         check_obs(
             &mut dev,
             &format!("{env_id} {} reset", ep.name),
@@ -185,7 +188,10 @@ fn fixtures_exercise_termination_truncation_and_clipping() {
 fn run_to_time_limit(env: &mut dyn Env, state: &[f64]) {
     let mut obs = vec![0.0f32; env.obs_dim()];
     let action = vec![0.0f32; env.act_dim()];
-    env.reset_to(state, &mut obs).unwrap();
+    env.restorable_mut()
+        .unwrap()
+        .reset_to(state, &mut obs)
+        .unwrap();
     let max = env.max_episode_steps();
     for t in 1..=max {
         let step = env.step(&action, &mut obs);
@@ -238,14 +244,18 @@ fn reset_to_rejects_a_wrong_state_length() {
         let mut env = make(id).unwrap();
         let mut obs = vec![0.0f32; env.obs_dim()];
         for bad in [&[][..], &[0.1][..], &[0.1, 0.2, 0.3][..]] {
-            let err = env.reset_to(bad, &mut obs).unwrap_err();
+            let err = env
+                .restorable_mut()
+                .unwrap()
+                .reset_to(bad, &mut obs)
+                .unwrap_err();
             assert_eq!(
                 err,
                 EnvError::StateDim {
                     env: env.id(),
                     expected: 2,
                     found: bad.len(),
-                    layout: env.state_layout(),
+                    layout: env.restorable().unwrap().state_layout(),
                 }
             );
             assert_eq!(
@@ -253,11 +263,11 @@ fn reset_to_rejects_a_wrong_state_length() {
                 format!(
                     "{id}: state has {} values, expected 2 ({})",
                     bad.len(),
-                    env.state_layout()
+                    env.restorable().unwrap().state_layout()
                 )
             );
         }
-        assert_eq!(env.state_dim(), 2);
+        assert_eq!(env.restorable().unwrap().state_dim(), 2);
     }
     let err = Pendulum::new().reset_to(&[1.0], &mut [0.0; 3]).unwrap_err();
     assert_eq!(
@@ -270,14 +280,20 @@ fn reset_to_rejects_a_wrong_state_length() {
 fn reset_to_sets_the_state_and_observation() {
     let mut env = Pendulum::new();
     let mut obs = [0.0f32; 3];
-    env.reset_to(&[10.5, -7.95], &mut obs).unwrap();
-    assert_eq!(env.state(), vec![10.5, -7.95]);
+    env.restorable_mut()
+        .unwrap()
+        .reset_to(&[10.5, -7.95], &mut obs)
+        .unwrap();
+    assert_eq!(env.restorable().unwrap().state(), vec![10.5, -7.95]);
     assert_eq!(obs, [10.5f64.cos() as f32, 10.5f64.sin() as f32, -7.95f32]);
 
     let mut env = MountainCarContinuous::new();
     let mut obs = [0.0f32; 2];
-    env.reset_to(&[-0.55, 0.01], &mut obs).unwrap();
-    assert_eq!(env.state(), vec![-0.55, 0.01]);
+    env.restorable_mut()
+        .unwrap()
+        .reset_to(&[-0.55, 0.01], &mut obs)
+        .unwrap();
+    assert_eq!(env.restorable().unwrap().state(), vec![-0.55, 0.01]);
     assert_eq!(obs, [-0.55f32, 0.01f32]);
 }
 
@@ -301,7 +317,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
     let (mut th, mut thd) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for _ in 0..n {
         env.reset(&mut rng, &mut obs);
-        let s = env.state();
+        let s = env.restorable().unwrap().state();
         assert_eq!(obs, [s[0].cos() as f32, s[0].sin() as f32, s[1] as f32]);
         th.push(s[0]);
         thd.push(s[1]);
@@ -332,7 +348,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
     let mut pos = Vec::with_capacity(n);
     for _ in 0..n {
         env.reset(&mut rng, &mut obs);
-        let s = env.state();
+        let s = env.restorable().unwrap().state();
         assert_eq!(s[1], 0.0);
         assert_eq!(obs, [s[0] as f32, 0.0]);
         pos.push(s[0]);

@@ -53,7 +53,8 @@ fn played(id: &str, before: &[Vec<f32>]) -> (Box<dyn Env>, Vec<f64>, usize, Vec<
             "{id}: episode ended before the cut"
         );
     }
-    let (state, steps, extra) = (env.state(), env.elapsed_steps(), env.resume_state());
+    let saved = env.restorable().expect("MuJoCo tasks save their state");
+    let (state, steps, extra) = (saved.state(), env.elapsed_steps(), saved.resume_state());
     (env, state, steps, extra)
 }
 
@@ -82,25 +83,29 @@ fn a_mujoco_episode_resumed_mid_way_continues_bit_for_bit() {
 
         let mut obs = vec![0.0f32; probe.obs_dim()];
         let mut resumed = make(id).unwrap();
-        resumed.reset_to(&state, &mut obs).unwrap();
-        resumed.set_elapsed_steps(steps);
-        resumed.set_resume_state(&extra).unwrap();
+        let restore = resumed.restorable_mut().unwrap();
+        restore.reset_to(&state, &mut obs).unwrap();
+        restore.set_elapsed_steps(steps);
+        restore.set_resume_state(&extra).unwrap();
         // A checkpoint of the restored env before it steps (a resumed run stopped again at
         // once) carries the same state on.
-        let (state2, extra2) = (resumed.state(), resumed.resume_state());
+        let (state2, extra2) = (restore.state(), restore.resume_state());
         assert_eq!((&state2, &extra2), (&state, &extra), "{id}");
         assert_eq!(rollout(resumed.as_mut(), &after), want, "{id}");
 
         // Without the resume state the continuation drifts (what checkpoints did before).
         let mut plain = make(id).unwrap();
-        plain.reset_to(&state, &mut obs).unwrap();
-        plain.set_elapsed_steps(steps);
+        let restore = plain.restorable_mut().unwrap();
+        restore.reset_to(&state, &mut obs).unwrap();
+        restore.set_elapsed_steps(steps);
         if rollout(plain.as_mut(), &after) != want {
             differs_without.push(*id);
         }
 
         // A resume state of the wrong length names the task and what it holds.
         let err = resumed
+            .restorable_mut()
+            .unwrap()
             .set_resume_state(&extra[1..])
             .unwrap_err()
             .to_string();

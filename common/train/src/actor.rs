@@ -34,73 +34,109 @@ pub struct EnvActor {
     pub episodes: u64,
     /// Return of the last finished episode.
     pub last_return: Option<f64>,
+    /// Episodes cut short by resumes (see [`EnvActorState::episodes_cut`]).
+    pub episodes_cut: u64,
 }
 
-/// What a checkpoint keeps of an [`EnvActor`]: the episode in progress (physical state, its
-/// step count, the observation the policy sees next), the random streams and the counters.
+/// What a checkpoint keeps of an [`EnvActor`]: the episode in progress (where the environment
+/// can save it), the random streams and the counters.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EnvActorState {
-    /// `Env::state()` of the episode in progress.
-    pub env_state: Vec<f64>,
-    /// Steps taken in that episode (the time limit's count).
-    pub elapsed_steps: usize,
-    /// `Env::resume_state()`: what the episode's next steps depend on beyond `env_state`
-    /// (MuJoCo's solver warm start, ...), so the resumed episode is the same bit for bit.
-    pub env_resume_state: Vec<f64>,
+    /// The episode in progress; `None` when the environment cannot save its state
+    /// ([`mbpo_envs::Env::restorable`]): the resumed actor then starts a new episode.
+    pub episode: Option<EpisodeState>,
     /// The `actor.env` stream (start states).
     pub env_rng: Rng,
     /// The `actor.policy` stream (action noise).
     pub policy_rng: Rng,
-    /// The current observation.
-    pub obs: Vec<f32>,
-    /// Return of the episode so far.
-    pub episode_return: f64,
     /// Env steps taken.
     pub steps: u64,
     /// Episodes finished.
     pub episodes: u64,
     /// Return of the last finished episode.
     pub last_return: Option<f64>,
+    /// Episodes cut short by a resume: the environment could not save the episode in progress,
+    /// so the resumed actor started a new one (never counted in `episodes`).
+    pub episodes_cut: u64,
+}
+
+/// The episode in progress of an environment that can save its state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EpisodeState {
+    /// `RestorableEnv::state()`.
+    pub env_state: Vec<f64>,
+    /// Steps taken in the episode (the time limit's count).
+    pub elapsed_steps: usize,
+    /// `RestorableEnv::resume_state()`: what the episode's next steps depend on beyond
+    /// `env_state` (MuJoCo's solver warm start, ...), so the resumed episode is the same bit
+    /// for bit.
+    pub env_resume_state: Vec<f64>,
+    /// The observation the policy sees next.
+    pub obs: Vec<f32>,
+    /// Return of the episode so far.
+    pub episode_return: f64,
 }
 
 impl EnvActor {
     /// The actor's state (for checkpoints).
     pub fn checkpoint(&self) -> EnvActorState {
-        EnvActorState {
-            env_state: self.env.state(),
-            elapsed_steps: self.env.elapsed_steps(),
-            env_resume_state: self.env.resume_state(),
-            env_rng: self.env_rng.clone(),
-            policy_rng: self.policy_rng.clone(),
+        let episode = self.env.restorable().map(|env| EpisodeState {
+            env_state: env.state(),
+            elapsed_steps: env.elapsed_steps(),
+            env_resume_state: env.resume_state(),
             obs: self.obs.clone(),
             episode_return: self.episode_return,
+        });
+        EnvActorState {
+            episode,
+            env_rng: self.env_rng.clone(),
+            policy_rng: self.policy_rng.clone(),
             steps: self.steps,
             episodes: self.episodes,
             last_return: self.last_return,
+            episodes_cut: self.episodes_cut
+                + u64::from(self.env.restorable().is_none() && self.env.elapsed_steps() > 0),
         }
     }
 
-    /// Continue from [`EnvActor::checkpoint`]: the same episode, streams and counters.
+    /// Continue from [`EnvActor::checkpoint`]: the same streams and counters, and the same
+    /// episode where the checkpoint holds it; otherwise a new episode from the checkpoint's
+    /// `actor.env` stream (the checkpoint already counted the cut one).
     pub fn restore(&mut self, s: EnvActorState) -> Result<(), EnvError> {
-        if s.obs.len() != self.obs.len() {
-            return Err(EnvError::StateDim {
-                env: self.env.id(),
-                expected: self.obs.len(),
-                found: s.obs.len(),
-                layout: "the observation of a checkpointed actor",
-            });
-        }
-        let mut scratch = vec![0.0; self.obs.len()];
-        self.env.reset_to(&s.env_state, &mut scratch)?;
-        self.env.set_elapsed_steps(s.elapsed_steps);
-        self.env.set_resume_state(&s.env_resume_state)?;
         self.env_rng = s.env_rng;
         self.policy_rng = s.policy_rng;
-        self.obs = s.obs;
-        self.episode_return = s.episode_return;
         self.steps = s.steps;
         self.episodes = s.episodes;
         self.last_return = s.last_return;
+        self.episodes_cut = s.episodes_cut;
+        let Some(episode) = s.episode else {
+            tracing::info!(
+                "{}: the environment cannot restore an episode; the resumed actor starts a new one",
+                self.env.id()
+            );
+            self.episode_return = 0.0;
+            self.env.reset(&mut self.env_rng, &mut self.obs);
+            return Ok(());
+        };
+        if episode.obs.len() != self.obs.len() {
+            return Err(EnvError::StateDim {
+                env: self.env.id(),
+                expected: self.obs.len(),
+                found: episode.obs.len(),
+                layout: "the observation of a checkpointed actor",
+            });
+        }
+        let id = self.env.id();
+        let env = self
+            .env
+            .restorable_mut()
+            .ok_or(EnvError::NotRestorable(id))?;
+        let mut scratch = vec![0.0; self.obs.len()];
+        env.reset_to(&episode.env_state, &mut scratch)?;
+        env.set_elapsed_steps(episode.elapsed_steps);
+        env.set_resume_state(&episode.env_resume_state)?;
+        self.obs = episode.obs;
+        self.episode_return = episode.episode_return;
         Ok(())
     }
 
@@ -125,6 +161,7 @@ impl EnvActor {
             steps: 0,
             episodes: 0,
             last_return: None,
+            episodes_cut: 0,
         })
     }
 

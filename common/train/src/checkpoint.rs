@@ -27,8 +27,9 @@ use std::path::{Path, PathBuf};
 const MAGIC: &[u8; 8] = b"MBPOCKPT";
 
 /// Version of the file layout and of the role states inside; bump on any change to either
-/// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start).
-pub const FORMAT_VERSION: u32 = 2;
+/// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start; 3: an
+/// actor's episode in progress is optional, for environments that cannot save their state).
+pub const FORMAT_VERSION: u32 = 3;
 
 /// Name of the marker that makes a checkpoint directory resumable.
 pub const COMPLETE: &str = "COMPLETE";

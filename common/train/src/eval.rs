@@ -191,6 +191,7 @@ impl Evaluator {
             wall_seconds: self.start.elapsed().as_secs_f64(),
             median_seconds_per_env_step: seconds_per_env_step,
             status: "completed".into(),
+            episodes_cut_by_resume: 0,
         }
     }
 }

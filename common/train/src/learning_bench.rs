@@ -398,6 +398,7 @@ mod tests {
             wall_seconds: 4.0,
             median_seconds_per_env_step: None,
             status: "completed".into(),
+            episodes_cut_by_resume: 0,
         })
     }
 

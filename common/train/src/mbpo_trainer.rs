@@ -318,6 +318,7 @@ pub fn train_mbpo_with(
     let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median, target);
     summary.env_steps = mbpo.env_steps();
     summary.status = status.into();
+    summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;
     if status == "completed" {
         let actor = &mbpo.learner.sac().actor_params;
         crate::policy_file::write_final_policy(out, summary.env_steps, actor)?;

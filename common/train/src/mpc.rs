@@ -606,6 +606,7 @@ pub fn train_mpc_with(
         wall_seconds: started.elapsed().as_secs_f64(),
         median_seconds_per_env_step: sorted.get(sorted.len() / 2).copied(),
         status: status.into(),
+        episodes_cut_by_resume: mpc.actor.env_actor().episodes_cut,
     };
     run.write_summary(&summary)?;
     Ok(summary)

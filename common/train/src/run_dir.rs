@@ -177,6 +177,10 @@ pub struct Summary {
     /// `completed`, or `stopped` (a clean stop before `steps`; resume with `--resume`).
     #[serde(default = "completed")]
     pub status: String,
+    /// Episodes that resumes cut short: an environment that cannot save its state (e.g. a
+    /// Python env) starts a new episode when its actor resumes from a checkpoint.
+    #[serde(default)]
+    pub episodes_cut_by_resume: u64,
 }
 
 fn completed() -> String {

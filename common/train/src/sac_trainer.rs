@@ -160,6 +160,7 @@ pub fn train_sac_with(
     let mut summary = evaluator.summary("sac", &sac, None, target);
     summary.env_steps = actor.steps;
     summary.status = status.into();
+    summary.episodes_cut_by_resume = actor.episodes_cut;
     if status == "completed" {
         crate::policy_file::write_final_policy(out, summary.env_steps, &sac.actor_params)?;
     }

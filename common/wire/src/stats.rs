@@ -135,6 +135,8 @@ pub struct Done {
     pub ipc_seconds: f32,
     /// Wall seconds of the process's work loop.
     pub wall_seconds: f32,
+    /// Episodes its resumes cut short (actors whose environment cannot save its state).
+    pub episodes_cut: u64,
 }
 
 /// A step of a checkpoint barrier (protocol: `mbpo_runtime::barrier`).
@@ -249,6 +251,7 @@ impl Stats {
                 kind: StatsKind::Heartbeat as u32,
                 env_steps: d.real,
                 sac_updates: d.work,
+                model_version: d.episodes_cut,
                 value: d.lost as f64,
                 metrics: metrics(&[
                     HEARTBEAT_DONE,
@@ -332,6 +335,7 @@ impl Stats {
                 slack_mean: m[4],
                 ipc_seconds: m[5],
                 wall_seconds: m[6],
+                episodes_cut: r.model_version,
             }),
             StatsKind::Heartbeat => Stats::Progress(Progress {
                 env_steps: r.env_steps,
@@ -463,6 +467,7 @@ mod tests {
                 slack_mean: 0.5,
                 ipc_seconds: 0.125,
                 wall_seconds: 12.0,
+                episodes_cut: 3,
             }),
             Stats::Barrier(BarrierReport::Paused(0)),
             Stats::Barrier(BarrierReport::Paused(7)),

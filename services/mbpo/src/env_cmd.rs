@@ -26,7 +26,7 @@ fn list() -> anyhow::Result<()> {
                 "act_dim": env.act_dim(),
                 "action_low": env.action_space().low,
                 "action_high": env.action_space().high,
-                "state": env.state_layout(),
+                "state": env.restorable().map(|r| r.state_layout()),
                 "max_episode_steps": env.max_episode_steps(),
             })
         )?;
@@ -87,7 +87,14 @@ fn replay(args: &ReplayArgs) -> anyhow::Result<()> {
         );
     }
     let mut obs = vec![0.0f32; env.obs_dim()];
-    env.reset_to(&state, &mut obs)
+    let Some(restorable) = env.restorable_mut() else {
+        bail!(
+            "{} cannot start from a given state (it has no saved-state capability), so it cannot be replayed",
+            args.env
+        );
+    };
+    restorable
+        .reset_to(&state, &mut obs)
         .with_context(|| format!("--state '{}'", args.state))?;
     let mut out = std::io::stdout().lock();
     let steps = actions.len() / act_dim;

@@ -8,10 +8,10 @@
 //! (`tests/gymnasium_mujoco.rs`).
 //!
 //! Observations are float64 in Gymnasium; [`Env::step`] writes them rounded to f32 and
-//! [`Env::observation_f64`] gives the float64 values. The physical state for [`Env::reset_to`] is
+//! [`Env::observation_f64`] gives the float64 values. The physical state for [`RestorableEnv::reset_to`] is
 //! qpos followed by qvel; a reset clears MuJoCo's data first (`mj_resetData`, so warm starts and
 //! time are those of a fresh episode), as Gymnasium's `reset` does. A checkpoint taken
-//! mid-episode also keeps [`Env::resume_state`] (MuJoCo's integration state with the solver's warm
+//! mid-episode also keeps [`RestorableEnv::resume_state`] (MuJoCo's integration state with the solver's warm
 //! start), so the resumed episode continues bit for bit (`tests/mujoco_resume.rs`).
 
 mod model;
@@ -28,7 +28,7 @@ use mujoco_rs::prelude::{MjData, MjModel, MjtState};
 /// solver's warm start (`qacc_warmstart`), ... (`mjSTATE_INTEGRATION`).
 const INTEGRATION_STATE: u32 = MjtState::mjSTATE_INTEGRATION as u32;
 
-use crate::{BoxSpace, Env, EnvError, Step};
+use crate::{BoxSpace, Env, EnvError, RestorableEnv, Step};
 use task::{StepState, VelocityNoise};
 
 /// A Gymnasium v5 MuJoCo task (see the module docs).
@@ -45,7 +45,7 @@ pub struct MujocoEnv {
     scratch: Vec<f64>,
     steps: usize,
     /// The x position the next step measures its forward velocity from, when restored from a
-    /// checkpoint (see [`Env::resume_state`]); `None`: read it from `data`.
+    /// checkpoint (see [`RestorableEnv::resume_state`]); `None`: read it from `data`.
     restored_x_before: Option<f64>,
     observation_space: BoxSpace,
     action_space: BoxSpace,
@@ -149,14 +149,6 @@ impl Env for MujocoEnv {
         &self.action_space
     }
 
-    fn state_dim(&self) -> usize {
-        self.init_qpos.len() + self.init_qvel.len()
-    }
-
-    fn state_layout(&self) -> &'static str {
-        self.task.state_layout()
-    }
-
     fn max_episode_steps(&self) -> usize {
         MAX_EPISODE_STEPS
     }
@@ -184,68 +176,8 @@ impl Env for MujocoEnv {
         self.write_obs(obs);
     }
 
-    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
-        let nq = self.init_qpos.len();
-        if state.len() != self.state_dim() {
-            return Err(EnvError::StateDim {
-                env: self.task.id(),
-                expected: self.state_dim(),
-                found: state.len(),
-                layout: self.task.state_layout(),
-            });
-        }
-        let (qpos, qvel) = state.split_at(nq);
-        self.set_state(qpos, qvel);
-        self.write_obs(obs);
-        Ok(())
-    }
-
     fn elapsed_steps(&self) -> usize {
         self.steps
-    }
-
-    /// Restores only the step count; `reset_to(qpos ++ qvel)` starts from a fresh `mjData`, so
-    /// without [`Env::set_resume_state`] the solver's warm start differs from the uninterrupted
-    /// episode and the continuation is close to, not bit-identical with, the original.
-    fn set_elapsed_steps(&mut self, steps: usize) {
-        self.steps = steps;
-    }
-
-    /// MuJoCo's integration state (`mjSTATE_INTEGRATION`, with the solver's warm start) and the
-    /// x position the next step's forward velocity starts from: Ant reads it from `xpos`, which
-    /// after a step holds the last sub-step's kinematics, not those of `qpos`. (MuJoCo keeps a
-    /// little state outside `mjtState` -- sleeping trees, flex contacts -- which none of these
-    /// five models uses; a model that does would need it here too.)
-    fn resume_state(&self) -> Vec<f64> {
-        let mut extra = self.data.state(INTEGRATION_STATE).into_vec();
-        extra.push(self.restored_x_before.unwrap_or_else(|| self.x_position()));
-        extra
-    }
-
-    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
-        let n = self.data.model().state_size(INTEGRATION_STATE);
-        if extra.len() != n + 1 {
-            return Err(EnvError::StateDim {
-                env: self.task.id(),
-                expected: n + 1,
-                found: extra.len(),
-                layout: "MuJoCo's integration state (mjSTATE_INTEGRATION), then the x position",
-            });
-        }
-        self.data
-            .set_state(&extra[..n], INTEGRATION_STATE)
-            .map_err(|e| EnvError::ResumeState {
-                env: self.task.id(),
-                message: e.to_string(),
-            })?;
-        self.restored_x_before = Some(extra[n]);
-        Ok(())
-    }
-
-    fn state(&self) -> Vec<f64> {
-        let mut s = self.data.qpos().to_vec();
-        s.extend_from_slice(self.data.qvel());
-        s
     }
 
     fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
@@ -286,5 +218,83 @@ impl Env for MujocoEnv {
 
     fn observation_f64(&self) -> Option<&[f64]> {
         Some(&self.obs64)
+    }
+
+    fn restorable(&self) -> Option<&dyn RestorableEnv> {
+        Some(self)
+    }
+
+    fn restorable_mut(&mut self) -> Option<&mut dyn RestorableEnv> {
+        Some(self)
+    }
+}
+
+impl RestorableEnv for MujocoEnv {
+    fn state_dim(&self) -> usize {
+        self.init_qpos.len() + self.init_qvel.len()
+    }
+
+    fn state_layout(&self) -> &'static str {
+        self.task.state_layout()
+    }
+
+    fn reset_to(&mut self, state: &[f64], obs: &mut [f32]) -> Result<(), EnvError> {
+        let nq = self.init_qpos.len();
+        if state.len() != self.state_dim() {
+            return Err(EnvError::StateDim {
+                env: self.task.id(),
+                expected: self.state_dim(),
+                found: state.len(),
+                layout: self.task.state_layout(),
+            });
+        }
+        let (qpos, qvel) = state.split_at(nq);
+        self.set_state(qpos, qvel);
+        self.write_obs(obs);
+        Ok(())
+    }
+
+    /// Restores only the step count; `reset_to(qpos ++ qvel)` starts from a fresh `mjData`, so
+    /// without [`RestorableEnv::set_resume_state`] the solver's warm start differs from the uninterrupted
+    /// episode and the continuation is close to, not bit-identical with, the original.
+    fn set_elapsed_steps(&mut self, steps: usize) {
+        self.steps = steps;
+    }
+
+    /// MuJoCo's integration state (`mjSTATE_INTEGRATION`, with the solver's warm start) and the
+    /// x position the next step's forward velocity starts from: Ant reads it from `xpos`, which
+    /// after a step holds the last sub-step's kinematics, not those of `qpos`. (MuJoCo keeps a
+    /// little state outside `mjtState` -- sleeping trees, flex contacts -- which none of these
+    /// five models uses; a model that does would need it here too.)
+    fn resume_state(&self) -> Vec<f64> {
+        let mut extra = self.data.state(INTEGRATION_STATE).into_vec();
+        extra.push(self.restored_x_before.unwrap_or_else(|| self.x_position()));
+        extra
+    }
+
+    fn set_resume_state(&mut self, extra: &[f64]) -> Result<(), EnvError> {
+        let n = self.data.model().state_size(INTEGRATION_STATE);
+        if extra.len() != n + 1 {
+            return Err(EnvError::StateDim {
+                env: self.task.id(),
+                expected: n + 1,
+                found: extra.len(),
+                layout: "MuJoCo's integration state (mjSTATE_INTEGRATION), then the x position",
+            });
+        }
+        self.data
+            .set_state(&extra[..n], INTEGRATION_STATE)
+            .map_err(|e| EnvError::ResumeState {
+                env: self.task.id(),
+                message: e.to_string(),
+            })?;
+        self.restored_x_before = Some(extra[n]);
+        Ok(())
+    }
+
+    fn state(&self) -> Vec<f64> {
+        let mut s = self.data.qpos().to_vec();
+        s.extend_from_slice(self.data.qvel());
+        s
     }
 }

@@ -220,8 +220,13 @@ impl Collector {
         }
     }
 
-    /// Continue from a checkpoint's book.
-    pub fn restore(&mut self, book: CollectorBook) {
+    /// Continue from a checkpoint's book. The next row is the first eval point after the last
+    /// row written: a run extended past its old end (`--resume RUN --steps N`) has other eval
+    /// points than the run that wrote the book (the old last step was one), so a row count
+    /// would skip one.
+    pub fn restore(&mut self, mut book: CollectorBook) {
+        let last_written = book.last_row.1;
+        book.next_row = self.eval_points.partition_point(|&p| p <= last_written);
         for &(t, ret, version) in &book.unwritten_evals {
             self.evals.insert(t, ret);
             if self.mpc() {
@@ -384,6 +389,7 @@ impl Collector {
             ..Default::default()
         };
         let mut sac_updates = 0;
+        let mut episodes_cut = 0;
         let mut median = None;
         let mut lag = Range {
             min: f32::INFINITY,
@@ -406,6 +412,7 @@ impl Collector {
             match who.role() {
                 Some(Role::Actor) => {
                     real.produced += d.real;
+                    episodes_cut += d.episodes_cut;
                     if self.mpc() && d.median_step_seconds > 0.0 {
                         // Median planning time of an MPC step (the slowest actor's).
                         let m = d.median_step_seconds as f64;
@@ -480,6 +487,7 @@ impl Collector {
                 median_seconds_per_env_step: median,
                 // `completed`, `stopped` (checkpointed, resumable), `failed` or `interrupted`.
                 status: status.into(),
+                episodes_cut_by_resume: episodes_cut,
             },
             mode: self.mode.clone(),
             actors: self.actors,
@@ -521,6 +529,33 @@ mod tests {
             unwritten_evals,
             ..CollectorBook::start()
         }
+    }
+
+    #[test]
+    fn an_extended_run_writes_the_row_of_every_new_eval_point() {
+        // Written by a 500-step run: rows 200, 400 and its last step 500 (3 rows).
+        let written = CollectorBook {
+            next_row: 3,
+            last_row: (1.0, 500),
+            ..CollectorBook::start()
+        };
+        // Extended to 700 steps: eval points 200, 400, 600, 700; the next row is 600's.
+        let mut cfg = ExperimentConfig {
+            steps: 700,
+            ..Default::default()
+        };
+        cfg.eval.every = 200;
+        cfg.mbpo.init_random_steps = 100;
+        let plan = RunPlan {
+            run_id: "test".into(),
+            mode: crate::Mode::Pipelined,
+            actors: 1,
+            slack: crate::Slack::ZERO,
+        };
+        let mut collector = Collector::new(&cfg, &plan);
+        assert_eq!(collector.eval_points, [200, 400, 600, 700]);
+        collector.restore(written);
+        assert_eq!(collector.eval_points[collector.book.next_row], 600);
     }
 
     #[test]

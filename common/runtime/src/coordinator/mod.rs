@@ -106,6 +106,8 @@ pub struct Coordinator {
     pub collector: Collector,
     barrier: Option<Barrier>,
     next_checkpoint: u64,
+    /// Env steps of the newest complete checkpoint (the resumed one at first; 0: none).
+    last_checkpoint: u64,
     final_wire: u64,
     final_params: Option<Vec<f32>>,
     finishing: bool,
@@ -126,9 +128,11 @@ impl Coordinator {
         let mut collector = Collector::new(cfg, &plan);
         let every = cfg.checkpoint.every;
         let mut next_checkpoint = every;
+        let mut last_checkpoint = 0;
         if let Some((env_steps, state)) = resume {
             collector.restore(state.book);
             next_checkpoint = env_steps + every;
+            last_checkpoint = env_steps;
         }
         collector.book.restarts = restarts;
         let final_wire = match cfg.algo == Algo::Mpc {
@@ -144,6 +148,7 @@ impl Coordinator {
             collector,
             barrier: None,
             next_checkpoint,
+            last_checkpoint,
             // An MPC run shorter than its warm-up trains no model: nothing to wait for.
             final_params: (final_wire == 0).then(Vec::new),
             final_wire,
@@ -199,15 +204,21 @@ impl Coordinator {
     }
 
     /// Drive the barrier (start a periodic one, send the cut, complete it) and tell whether
-    /// the run is over.
+    /// the run is over. A run is over once every role is done, the final policy is in and the
+    /// checkpoint of its last step is complete: extending the run (`--resume RUN --steps N`)
+    /// then continues from its end, as after `mbpo train`.
     pub fn advance<S: Transport>(
         &mut self,
         ports: &CoordinatorPorts<S>,
         run: &mut RunDir,
         started: Instant,
     ) -> Result<Phase> {
-        if self.all_done() && self.final_params.is_some() {
-            return Ok(Phase::Finished);
+        if self.all_done() && self.final_params.is_some() && self.barrier.is_none() {
+            if self.last_checkpoint >= self.cfg.steps {
+                return Ok(Phase::Finished);
+            }
+            tracing::info!("every role is done: checkpointing the last step");
+            self.start_barrier(ports, false)?;
         }
         let every = self.cfg.checkpoint.every;
         if self.barrier.is_none()
@@ -269,6 +280,13 @@ impl Coordinator {
             mbpo_train::checkpoint::dir_for(&self.out, cut.env_steps).display()
         );
         self.next_checkpoint = cut.env_steps + every.max(1);
+        self.last_checkpoint = cut.env_steps;
+        if cut.env_steps >= self.cfg.steps && self.all_done() && self.final_params.is_some() {
+            // The last step's checkpoint: the run is complete (a stop asked for meanwhile
+            // changes nothing).
+            self.barrier = None;
+            return Ok(Phase::Finished);
+        }
         if stop_after {
             return Ok(Phase::Stopped);
         }

@@ -20,9 +20,9 @@ pub enum OnSignal {
     CheckpointAndStop,
     /// A periodic checkpoint is under way: stop after it.
     StopAfterBarrier,
-    /// Every actor is done: a checkpoint would be at the run's last step, which no resume
-    /// continues (`--resume` needs steps left), while what is left -- the learner's last
-    /// updates, the last evaluations -- is short. Finish the run instead.
+    /// Every actor is done: what is left -- the learner's last updates, the last evaluations,
+    /// the last step's checkpoint -- is short. Finish the run instead (it can still be
+    /// extended with `--resume RUN --steps N`).
     Finish,
     /// A second signal, or nothing left to do: stop at once, without a checkpoint.
     StopNow,

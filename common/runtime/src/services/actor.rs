@@ -151,6 +151,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let done = Done {
         real: steps,
         work: role.env_actor().episodes,
+        episodes_cut: role.env_actor().episodes_cut,
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,

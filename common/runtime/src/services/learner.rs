@@ -231,6 +231,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         slack_mean: mean,
         ipc_seconds: ipc.as_secs_f32(),
         wall_seconds: started.elapsed().as_secs_f32(),
+        ..Default::default()
     };
     stats_pub.report(done)?;
     tracing::info!(

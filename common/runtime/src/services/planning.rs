@@ -191,6 +191,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
     let done = Done {
         real: steps,
         work: role.plans(),
+        episodes_cut: role.env_actor().episodes_cut,
         median_step_seconds: median.unwrap_or(0.0) as f32,
         slack_min: lo,
         slack_max: hi,
