@@ -163,12 +163,12 @@ fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     // A damaged run: the error names the missing file and says why once.
     std::fs::remove_file(run.join("policy.ckpt")).unwrap();
     let (newest, _) = mbpo_train::checkpoint::latest(&run).unwrap().unwrap();
-    std::fs::remove_file(newest.join("learner.ckpt")).unwrap();
+    std::fs::remove_file(newest.join("learner")).unwrap();
     let out = mbpo().arg("eval").arg(&run).output().unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(
-        err.contains(&newest.join("learner.ckpt").display().to_string()),
+        err.contains(&newest.join("learner").display().to_string()),
         "{err}"
     );
     assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");

@@ -7,7 +7,10 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use mbpo_integration_tests::*;
-use mbpo_train::{train_mbpo, train_mpc};
+use mbpo_train::{
+    train_mbpo, train_mbpo_with, train_mpc, train_mpc_with, ExperimentConfig, RunOptions, Summary,
+    TrainError,
+};
 
 const TIMEOUT: Duration = Duration::from_secs(300);
 
@@ -152,16 +155,18 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// A finished run extends: `mbpo run --resume RUN --steps N` continues from the checkpoint of
-/// its last step (not an older periodic one) and ends where an uninterrupted run of N steps
-/// does, every metrics row included (the old last step, 400, is an eval point of both).
-#[test]
-fn a_finished_lockstep_run_extends_from_its_last_step() {
-    let mut cfg = tiny_config(400);
-    cfg.checkpoint.every = 300;
-    let dir = scratch("extend-lockstep");
-    let input = write_config(&cfg, &dir);
-    let root = ipc_root("ex");
+/// Run `cfg` (400 steps, a periodic checkpoint before the end) to its end in lockstep mode, in
+/// a scratch directory `name` (iceoryx2 root tag `tag`); returns the directory, the run, the
+/// iceoryx2 root and the log. The run ends with two checkpoints: a periodic one (from
+/// `checkpoint.every` on, when the coordinator hears of that step) and the last step's.
+fn finished_lockstep_run(
+    cfg: &ExperimentConfig,
+    name: &str,
+    tag: &str,
+) -> (PathBuf, PathBuf, PathBuf, PathBuf) {
+    let dir = scratch(name);
+    let input = write_config(cfg, &dir);
+    let root = ipc_root(tag);
     let run = dir.join("run");
     let log = dir.join("stderr.log");
     let (status, err) = wait_logged(
@@ -169,9 +174,23 @@ fn a_finished_lockstep_run_extends_from_its_last_step() {
         &log,
     );
     assert!(status.success(), "{err}");
-    // A periodic checkpoint (from 300 on, when the coordinator hears of step 300) and 400.
     let steps = checkpoints(&run);
-    assert!(steps.len() == 2 && steps[1] == 400, "{steps:?}");
+    let every = cfg.checkpoint.every;
+    assert!(
+        steps.len() == 2 && steps[0] >= every && steps[1] == cfg.steps,
+        "{steps:?}"
+    );
+    (dir, run, root, log)
+}
+
+/// A finished run extends: `mbpo run --resume RUN --steps N` continues from the checkpoint of
+/// its last step (not an older periodic one) and ends where an uninterrupted run of N steps
+/// does, every metrics row included (the old last step, 400, is an eval point of both).
+#[test]
+fn a_finished_lockstep_run_extends_from_its_last_step() {
+    let mut cfg = tiny_config(400);
+    cfg.checkpoint.every = 300;
+    let (dir, run, root, log) = finished_lockstep_run(&cfg, "extend-lockstep", "ex");
 
     let args = [
         "--resume",
@@ -195,6 +214,113 @@ fn a_finished_lockstep_run_extends_from_its_last_step() {
         metrics_without_timing(&dir.join("sequential"))
     );
     assert_eq!(checkpoints(&run), [400, 600]);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Copy the directory tree `from` to `to`.
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+/// One checkpoint format for both commands (`mbpo_train::run_files`): an MBPO run
+/// checkpointed by `mbpo train` continues under `mbpo run --mode lockstep`, and one
+/// checkpointed by `mbpo run --mode lockstep` under `mbpo train`; each ends with the
+/// uninterrupted run's policy and every metrics column but the timings.
+#[test]
+fn mbpo_checkpoints_cross_between_mbpo_train_and_mbpo_run() {
+    cross_resume(tiny_config(400), "cross-mbpo", train_mbpo_with);
+}
+
+/// [`mbpo_checkpoints_cross_between_mbpo_train_and_mbpo_run`] for MPC (planning actor, model
+/// trainer, planning evaluator).
+#[test]
+fn mpc_checkpoints_cross_between_mbpo_train_and_mbpo_run() {
+    cross_resume(tiny_mpc_config(400), "cross-mpc", train_mpc_with);
+}
+
+type Trainer = fn(&ExperimentConfig, &Path, RunOptions) -> Result<Summary, TrainError>;
+
+/// Run `cfg` (400 steps) with one command, extend it to 600 with the other, both ways; compare
+/// with `train`'s uninterrupted 600-step run.
+fn cross_resume(cfg: ExperimentConfig, name: &str, train: Trainer) {
+    let mut longer = cfg.clone();
+    longer.steps = 600;
+    let dir = scratch(name);
+    let root = ipc_root(&name[..8]);
+    let log = dir.join("stderr.log");
+    let reference = dir.join("reference");
+    let uninterrupted = train(&longer, &reference, RunOptions::default()).unwrap();
+
+    let train_then_run = dir.join("train-then-run");
+    train(&cfg, &train_then_run, RunOptions::default()).unwrap();
+    let args = [
+        "--resume",
+        train_then_run.to_str().unwrap(),
+        "--steps",
+        "600",
+        "--mode",
+        "lockstep",
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    let (status, err) = wait_logged(spawn_logged(&args, &log), &log);
+    assert!(status.success(), "{err}");
+    assert!(err.contains("checkpointed by `mbpo train`"), "{err}");
+    let s = summary(&train_then_run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["policy_sha256"], uninterrupted.policy_sha256.as_str());
+    assert_eq!(
+        metrics_without_timing(&train_then_run),
+        metrics_without_timing(&reference)
+    );
+
+    // Periodic checkpoints too, all kept: `mbpo train` resumes from each of them. A lockstep
+    // cut can hold the model training of the step after it already (a cut at the end of the
+    // warm-up usually does), which the sequential run then does not repeat.
+    let mut periodic = cfg.clone();
+    periodic.checkpoint.every = 100;
+    periodic.checkpoint.keep = 10;
+    let input = write_config(&periodic, &dir);
+    let lockstep = dir.join("lockstep");
+    let (status, err) = wait_logged(
+        start(&input, &lockstep, &root, &["--mode", "lockstep"], &log),
+        &log,
+    );
+    assert!(status.success(), "{err}");
+    let cuts = checkpoints(&lockstep);
+    assert!(cuts.len() >= 2 && cuts.ends_with(&[400]), "{cuts:?}");
+    for &at in &cuts {
+        let run = dir.join(format!("lockstep-then-train-{at}"));
+        copy_dir(&lockstep, &run);
+        for &later in cuts.iter().filter(|&&c| c > at) {
+            std::fs::remove_dir_all(mbpo_train::checkpoint::dir_for(&run, later)).unwrap();
+        }
+        let resume = RunOptions {
+            resume: true,
+            ..Default::default()
+        };
+        let resumed = train(&longer, &run, resume)
+            .unwrap_or_else(|e| panic!("resuming the lockstep checkpoint after step {at}: {e}"));
+        assert_eq!(resumed.status, "completed");
+        assert_eq!(
+            resumed.policy_sha256, uninterrupted.policy_sha256,
+            "from {at}"
+        );
+        assert_eq!(
+            metrics_without_timing(&run),
+            metrics_without_timing(&reference),
+            "from {at}"
+        );
+    }
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -232,6 +358,7 @@ fn mpc_lockstep_stop_and_resume_equals_the_sequential_run() {
             "actor-0",
             "evaluator",
             "model-trainer",
+            "run-book",
             "supervisor"
         ],
         "an MPC checkpoint has no learner or rollout generator"
@@ -358,7 +485,7 @@ fn pipelined_stop_abandons_the_model_training_under_way() {
 /// MPC pipelined with two planning actors and `--restart on-failure`: the model trainer is
 /// killed after the first periodic checkpoint; every eval point ends with exactly one row.
 /// (Whether the checkpoint held rows as unwritten, an actor being behind the cut's step,
-/// depends on timing; `CollectorBook::rows_upto` is unit-tested for that case.)
+/// depends on timing; `RunBook::rows_upto` is unit-tested for that case.)
 #[test]
 fn mpc_pipelined_crash_restarts_without_duplicate_rows() {
     let mut cfg = tiny_mpc_config(MPC_STEPS);
@@ -448,22 +575,8 @@ fn pipelined_stop_and_resume(
 fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
     let mut cfg = tiny_config(400);
     cfg.checkpoint.every = 250;
-    let dir = scratch("resume-damaged");
-    let input = write_config(&cfg, &dir);
-    let root = ipc_root("rd");
-    let run = dir.join("run");
-    let log = dir.join("stderr.log");
-    let (status, err) = wait_logged(
-        start(&input, &run, &root, &["--mode", "lockstep"], &log),
-        &log,
-    );
-    assert!(status.success(), "{err}");
-    // A periodic checkpoint (from 250 on) and the last step's at 400; a resume reads the newest.
-    let steps = checkpoints(&run);
-    assert!(
-        steps.len() == 2 && steps[0] >= 250 && steps[1] == 400,
-        "{steps:?}"
-    );
+    let (dir, run, root, log) = finished_lockstep_run(&cfg, "resume-damaged", "rd");
+    // A resume reads the newest checkpoint, the last step's.
     let ckpt: PathBuf = mbpo_train::checkpoint::dir_for(&run, 400);
 
     let learner = ckpt.join("learner");

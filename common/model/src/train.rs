@@ -59,6 +59,18 @@ pub struct TrainReport {
     pub seconds: f64,
 }
 
+impl TrainReport {
+    /// Mean holdout MSE of the elites (the `model_holdout_mse` metrics column), summed in
+    /// elite order: every command computes it here, so their rows agree bit for bit.
+    pub fn elite_holdout_mse(&self) -> f64 {
+        self.elites
+            .iter()
+            .map(|&e| self.final_holdout_mse[e] as f64)
+            .sum::<f64>()
+            / self.elites.len().max(1) as f64
+    }
+}
+
 /// Why a training call ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum StopReason {

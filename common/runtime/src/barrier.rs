@@ -33,13 +33,11 @@
 use std::marker::PhantomData;
 use std::path::Path;
 
-use mbpo_core::{Batch, Rng};
+use mbpo_core::Batch;
 use mbpo_train::checkpoint;
-use mbpo_train::mpc::{PlanningActorState, PlanningEvaluatorState};
-use mbpo_train::roles::{ActorState, ModelTrainerState, RolloutState};
 use mbpo_train::Algo;
 use mbpo_wire::{BarrierReport, StatsPublisher, TransitionSubscriber, Transport, Waiter};
-use serde::{de::DeserializeOwned, Deserialize, Serialize};
+use serde::{de::DeserializeOwned, Serialize};
 
 use crate::error::ensure_protocol;
 use crate::inbox::{wait_for, ControlInbox, RealInbox};
@@ -58,114 +56,39 @@ pub struct Cut {
     pub model_trainings: u64,
 }
 
-/// File kinds of the pipeline's checkpoint files (they wrap the role states of
-/// `mbpo_train::roles` with the service's loop counters).
+/// The checkpoint files' names, kinds and contents: one format for `mbpo train` and `mbpo run`
+/// (`mbpo_train::run_files`), plus the launcher's own file.
+pub use mbpo_train::run_files::{
+    actor_file, ActorCheckpoint, EvaluatorCheckpoint, LearnerCheckpoint, ModelTrainerCheckpoint,
+    PlanningActorCheckpoint, PlanningEvaluatorCheckpoint, RolloutCheckpoint, RunBook,
+};
+
+/// File kinds of a pipeline checkpoint: the roles' and the run book's
+/// (`mbpo_train::run_files::kind`) and the launcher's.
 pub mod kind {
-    /// [`super::ActorCheckpoint`].
-    pub const ACTOR: &str = "mbpo.pipeline.actor";
-    /// [`super::EvaluatorCheckpoint`].
-    pub const EVALUATOR: &str = "mbpo.pipeline.evaluator";
-    /// [`super::ModelTrainerCheckpoint`].
-    pub const MODEL_TRAINER: &str = "mbpo.pipeline.model-trainer";
-    /// [`super::RolloutCheckpoint`].
-    pub const ROLLOUT: &str = "mbpo.pipeline.rollout-generator";
-    /// [`super::LearnerCheckpoint`].
-    pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::KIND;
-    /// The supervisor's bookkeeping (metrics rows, counters). Version 2 keeps the evaluations
-    /// whose rows are not written yet; a version-1 file is refused by its kind.
-    pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor.2";
-    /// [`super::PlanningActorCheckpoint`] (MPC runs).
-    pub const PLANNING_ACTOR: &str = "mbpo.pipeline.planning-actor";
-    /// [`super::PlanningEvaluatorCheckpoint`] (MPC runs).
-    pub const PLANNING_EVALUATOR: &str = "mbpo.pipeline.planning-evaluator";
+    pub use mbpo_train::run_files::kind::*;
+    /// The launcher's file (`SupervisorCheckpoint`: mode, actors, slack). Version 3 holds only
+    /// those (the run book has a file of its own); older files are refused by their kind.
+    pub const SUPERVISOR: &str = "mbpo.pipeline.supervisor.3";
 }
 
-/// An actor at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct ActorCheckpoint {
-    /// The role (env episode in progress, streams, policy).
-    pub role: ActorState,
-    /// Local steps done (its global steps follow from the index).
-    pub steps: u64,
-}
-
-/// The evaluator at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct EvaluatorCheckpoint {
-    /// The `eval.env` stream.
-    pub rng: Rng,
-    /// Policy version last evaluated.
-    pub version: u64,
-    /// Evaluations done.
-    pub evals: u64,
-    /// The cut's env step T (every eval point ≤ T is done).
-    pub env_steps: u64,
-}
-
-/// The model trainer at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct ModelTrainerCheckpoint {
-    /// The role (D_env, model, optimiser, stream, version = K).
-    pub role: ModelTrainerState,
-}
-
-/// The rollout generator at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct RolloutCheckpoint {
-    /// The role (D_env, model, policy, stream).
-    pub role: RolloutState,
-    /// Branches done (= K).
-    pub branches: u64,
-}
-
-/// A planning actor (MPC run) at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct PlanningActorCheckpoint {
-    /// The role (env episode in progress, streams, the controller's warm start; not the
-    /// model: the model trainer publishes its version again when the run resumes).
-    pub role: PlanningActorState,
-    /// Local steps done.
-    pub steps: u64,
-}
-
-/// The planning evaluator (MPC run) at the cut.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct PlanningEvaluatorCheckpoint {
-    /// The `eval.env` and `eval.plan` streams.
-    pub role: PlanningEvaluatorState,
-    /// Evaluations done.
-    pub evals: u64,
-    /// The cut's env step T (every eval point ≤ T is done, none after it).
-    pub env_steps: u64,
-}
-
-/// The learner at the cut (defined next to its role: `mbpo eval` reads it too).
-pub use mbpo_train::roles::LearnerCheckpoint;
-
-/// File names in a checkpoint directory of the pipeline (actors: [`actor_file`]).
+/// File names of a pipeline checkpoint (actors: [`actor_file`]).
 pub mod file {
-    /// The learner's.
-    pub const LEARNER: &str = mbpo_train::roles::pipeline_learner::FILE;
-    /// The model trainer's.
-    pub const MODEL_TRAINER: &str = "model-trainer";
-    /// The rollout generator's.
-    pub const ROLLOUT: &str = "rollout-generator";
-    /// The evaluator's.
-    pub const EVALUATOR: &str = "evaluator";
-    /// The supervisor's.
-    pub const SUPERVISOR: &str = "supervisor";
+    pub use mbpo_train::run_files::file::*;
 }
 
-/// The file name of an actor's checkpoint.
-pub fn actor_file(index: u16) -> String {
-    format!("actor-{index}")
-}
-
-/// Every file of a checkpoint of a pipeline running `algo` with `actors` actors, with its
-/// kind: one per role ([`crate::pipeline::roles`]) and the coordinator's.
-pub fn pipeline_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
+/// The files a checkpoint of a run of `algo` with `actors` actors holds whichever command
+/// wrote it, with their kinds: one per role ([`crate::pipeline::roles`]) and the run book.
+pub fn role_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
     let roles = crate::pipeline::roles(algo, actors).into_iter();
     let mut files: Vec<_> = roles.map(|r| (r.name, r.checkpoint_kind)).collect();
+    files.push((file::RUN_BOOK.into(), kind::RUN_BOOK));
+    files
+}
+
+/// Every file of a checkpoint written by the pipeline: [`role_files`] and the launcher's.
+pub fn pipeline_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
+    let mut files = role_files(algo, actors);
     files.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
     files
 }
@@ -496,13 +419,26 @@ mod tests {
                 "evaluator",
                 "actor-0",
                 "actor-1",
+                "run-book",
                 "supervisor"
             ]
         );
         assert_eq!(
             names(Algo::Mpc, 1),
-            ["model-trainer", "evaluator", "actor-0", "supervisor"]
+            [
+                "model-trainer",
+                "evaluator",
+                "actor-0",
+                "run-book",
+                "supervisor"
+            ]
         );
+        // A checkpoint of `mbpo train` holds the same files but the launcher's.
+        let sequential: Vec<String> = role_files(Algo::Mbpo, 1)
+            .into_iter()
+            .map(|(n, _)| n)
+            .collect();
+        assert_eq!(sequential, names(Algo::Mbpo, 1)[..6]);
         let kind_of = |algo, name: &str| {
             pipeline_files(algo, 1)
                 .into_iter()

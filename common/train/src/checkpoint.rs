@@ -1,11 +1,10 @@
 //! Checkpoint files and checkpoint directories.
 //!
 //! A run checkpoints into `<run>/checkpoints/<env steps, 10 digits>/`, one file per role
-//! (`actor-0.ckpt`, `model-trainer.ckpt`, `rollout-generator.ckpt`, `learner.ckpt`,
-//! `evaluator.ckpt`, ...) and, written last, `COMPLETE` (JSON: env steps and the files). Only a
-//! directory with `COMPLETE` is ever resumed from, so a crash while checkpointing falls back to
-//! the previous one. The sequential trainer and the pipeline's processes write the same role
-//! files.
+//! (`actor-0`, `model-trainer`, `rollout-generator`, `learner`, `evaluator`), the run's book
+//! and, written last, `COMPLETE` (JSON: env steps and the files); [`crate::run_files`] defines
+//! them, the same for `mbpo train` and `mbpo run` (MBPO, MPC). Only a directory with `COMPLETE` is
+//! ever resumed from, so a crash while checkpointing falls back to the previous one.
 //!
 //! Each file is
 //!
@@ -28,7 +27,8 @@ const MAGIC: &[u8; 8] = b"MBPOCKPT";
 
 /// Version of the file layout and of the role states inside; bump on any change to either
 /// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start; 3: an
-/// actor's episode in progress is optional, for environments that cannot save their state).
+/// actor's episode in progress is optional, for environments that cannot save their state, and
+/// the role files are one format for both commands, `run_files`).
 pub const FORMAT_VERSION: u32 = 3;
 
 /// Name of the marker that makes a checkpoint directory resumable.

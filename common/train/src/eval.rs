@@ -3,6 +3,7 @@
 use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
+use crate::run_files::RunBook;
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{make, Env, EnvError};
@@ -95,6 +96,36 @@ impl Evaluator {
         self.env_steps = s.last_steps;
         self.final_return = s.final_return;
         self.best_return = s.best_return;
+    }
+
+    /// The `eval.env` stream (the evaluator's checkpoint file keeps it).
+    pub fn rng(&self) -> &Rng {
+        &self.rng
+    }
+
+    /// Copy the bookkeeping the run book keeps of evaluations into `book`: the returns, where
+    /// the next row's rates start, the clock.
+    pub fn write_book(&self, book: &mut RunBook) {
+        book.last_row = (self.last_time, self.last_steps);
+        book.last_row_updates = self.last_updates;
+        book.final_return = self.final_return;
+        book.best_return = self.best_return;
+        book.last_eval = (!self.final_return.is_nan()).then_some(self.final_return);
+        book.elapsed_seconds = self.start.elapsed().as_secs_f64();
+    }
+
+    /// Continue from a checkpoint: its `eval.env` stream and run book (the wall clock
+    /// continues from the book's time).
+    pub fn restore_book(&mut self, rng: Rng, book: &RunBook) {
+        self.rng = rng;
+        self.start = Instant::now()
+            .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
+            .unwrap_or_else(Instant::now);
+        (self.last_time, self.last_steps) = book.last_row;
+        self.env_steps = book.last_row.1;
+        self.last_updates = book.last_row_updates;
+        self.final_return = book.final_return;
+        self.best_return = book.best_return;
     }
 
     /// An evaluator with its own environment and stream (`eval.env`).

@@ -3,6 +3,7 @@
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
+//! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
 //! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
@@ -26,6 +27,7 @@ pub mod progress;
 pub mod roles;
 pub mod run_control;
 pub mod run_dir;
+pub mod run_files;
 pub mod sac_trainer;
 pub mod schedule;
 pub mod tensorboard;

@@ -22,19 +22,22 @@
 use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
-use crate::eval::{Evaluator, EvaluatorState};
+use crate::eval::Evaluator;
 use crate::progress::{Display, Progress};
-use crate::roles::checkpoint_kind as kind;
 use crate::roles::{
     ActorRole, LearnerRole, ModelSnapshot, ModelTrainerRole, RolloutRole, Schedule,
 };
 use crate::run_control::RunOptions;
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
 use crate::run_dir::{MetricsRow, Summary};
+use crate::run_files::{
+    actor_file, file, kind, ActorCheckpoint, EvaluatorCheckpoint, LearnerCheckpoint,
+    ModelTrainerCheckpoint, RolloutCheckpoint, RunBook,
+};
 use crate::sac_trainer::TrainError;
+use mbpo_core::Rng;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
 
@@ -48,6 +51,9 @@ pub struct Mbpo {
     learner: LearnerRole,
     /// Report of the last model training.
     pub last_model_report: Option<TrainReport>,
+    /// The run's book (episode ends, model MSEs, step times, rows): what a checkpoint keeps of
+    /// the run besides the roles, the same as `mbpo run`'s coordinator keeps.
+    pub book: RunBook,
 }
 
 impl Mbpo {
@@ -64,6 +70,7 @@ impl Mbpo {
             actor,
             learner,
             last_model_report: None,
+            book: RunBook::start(),
         };
         mbpo.actor.set_policy(&mbpo.learner.policy());
         Ok(mbpo)
@@ -86,10 +93,16 @@ impl Mbpo {
 
     /// One env step with `behaviour`, its transition handed to every role that keeps real data.
     fn act_and_distribute(&mut self, behaviour: Behaviour) {
+        let episodes = self.actor.env_actor().episodes;
         let rows = self.actor.act(behaviour);
         self.model_trainer.add_real(rows);
         self.rollout.add_real(rows);
         self.learner.add_real(rows);
+        let actor = self.actor.env_actor();
+        if actor.episodes > episodes {
+            let ret = actor.last_return.unwrap_or(f64::NAN);
+            self.book.episodes.push((actor.steps, ret));
+        }
     }
 
     /// One uniform-random env step into D_env (the warm-up before the loop).
@@ -122,6 +135,8 @@ impl Mbpo {
         report: TrainReport,
     ) -> Result<&TrainReport, TrainError> {
         self.rollout.set_model(&snapshot)?;
+        let mse = report.elite_holdout_mse();
+        self.book.models.insert(snapshot.version, mse);
         Ok(self.last_model_report.insert(report))
     }
 
@@ -158,7 +173,9 @@ impl Mbpo {
             self.warm_up_step();
             return Ok(true);
         }
-        if let Some(epoch) = self.schedule.train_point(t) {
+        // A checkpoint of a lockstep pipeline can hold the training of step t already.
+        let trained = self.model_trainer.version() >= self.schedule.train_points_upto(t);
+        if let Some(epoch) = self.schedule.train_point(t).filter(|_| !trained) {
             let Some(report) = self.train_model_unless(stop)? else {
                 return Ok(false);
             };
@@ -178,70 +195,124 @@ impl Mbpo {
     }
 }
 
-/// Role files of a checkpoint of a single-actor MBPO run (sequential, or a pipeline with one
-/// actor): the same files the pipeline's processes write.
-pub const CHECKPOINT_FILES: [&str; 5] = [
-    "actor-0.ckpt",
-    "model-trainer.ckpt",
-    "rollout-generator.ckpt",
-    "learner.ckpt",
-    "evaluator.ckpt",
-];
-
-/// Checkpoint kind of [`RunBook`].
-pub const EVALUATOR_KIND: &str = "mbpo.evaluator";
-
-/// What the run itself keeps besides the roles: the evaluator's stream and bookkeeping, the
-/// per-step timings for the summary, the last model report (for the metrics rows).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RunBook {
-    /// The evaluator.
-    pub evaluator: EvaluatorState,
-    /// Wall seconds of each env step after the warm-up.
-    pub step_seconds: Vec<f64>,
-    /// The last model training's report.
-    pub last_model_report: Option<TrainReport>,
-}
-
 impl Mbpo {
-    /// Write every role's state into the checkpoint directory `dir`.
-    pub fn write_checkpoint(&self, dir: &Path) -> Result<(), CheckpointError> {
+    /// Write the checkpoint after env step `t` into `dir`: the files of a one-actor pipeline
+    /// ([`crate::run_files`]), so `mbpo run --resume` continues it too. `book` is the run's
+    /// (the caller copies the evaluator's part into it).
+    pub fn write_checkpoint(
+        &self,
+        dir: &Path,
+        t: u64,
+        evaluator: &Evaluator,
+        book: &RunBook,
+    ) -> Result<(), CheckpointError> {
         std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
-        let [actor, trainer, rollout, learner, _] = CHECKPOINT_FILES;
-        checkpoint::write(&dir.join(actor), kind::ACTOR, &self.actor.checkpoint())?;
+        let k = self.model_trainer.version();
+        let actor = ActorCheckpoint {
+            role: self.actor.checkpoint(),
+            steps: t,
+        };
+        checkpoint::write(&dir.join(actor_file(0)), kind::ACTOR, &actor)?;
+        let trainer = ModelTrainerCheckpoint {
+            role: self.model_trainer.checkpoint(),
+        };
         checkpoint::write(
-            &dir.join(trainer),
+            &dir.join(file::MODEL_TRAINER),
             kind::MODEL_TRAINER,
-            &self.model_trainer.checkpoint(),
+            &trainer,
         )?;
-        checkpoint::write(
-            &dir.join(rollout),
-            kind::ROLLOUT,
-            &self.rollout.checkpoint(),
-        )?;
-        checkpoint::write(
-            &dir.join(learner),
-            kind::LEARNER,
-            &self.learner.checkpoint(),
-        )
+        let rollout = RolloutCheckpoint {
+            role: self.rollout.checkpoint(),
+            branches: k,
+        };
+        checkpoint::write(&dir.join(file::ROLLOUT), kind::ROLLOUT, &rollout)?;
+        let learner = LearnerCheckpoint {
+            role: self.learner.checkpoint(),
+            consumed: t,
+            updates: self.sac().updates(),
+            model_batches: k,
+            model_version: k,
+        };
+        checkpoint::write(&dir.join(file::LEARNER), kind::LEARNER, &learner)?;
+        let eval = EvaluatorCheckpoint {
+            rng: evaluator.rng().clone(),
+            version: t,
+            evals: (1..=t).filter(|&p| self.schedule.is_eval_point(p)).count() as u64,
+            env_steps: t,
+        };
+        checkpoint::write(&dir.join(file::EVALUATOR), kind::EVALUATOR, &eval)?;
+        checkpoint::write(&dir.join(file::RUN_BOOK), kind::RUN_BOOK, book)?;
+        let mut files = role_files();
+        files.push(file::RUN_BOOK.into());
+        let names: Vec<&str> = files.iter().map(String::as_str).collect();
+        checkpoint::mark_complete(dir, t, &names)
     }
 
-    /// Restore every role from the checkpoint directory `dir`.
-    pub fn restore_checkpoint(&mut self, dir: &Path) -> Result<(), TrainError> {
-        let [actor, trainer, rollout, learner, _] = CHECKPOINT_FILES;
-        self.actor
-            .restore(checkpoint::read(&dir.join(actor), kind::ACTOR)?)?;
-        self.model_trainer
-            .restore(checkpoint::read(&dir.join(trainer), kind::MODEL_TRAINER)?)?;
-        self.rollout
-            .restore(checkpoint::read(&dir.join(rollout), kind::ROLLOUT)?)?;
-        self.learner
-            .restore(checkpoint::read(&dir.join(learner), kind::LEARNER)?)?;
-        Ok(())
+    /// Restore every role from the checkpoint directory `dir` (after `t` env steps), written
+    /// by this trainer or by a one-actor `mbpo run`; returns the evaluator's stream and the
+    /// run book.
+    ///
+    /// A lockstep pipeline's cut can hold the model training (and rollouts) of step t + 1
+    /// already, which [`Mbpo::step_unless`] then does not repeat; a pipelined one stopped
+    /// during a training may lack one, which only `mbpo run` can continue.
+    pub fn restore_checkpoint(&mut self, dir: &Path, t: u64) -> Result<(Rng, RunBook), TrainError> {
+        if dir.join(actor_file(1)).exists() {
+            return Err(TrainError::Config(format!(
+                "{} is a checkpoint of `mbpo run` with several actors; `mbpo train` runs one: \
+                 resume it with `mbpo run --resume`",
+                dir.display()
+            )));
+        }
+        let read = |name: &str| dir.join(name);
+        let actor: ActorCheckpoint = checkpoint::read(&read(&actor_file(0)), kind::ACTOR)?;
+        let trainer: ModelTrainerCheckpoint =
+            checkpoint::read(&read(file::MODEL_TRAINER), kind::MODEL_TRAINER)?;
+        let rollout: RolloutCheckpoint = checkpoint::read(&read(file::ROLLOUT), kind::ROLLOUT)?;
+        let learner: LearnerCheckpoint = checkpoint::read(&read(file::LEARNER), kind::LEARNER)?;
+        let eval: EvaluatorCheckpoint = checkpoint::read(&read(file::EVALUATOR), kind::EVALUATOR)?;
+        let book: RunBook = checkpoint::read(&read(file::RUN_BOOK), kind::RUN_BOOK)?;
+        let k = trainer.role.version;
+        let (lo, hi) = (
+            self.schedule.train_points_upto(t),
+            self.schedule.train_points_upto(t + 1),
+        );
+        let consistent = actor.steps == t
+            && learner.consumed == t
+            && rollout.branches == k
+            && learner.model_batches == k;
+        if !consistent || !(lo..=hi).contains(&k) {
+            return Err(TrainError::Config(format!(
+                "{}: the roles are not all after step {t} with {lo} model trainings (actor {}, \
+                 learner {}, trainings {k}, branches {}, imagined batches {}); a pipelined run \
+                 stopped during a model training continues only under `mbpo run --resume`",
+                dir.display(),
+                actor.steps,
+                learner.consumed,
+                rollout.branches,
+                learner.model_batches
+            )));
+        }
+        self.actor.restore(actor.role)?;
+        self.model_trainer.restore(trainer.role)?;
+        self.rollout.restore(rollout.role)?;
+        self.learner.restore(learner.role)?;
+        Ok((eval.rng, book))
     }
+}
+
+/// The role files of an MBPO checkpoint with one actor (besides the run book), in the order
+/// of `mbpo run`'s role list.
+pub fn role_files() -> Vec<String> {
+    vec![
+        file::LEARNER.into(),
+        file::MODEL_TRAINER.into(),
+        file::ROLLOUT.into(),
+        file::EVALUATOR.into(),
+        actor_file(0),
+    ]
 }
 
 /// Run MBPO per `cfg`, writing the run directory `out`; returns the summary.
@@ -257,26 +328,18 @@ pub fn train_mbpo_with(
 ) -> Result<Summary, TrainError> {
     let mut mbpo = Mbpo::new(cfg)?;
     let mut evaluator = Evaluator::new(cfg)?;
-    let mut step_seconds = Vec::with_capacity(cfg.steps as usize);
-    let (mut run, done) = open_run(cfg, out, opts, |dir| {
-        mbpo.restore_checkpoint(dir)?;
-        let book: RunBook = checkpoint::read(&dir.join(CHECKPOINT_FILES[4]), EVALUATOR_KIND)?;
-        evaluator.restore(book.evaluator);
-        step_seconds = book.step_seconds;
-        mbpo.last_model_report = book.last_model_report;
+    let (mut run, done) = open_run(cfg, out, opts, |dir, t| {
+        let (rng, book) = mbpo.restore_checkpoint(dir, t)?;
+        evaluator.restore_book(rng, &book);
+        mbpo.book = book;
         Ok(())
     })?;
-    let save = |mbpo: &Mbpo, evaluator: &Evaluator, step_seconds: &[f64], t: u64| {
-        let dir = checkpoint::dir_for(out, t);
-        mbpo.write_checkpoint(&dir)?;
-        let book = RunBook {
-            evaluator: evaluator.checkpoint(),
-            step_seconds: step_seconds.to_vec(),
-            last_model_report: mbpo.last_model_report.clone(),
-        };
-        checkpoint::write(&dir.join(CHECKPOINT_FILES[4]), EVALUATOR_KIND, &book)?;
-        checkpoint::mark_complete(&dir, t, &CHECKPOINT_FILES)?;
-        checkpoint::prune(out, cfg.checkpoint.keep)
+    let save = |mbpo: &Mbpo, evaluator: &Evaluator, t: u64| -> Result<(), TrainError> {
+        let mut book = mbpo.book.clone();
+        evaluator.write_book(&mut book);
+        book.progress = (t, mbpo.sac().updates(), mbpo.model_trainer.version());
+        mbpo.write_checkpoint(&checkpoint::dir_for(out, t), t, evaluator, &book)?;
+        Ok(checkpoint::prune(out, cfg.checkpoint.keep)?)
     };
     let mut status = "completed";
     let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
@@ -285,23 +348,25 @@ pub fn train_mbpo_with(
         let started = Instant::now();
         if !mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
             // Stopped during the model training of step t, which was undone.
-            stop_before(t, |at| Ok(save(&mbpo, &evaluator, &step_seconds, at)?), out)?;
+            stop_before(t, |at| save(&mbpo, &evaluator, at), out)?;
             status = "stopped";
             break;
         }
         if !mbpo.schedule.is_warm_up(t) {
-            step_seconds.push(started.elapsed().as_secs_f64());
+            let seconds = started.elapsed().as_secs_f64();
+            mbpo.book.step_seconds.push(seconds);
         }
         if mbpo.schedule.is_eval_point(t) {
             let row = metrics_row(&mbpo, &mut evaluator, t);
             run.write_metrics(&row)?;
+            mbpo.book.next_row += 1;
             evaluator.log("mbpo", &row);
             progress.set_eval(row.eval_return);
         }
         progress.update(t, mbpo.sac().updates());
         let stopping = opts.stopping_at(t, cfg.steps);
         if checkpoint_due(cfg, t, stopping) {
-            save(&mbpo, &evaluator, &step_seconds, t)?;
+            save(&mbpo, &evaluator, t)?;
         }
         if stopping {
             log_stopped(t, out);
@@ -310,7 +375,7 @@ pub fn train_mbpo_with(
         }
     }
     progress.finish();
-    let mut sorted = step_seconds.clone();
+    let mut sorted = mbpo.book.step_seconds.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted.get(sorted.len() / 2).copied();
     let target = cfg.target_return();
@@ -327,7 +392,8 @@ pub fn train_mbpo_with(
     Ok(summary)
 }
 
-/// The metrics row of eval point `t`: evaluation, SAC statistics and the model's.
+/// The metrics row of eval point `t`: evaluation, SAC statistics and the model's (that of the
+/// newest training, as the pipeline's rows show the learner's newest imagined batch's).
 fn metrics_row(mbpo: &Mbpo, evaluator: &mut Evaluator, t: u64) -> MetricsRow {
     let learner = &mbpo.learner;
     let mut row = evaluator.evaluate(
@@ -336,13 +402,8 @@ fn metrics_row(mbpo: &Mbpo, evaluator: &mut Evaluator, t: u64) -> MetricsRow {
         &learner.last_stats,
         mbpo.actor.env_actor(),
     );
-    if let Some(r) = &mbpo.last_model_report {
-        let elites = &r.elites;
-        let mse: f64 = elites
-            .iter()
-            .map(|&e| r.final_holdout_mse[e] as f64)
-            .sum::<f64>()
-            / elites.len() as f64;
+    let version = mbpo.model_trainer.version();
+    if let Some(&mse) = mbpo.book.models.get(&version).filter(|_| version > 0) {
         row.model_holdout_mse = Some(mse);
         row.rollout_length = Some(learner.rollout_length as f64);
         row.model_buffer = Some(learner.model_buffer_len() as f64);

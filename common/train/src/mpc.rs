@@ -19,9 +19,13 @@ use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::{ExperimentConfig, PlanReward};
 use crate::progress::{Display, Progress};
-use crate::roles::{checkpoint_kind, ModelSnapshot, ModelTrainerRole, ModelTrainerState, Schedule};
+use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, RunOptions};
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
+use crate::run_files::{
+    actor_file, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
+    PlanningEvaluatorCheckpoint, RunBook,
+};
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
@@ -397,7 +401,9 @@ impl MpcRun {
         let behaviour = if self.schedule.is_warm_up(t) {
             Behaviour::Uniform
         } else {
-            if self.schedule.train_point(t).is_some() {
+            // A checkpoint of a lockstep pipeline can hold the training of step t already.
+            let trained = self.model_trainer.version() >= self.schedule.train_points_upto(t);
+            if self.schedule.train_point(t).is_some() && !trained {
                 let Some(r) = self.train_model_unless(stop)? else {
                     return Ok(false);
                 };
@@ -420,85 +426,90 @@ impl MpcRun {
     }
 }
 
-/// Mean elite holdout MSE of a training report (the `model_holdout_mse` column).
-pub fn elite_holdout_mse(r: &TrainReport) -> f64 {
-    r.elites
-        .iter()
-        .map(|&e| r.final_holdout_mse[e] as f64)
-        .sum::<f64>()
-        / r.elites.len().max(1) as f64
-}
-
-/// Role files of a checkpoint of a single-process MPC run.
-pub const CHECKPOINT_FILES: [&str; 3] = ["actor-0.ckpt", "model-trainer.ckpt", "evaluator.ckpt"];
-
-/// Checkpoint kinds of [`PlanningActorState`] and [`MpcBook`].
-pub mod kind {
-    /// [`super::PlanningActorState`].
-    pub const PLANNING_ACTOR: &str = "mbpo.planning-actor";
-    /// [`super::MpcBook`].
-    pub const BOOK: &str = "mbpo.mpc-run";
-}
-
-/// What the run itself keeps besides the roles: the evaluator's streams and the run's
-/// bookkeeping (returns, rates, planning times, the last model report).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MpcBook {
-    /// The evaluator.
-    pub evaluator: PlanningEvaluatorState,
-    /// Wall seconds of the run so far (the clock continues from here).
-    pub elapsed_seconds: f64,
-    /// Wall seconds and env steps at the last evaluation (for the rate column).
-    pub last_eval: (f64, u64),
-    /// Last and best evaluation return.
-    pub final_return: f64,
-    /// Best evaluation return.
-    pub best_return: f64,
-    /// Wall seconds of each planning step so far (the summary's median).
-    pub plan_seconds: Vec<f64>,
-    /// The last model training's report.
-    pub last_model_report: Option<TrainReport>,
-}
-
 impl MpcRun {
-    /// Write every role's state and `book` into the checkpoint directory `dir`.
-    fn write_checkpoint(&self, dir: &Path, book: &MpcBook) -> Result<(), CheckpointError> {
+    /// Write the checkpoint after env step `t` into `dir`: the files of a one-actor MPC
+    /// pipeline ([`crate::run_files`]), so `mbpo run --resume` continues it too.
+    fn write_checkpoint(&self, dir: &Path, t: u64, book: &RunBook) -> Result<(), CheckpointError> {
         std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
-        let [actor, trainer, evaluator] = CHECKPOINT_FILES;
+        let actor = PlanningActorCheckpoint {
+            role: self.actor.checkpoint(),
+            steps: t,
+        };
+        checkpoint::write(&dir.join(actor_file(0)), kind::PLANNING_ACTOR, &actor)?;
+        let trainer = ModelTrainerCheckpoint {
+            role: self.model_trainer.checkpoint(),
+        };
         checkpoint::write(
-            &dir.join(actor),
-            kind::PLANNING_ACTOR,
-            &self.actor.checkpoint(),
+            &dir.join(file::MODEL_TRAINER),
+            kind::MODEL_TRAINER,
+            &trainer,
         )?;
+        let evaluator = PlanningEvaluatorCheckpoint {
+            role: self.evaluator.checkpoint(),
+            evals: (1..=t).filter(|&p| self.schedule.is_eval_point(p)).count() as u64,
+            env_steps: t,
+        };
         checkpoint::write(
-            &dir.join(trainer),
-            checkpoint_kind::MODEL_TRAINER,
-            &self.model_trainer.checkpoint(),
+            &dir.join(file::EVALUATOR),
+            kind::PLANNING_EVALUATOR,
+            &evaluator,
         )?;
-        checkpoint::write(&dir.join(evaluator), kind::BOOK, book)
+        checkpoint::write(&dir.join(file::RUN_BOOK), kind::RUN_BOOK, book)?;
+        let files = [
+            file::MODEL_TRAINER.to_string(),
+            file::EVALUATOR.into(),
+            actor_file(0),
+            file::RUN_BOOK.into(),
+        ];
+        let names: Vec<&str> = files.iter().map(String::as_str).collect();
+        checkpoint::mark_complete(dir, t, &names)
     }
 
-    /// Restore every role from the checkpoint directory `dir`; returns the run's book. The
-    /// actor and the evaluator get the trainer's current model, the one they had.
-    fn restore_checkpoint(&mut self, dir: &Path) -> Result<MpcBook, TrainError> {
-        let [actor, trainer, evaluator] = CHECKPOINT_FILES;
-        let trainer: ModelTrainerState =
-            checkpoint::read(&dir.join(trainer), checkpoint_kind::MODEL_TRAINER)?;
-        self.model_trainer.restore(trainer)?;
-        let actor: PlanningActorState = checkpoint::read(&dir.join(actor), kind::PLANNING_ACTOR)?;
-        self.actor.restore(actor)?;
-        let book: MpcBook = checkpoint::read(&dir.join(evaluator), kind::BOOK)?;
-        self.evaluator.restore(book.evaluator.clone());
+    /// Restore every role from the checkpoint directory `dir` (after `t` env steps), written
+    /// by this trainer or by a one-actor `mbpo run`; returns the run's book. The actor and the
+    /// evaluator get the trainer's current model, the one they had. (A lockstep pipeline's cut
+    /// can hold the model training of step t + 1 already, which [`MpcRun::step_unless`] then
+    /// does not repeat.)
+    fn restore_checkpoint(&mut self, dir: &Path, t: u64) -> Result<RunBook, TrainError> {
+        if dir.join(actor_file(1)).exists() {
+            return Err(TrainError::Config(format!(
+                "{} is a checkpoint of `mbpo run` with several actors; `mbpo train` runs one: \
+                 resume it with `mbpo run --resume`",
+                dir.display()
+            )));
+        }
+        let trainer: ModelTrainerCheckpoint =
+            checkpoint::read(&dir.join(file::MODEL_TRAINER), kind::MODEL_TRAINER)?;
+        let actor: PlanningActorCheckpoint =
+            checkpoint::read(&dir.join(actor_file(0)), kind::PLANNING_ACTOR)?;
+        let evaluator: PlanningEvaluatorCheckpoint =
+            checkpoint::read(&dir.join(file::EVALUATOR), kind::PLANNING_EVALUATOR)?;
+        let book: RunBook = checkpoint::read(&dir.join(file::RUN_BOOK), kind::RUN_BOOK)?;
+        let k = trainer.role.version;
+        let (lo, hi) = (
+            self.schedule.train_points_upto(t),
+            self.schedule.train_points_upto(t + 1),
+        );
+        if actor.steps != t || !(lo..=hi).contains(&k) {
+            return Err(TrainError::Config(format!(
+                "{}: the roles are not all after step {t} with {lo} model trainings (actor {}, \
+                 trainings {k})",
+                dir.display(),
+                actor.steps
+            )));
+        }
+        self.model_trainer.restore(trainer.role)?;
+        self.actor.restore(actor.role)?;
+        self.evaluator.restore(evaluator.role);
         if self.model_trainer.version() > 0 {
             let snapshot = self.model_trainer.snapshot();
             self.actor.set_model(&snapshot)?;
             self.evaluator.set_model(&snapshot)?;
             self.model_params = snapshot.weights.params;
         }
-        self.last_model_report = book.last_model_report.clone();
         Ok(book)
     }
 }
@@ -521,44 +532,35 @@ pub fn train_mpc_with(
     opts: RunOptions,
 ) -> Result<Summary, TrainError> {
     let mut mpc = MpcRun::new(cfg)?;
-    let mut book = MpcBook {
-        evaluator: mpc.evaluator.checkpoint(),
-        elapsed_seconds: 0.0,
-        last_eval: (0.0, 0),
-        final_return: f64::NAN,
-        best_return: f64::NEG_INFINITY,
-        plan_seconds: Vec::with_capacity(cfg.steps as usize),
-        last_model_report: None,
-    };
-    let (mut run, done) = open_run(cfg, out, opts, |dir| {
-        book = mpc.restore_checkpoint(dir)?;
+    let mut book = RunBook::start();
+    let (mut run, done) = open_run(cfg, out, opts, |dir, t| {
+        book = mpc.restore_checkpoint(dir, t)?;
         Ok(())
     })?;
     // The clock continues from the checkpoint's.
     let started = Instant::now()
         .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
         .unwrap_or_else(Instant::now);
-    let save = |mpc: &MpcRun, book: &mut MpcBook, t: u64| -> Result<(), TrainError> {
-        let dir = checkpoint::dir_for(out, t);
-        book.evaluator = mpc.evaluator.checkpoint();
+    let save = |mpc: &MpcRun, book: &mut RunBook, t: u64| -> Result<(), TrainError> {
         book.elapsed_seconds = started.elapsed().as_secs_f64();
-        book.last_model_report = mpc.last_model_report.clone();
-        mpc.write_checkpoint(&dir, book)?;
-        checkpoint::mark_complete(&dir, t, &CHECKPOINT_FILES)?;
+        book.progress = (t, 0, mpc.model_trainer.version());
+        mpc.write_checkpoint(&checkpoint::dir_for(out, t), t, book)?;
         Ok(checkpoint::prune(out, cfg.checkpoint.keep)?)
     };
     let mut status = "completed";
     let label = format!("mpc {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto()).counting("plans");
     for t in done + 1..=cfg.steps {
+        let (version, episodes) = (mpc.model_trainer.version(), mpc.actor.env_actor().episodes);
         if !mpc.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
             // Stopped during the model training of step t, which was undone.
             stop_before(t, |at| save(&mpc, &mut book, at), out)?;
             status = "stopped";
             break;
         }
+        record_step(&mpc, &mut book, version, episodes);
         if !mpc.schedule.is_warm_up(t) {
-            book.plan_seconds.push(mpc.actor.last_plan_seconds);
+            book.step_seconds.push(mpc.actor.last_plan_seconds);
         }
         if mpc.schedule.is_eval_point(t) {
             // (Not while warming up: there is no model to plan with.)
@@ -589,7 +591,7 @@ pub fn train_mpc_with(
         }
     }
     progress.finish();
-    let mut sorted = book.plan_seconds.clone();
+    let mut sorted = book.step_seconds.clone();
     sorted.sort_by(f64::total_cmp);
     let target_return = cfg.target_return();
     let summary = Summary {
@@ -612,31 +614,43 @@ pub fn train_mpc_with(
     Ok(summary)
 }
 
+/// Keep what step t added in the run's book: its model's holdout MSE (when it trained one
+/// since `version`) and the episode it ended (when the actor had `episodes` before).
+fn record_step(mpc: &MpcRun, book: &mut RunBook, version: u64, episodes: u64) {
+    let v = mpc.model_trainer.version();
+    if let Some(r) = mpc.last_model_report.as_ref().filter(|_| v > version) {
+        book.models.insert(v, r.elite_holdout_mse());
+    }
+    let actor = mpc.actor.env_actor();
+    if actor.episodes > episodes {
+        let ret = actor.last_return.unwrap_or(f64::NAN);
+        book.episodes.push((actor.steps, ret));
+    }
+}
+
 /// Evaluate the planner on the current model at env step `t` and build the metrics row.
 fn evaluate_at(
     mpc: &mut MpcRun,
-    book: &mut MpcBook,
+    book: &mut RunBook,
     t: u64,
     started: Instant,
     episodes: usize,
 ) -> Result<MetricsRow, TrainError> {
     let ret = mpc.evaluate(episodes)?;
-    if ret.is_finite() {
-        book.final_return = ret;
-        book.best_return = book.best_return.max(ret);
-    }
     let now = started.elapsed().as_secs_f64();
-    let (last_time, last_steps) = book.last_eval;
-    book.last_eval = (now, t);
+    let (last_time, last_steps) = book.last_row;
     let actor = mpc.actor.env_actor();
-    Ok(MetricsRow {
+    let version = mpc.model_trainer.version();
+    let row = MetricsRow {
         env_steps: t,
         episodes: actor.episodes,
         eval_return: ret,
         train_return: actor.last_return,
-        model_holdout_mse: mpc.last_model_report.as_ref().map(elite_holdout_mse),
+        model_holdout_mse: book.models.get(&version).copied().filter(|_| version > 0),
         wall_seconds: now,
         env_steps_per_sec: (t - last_steps) as f64 / (now - last_time).max(1e-9),
         ..Default::default()
-    })
+    };
+    book.wrote_row(t, ret, now, 0);
+    Ok(row)
 }

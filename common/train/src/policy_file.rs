@@ -4,11 +4,11 @@
 //! ran it (`mbpo train` for SAC or MBPO, `mbpo run` for the pipeline): the pipeline's periodic
 //! checkpoints rarely fall on the last step, so without this file the policy a completed run
 //! ended with would be lost. A run that was stopped, crashed or is still running has its
-//! policy only in its newest checkpoint, in one of three layouts ([`newest_policy`] reads all
-//! of them and takes whichever of the two is newer).
+//! policy only in its newest checkpoint: the learner's file of an MBPO run (either command) or
+//! the SAC trainer's ([`newest_policy`] reads both and takes whichever of the two is newer).
 
 use crate::checkpoint::{self, CheckpointError};
-use crate::roles::{checkpoint_kind, pipeline_learner, LearnerCheckpoint, LearnerState};
+use crate::run_files::{self, LearnerCheckpoint};
 use crate::sac_trainer::{checkpointed_actor_params, TrainError, SAC_CHECKPOINT_FILE};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -91,14 +91,9 @@ fn checkpointed_policy(
     manifest: &checkpoint::Manifest,
 ) -> Result<FoundPolicy, TrainError> {
     let has = |name: &str| manifest.files.iter().any(|f| f == name);
-    let sequential_learner = crate::mbpo_trainer::CHECKPOINT_FILES[3];
-    let (file, actor_params) = if has(sequential_learner) {
-        let path = dir.join(sequential_learner);
-        let learner: LearnerState = checkpoint::read(&path, checkpoint_kind::LEARNER)?;
-        (path, learner.sac.actor_params)
-    } else if has(pipeline_learner::FILE) {
-        let path = dir.join(pipeline_learner::FILE);
-        let learner: LearnerCheckpoint = checkpoint::read(&path, pipeline_learner::KIND)?;
+    let (file, actor_params) = if has(run_files::file::LEARNER) {
+        let path = dir.join(run_files::file::LEARNER);
+        let learner: LearnerCheckpoint = checkpoint::read(&path, run_files::kind::LEARNER)?;
         (path, learner.role.sac.actor_params)
     } else if has(SAC_CHECKPOINT_FILE) {
         (
@@ -147,16 +142,16 @@ mod tests {
         // An older checkpoint is not even read: a damaged one cannot hide the final policy.
         let older = checkpoint::dir_for(&run, 400);
         std::fs::create_dir_all(&older).unwrap();
-        std::fs::write(older.join("learner.ckpt"), b"damaged").unwrap();
-        checkpoint::mark_complete(&older, 400, &["learner.ckpt"]).unwrap();
+        std::fs::write(older.join("learner"), b"damaged").unwrap();
+        checkpoint::mark_complete(&older, 400, &["learner"]).unwrap();
         assert_eq!(newest_policy(&run).unwrap().policy.env_steps, 500);
         // A newer one is, and its damage is reported.
         let newer = checkpoint::dir_for(&run, 600);
         std::fs::create_dir_all(&newer).unwrap();
-        std::fs::write(newer.join("learner.ckpt"), b"damaged").unwrap();
-        checkpoint::mark_complete(&newer, 600, &["learner.ckpt"]).unwrap();
+        std::fs::write(newer.join("learner"), b"damaged").unwrap();
+        checkpoint::mark_complete(&newer, 600, &["learner"]).unwrap();
         let err = newest_policy(&run).unwrap_err().to_string();
-        assert!(err.contains("learner.ckpt"), "{err}");
+        assert!(err.contains("learner"), "{err}");
         let _ = std::fs::remove_dir_all(&run);
     }
 }

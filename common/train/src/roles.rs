@@ -26,18 +26,6 @@ use mbpo_model::{
 use mbpo_sac::{ActorPolicy, Sac, SacState, SacStats, TanhGaussianActor};
 use serde::{Deserialize, Serialize};
 
-/// Checkpoint kinds (the `kind` field of a checkpoint file) and file names of the roles.
-pub mod checkpoint_kind {
-    /// [`super::ActorState`].
-    pub const ACTOR: &str = "mbpo.actor";
-    /// [`super::ModelTrainerState`].
-    pub const MODEL_TRAINER: &str = "mbpo.model-trainer";
-    /// [`super::RolloutState`].
-    pub const ROLLOUT: &str = "mbpo.rollout-generator";
-    /// [`super::LearnerState`].
-    pub const LEARNER: &str = "mbpo.learner";
-}
-
 fn restore_err(role: &str, e: impl std::fmt::Display) -> TrainError {
     TrainError::Config(format!(
         "cannot restore the {role} from its checkpoint: {e}"
@@ -104,31 +92,6 @@ pub struct LearnerState {
     pub last_stats: SacStats,
     /// Rollout length of the last imagined batch.
     pub rollout_length: usize,
-}
-
-/// The pipeline learner's checkpoint file (`mbpo run`): the role plus the service's loop
-/// counters. It lives here, next to the role, so that tools reading a run's policy
-/// ([`crate::policy_file`]) need not depend on the services.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct LearnerCheckpoint {
-    /// The role (SAC, D_env, D_model, streams).
-    pub role: LearnerState,
-    /// Env steps consumed and published (= T).
-    pub consumed: u64,
-    /// SAC updates done.
-    pub updates: u64,
-    /// Imagined batches received (= K).
-    pub model_batches: u64,
-    /// Model version of the newest imagined batch.
-    pub model_version: u64,
-}
-
-/// File name and kind of [`LearnerCheckpoint`] in a pipeline checkpoint directory.
-pub mod pipeline_learner {
-    /// The file name.
-    pub const FILE: &str = "learner";
-    /// The checkpoint kind.
-    pub const KIND: &str = "mbpo.pipeline.learner";
 }
 
 pub use crate::schedule::Schedule;

@@ -41,7 +41,7 @@ pub fn latest_checkpoint(out: &Path) -> Result<(PathBuf, checkpoint::Manifest), 
 
 /// Open the run directory `out` of a run of `cfg`, returning it and the env steps already
 /// done: a fresh directory, or (with `opts.resume`) the newest checkpoint handed to `restore`
-/// and the directory reopened after the checkpoint's step.
+/// (its directory and env steps) and the directory reopened after the checkpoint's step.
 ///
 /// A checkpoint after more steps than the run has is refused before anything is read: the
 /// run would end at once with a summary that claims `steps` it never stopped at.
@@ -49,7 +49,7 @@ pub(crate) fn open_run(
     cfg: &ExperimentConfig,
     out: &Path,
     opts: RunOptions,
-    restore: impl FnOnce(&Path) -> Result<(), TrainError>,
+    restore: impl FnOnce(&Path, u64) -> Result<(), TrainError>,
 ) -> Result<(RunDir, u64), TrainError> {
     if !opts.resume {
         return Ok((RunDir::create(out, cfg)?, 0));
@@ -63,7 +63,7 @@ pub(crate) fn open_run(
             cfg.steps
         )));
     }
-    restore(&dir)?;
+    restore(&dir, done)?;
     tracing::info!(
         "resuming {} from its checkpoint after {done} env steps",
         out.display()
@@ -154,7 +154,7 @@ mod tests {
             resume: true,
             ..Default::default()
         };
-        let err = open_run(&cfg, &out, resume, |_| panic!("restored"))
+        let err = open_run(&cfg, &out, resume, |_, _| panic!("restored"))
             .unwrap_err()
             .to_string();
         assert!(

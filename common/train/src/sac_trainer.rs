@@ -87,7 +87,7 @@ pub fn train_sac_with(
     let mut evaluator = Evaluator::new(cfg)?;
     let schedule = crate::Schedule::of(cfg);
     let mut stats = SacStats::default();
-    let (mut run, done) = open_run(cfg, out, opts, |dir| {
+    let (mut run, done) = open_run(cfg, out, opts, |dir, _| {
         let path = dir.join(SAC_CHECKPOINT_FILE);
         let state: SacRunState = checkpoint::read(&path, SAC_CHECKPOINT_KIND)?;
         let bad = |e: String| TrainError::Config(format!("{}: {e}", path.display()));

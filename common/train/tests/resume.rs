@@ -145,9 +145,9 @@ fn stopped_during_the_model_training_of_301(cfg: &ExperimentConfig, full: &Path,
         (stopped.status.as_str(), stopped.env_steps),
         ("stopped", 300)
     );
-    // Every role's file (the fifth, the run's book, holds the wall clock).
-    let roles = &mbpo_train::mbpo_trainer::CHECKPOINT_FILES[..4];
-    assert_same_checkpoint(full, &run, 300, roles);
+    // Every role's file (not the run's book: it holds the wall clock).
+    let roles = mbpo_train::mbpo_trainer::role_files();
+    assert_same_checkpoint(full, &run, 300, &roles);
     let done = train_mbpo_with(
         cfg,
         &run,
@@ -164,7 +164,7 @@ fn stopped_during_the_model_training_of_301(cfg: &ExperimentConfig, full: &Path,
 }
 
 /// The newest checkpoint of `b` is the one of step `at`, and each of `files` in it equals `a`'s.
-fn assert_same_checkpoint(a: &Path, b: &Path, at: u64, files: &[&str]) {
+fn assert_same_checkpoint(a: &Path, b: &Path, at: u64, files: &[String]) {
     let (_, newest) = checkpoint::latest(b).unwrap().unwrap();
     assert_eq!(newest.env_steps, at);
     for f in files {
@@ -199,10 +199,8 @@ fn mbpo_on_halfcheetah_resumed_mid_episode_equals_the_uninterrupted_run() {
     // The f32 data the learner sees can hide a drift in the last bits of the simulation for a
     // while; the actor's final checkpoint holds the f64 physical state itself.
     let actor_at_end = |run: &Path| {
-        std::fs::read(
-            checkpoint::dir_for(run, 450).join(mbpo_train::mbpo_trainer::CHECKPOINT_FILES[0]),
-        )
-        .unwrap()
+        std::fs::read(checkpoint::dir_for(run, 450).join(mbpo_train::run_files::actor_file(0)))
+            .unwrap()
     };
     assert!(
         actor_at_end(&crashed) == actor_at_end(&full),
@@ -298,14 +296,11 @@ fn damaged_or_missing_checkpoints_are_clear_errors_not_fresh_starts() {
     train_mbpo(&cfg, &run).unwrap();
     let (latest, manifest) = checkpoint::latest(&run).unwrap().unwrap();
     assert_eq!(manifest.env_steps, 210);
-    let learner = latest.join("learner.ckpt");
+    let learner = latest.join("learner");
     let bytes = std::fs::read(&learner).unwrap();
     std::fs::write(&learner, &bytes[..bytes.len() / 2]).unwrap();
     let err = train_mbpo_with(&cfg, &run, opts).unwrap_err().to_string();
-    assert!(
-        err.contains("truncated") && err.contains("learner.ckpt"),
-        "{err}"
-    );
+    assert!(err.contains("learner: truncated"), "{err}");
     let mut flipped = bytes.clone();
     let mid = flipped.len() / 2;
     flipped[mid] ^= 0x40;

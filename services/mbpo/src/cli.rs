@@ -250,8 +250,9 @@ pub enum RestartPolicy {
 
 #[derive(Debug, Clone, Args)]
 pub struct RunArgs {
-    /// Continue the pipeline run in this directory from its newest complete checkpoint, with
-    /// its config, mode, actors and slack (`--steps` may extend it).
+    /// Continue the run in this directory from its newest complete checkpoint, with its config,
+    /// mode, actors and slack (`--steps` may extend it). An MBPO run checkpointed by `mbpo
+    /// train` continues with one actor in the `--mode` given (lockstep: bit for bit).
     #[arg(long, value_name = "RUN_DIR", conflicts_with_all = ["config", "overrides", "seed", "out", "overwrite"])]
     pub resume: Option<std::path::PathBuf>,
     #[command(flatten)]

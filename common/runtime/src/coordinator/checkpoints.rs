@@ -15,10 +15,11 @@ use mbpo_wire::BarrierReport;
 use mbpo_wire::{ProducerId, Role};
 use serde::{Deserialize, Serialize};
 
-use super::collect::CollectorBook;
+use crate::barrier::RunBook;
 
-/// The supervisor's file of a checkpoint.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// The launcher's file of a checkpoint: how the pipeline ran (a checkpoint of `mbpo train` has
+/// none: one actor, and the mode and slack `mbpo run --resume` is given).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SupervisorCheckpoint {
     /// Hand-off mode of the run (a resumed run keeps it).
     pub mode: Mode,
@@ -26,10 +27,19 @@ pub struct SupervisorCheckpoint {
     pub actors: u16,
     /// Slack of the run.
     pub slack: Slack,
-    /// Metrics bookkeeping.
-    pub book: CollectorBook,
-    /// Wall seconds of the run so far (the clock continues from here).
-    pub elapsed_seconds: f64,
+}
+
+/// A complete checkpoint to resume from, every file checked.
+#[derive(Debug, Clone)]
+pub struct ResumePoint {
+    /// Its directory.
+    pub dir: std::path::PathBuf,
+    /// Its env step T.
+    pub env_steps: u64,
+    /// The launcher's file (`None`: written by `mbpo train`, one actor).
+    pub supervisor: Option<SupervisorCheckpoint>,
+    /// The run's book.
+    pub book: RunBook,
 }
 
 /// One checkpoint barrier under way.
@@ -63,7 +73,7 @@ impl Barrier {
             cut: None,
             written: BTreeSet::new(),
             pausing: barrier::pausing_processes(algo, actors),
-            files: barrier::pipeline_files(algo, actors).len() - 1,
+            files: crate::pipeline::roles(algo, actors).len(),
             warnings: 0,
             algo,
         }
@@ -143,15 +153,22 @@ impl Barrier {
     }
 }
 
-/// Write the supervisor's file and `COMPLETE`, then keep the newest `keep` checkpoints.
+/// Write the run book, the launcher's file and `COMPLETE`, then keep the newest `keep`
+/// checkpoints.
 pub fn finish(
     run: &Path,
     algo: Algo,
     cut: Cut,
     state: &SupervisorCheckpoint,
+    book: &RunBook,
     keep: usize,
 ) -> Result<()> {
     let dir = checkpoint::dir_for(run, cut.env_steps);
+    checkpoint::write(
+        &dir.join(barrier::file::RUN_BOOK),
+        barrier::kind::RUN_BOOK,
+        book,
+    )?;
     checkpoint::write(
         &dir.join(barrier::file::SUPERVISOR),
         barrier::kind::SUPERVISOR,
@@ -164,12 +181,10 @@ pub fn finish(
     Ok(())
 }
 
-/// The newest complete checkpoint of `run` (a pipeline running `algo`), every file checked
-/// (header, kind and checksum), and the supervisor's state in it.
-pub fn latest_verified(
-    run: &Path,
-    algo: Algo,
-) -> Result<(std::path::PathBuf, u64, SupervisorCheckpoint)> {
+/// The newest complete checkpoint of `run` (of a run of `algo`, by either command), every file
+/// checked (header, kind and checksum). A checkpoint of `mbpo train` has no launcher's file
+/// and one actor.
+pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
     let Some((dir, manifest)) = checkpoint::latest(run)? else {
         return Err(RuntimeError::Resume(format!(
             "{} has no complete checkpoint (nothing under {}); start a new run instead",
@@ -178,18 +193,37 @@ pub fn latest_verified(
         )));
     };
     let sup_path = dir.join(barrier::file::SUPERVISOR);
-    if !sup_path.is_file() {
-        return Err(RuntimeError::Resume(format!(
-            "{} is not a checkpoint of `mbpo run` (no {} file); resume it with `mbpo train --resume`",
-            dir.display(),
-            barrier::file::SUPERVISOR
-        )));
+    let supervisor: Option<SupervisorCheckpoint> = match sup_path.is_file() {
+        true => Some(checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?),
+        false => None,
+    };
+    let actors = supervisor.map_or(1, |s| s.actors);
+    let files = match supervisor {
+        Some(_) => barrier::pipeline_files(algo, actors),
+        None => barrier::role_files(algo, actors),
+    };
+    for (name, kind) in files {
+        let path = dir.join(&name);
+        if !path.is_file() {
+            let mpc = match algo {
+                Algo::Mpc => " (`mbpo train` writes MPC checkpoints of its own, which only `mbpo train --resume` continues)",
+                _ => "",
+            };
+            return Err(RuntimeError::Resume(format!(
+                "{} holds no {name} file: it is not a checkpoint of an {} run with {actors} actor(s){mpc}",
+                dir.display(),
+                algo.name()
+            )));
+        }
+        checkpoint::verify(&path, kind)?;
     }
-    let state: SupervisorCheckpoint = checkpoint::read(&sup_path, barrier::kind::SUPERVISOR)?;
-    for (name, kind) in barrier::pipeline_files(algo, state.actors) {
-        checkpoint::verify(&dir.join(&name), kind)?;
-    }
-    Ok((dir, manifest.env_steps, state))
+    let book = checkpoint::read(&dir.join(barrier::file::RUN_BOOK), barrier::kind::RUN_BOOK)?;
+    Ok(ResumePoint {
+        dir,
+        env_steps: manifest.env_steps,
+        supervisor,
+        book,
+    })
 }
 
 #[cfg(test)]

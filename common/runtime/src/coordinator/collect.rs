@@ -13,7 +13,7 @@ use mbpo_train::progress::Progress;
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{Done, LearnerRow, ProducerId, Role, Stats};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use super::RunPlan;
 
@@ -98,55 +98,10 @@ pub struct PipelineSummary {
     pub ipc_leftovers: Vec<String>,
 }
 
-/// The collector's bookkeeping at a checkpoint (every row ≤ T is written by then, or its
-/// evaluation kept in `unwritten_evals`), so a resumed run continues its rows, episode count,
-/// best return and clock.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct CollectorBook {
-    next_row: usize,
-    episodes: Vec<(u64, f64)>,
-    models: BTreeMap<u64, f64>,
-    progress: (u64, u64, u64),
-    last_row: (f64, u64),
-    last_row_updates: u64,
-    final_return: f64,
-    best_return: f64,
-    last_eval: Option<f64>,
-    /// Process restarts.
-    pub restarts: u32,
-    /// Evaluations at or before the checkpoint's step whose row was not written yet (MPC,
-    /// pipelined: an actor behind the others had not reached them), as (eval point, return,
-    /// model version). The evaluator's file is after them, so they are not evaluated again.
-    unwritten_evals: Vec<(u64, f64, u64)>,
-}
-
-impl CollectorBook {
-    /// The book of a run that has not started.
-    pub fn start() -> Self {
-        Self {
-            next_row: 0,
-            episodes: Vec::new(),
-            models: BTreeMap::new(),
-            progress: (0, 0, 0),
-            last_row: (0.0, 0),
-            last_row_updates: 0,
-            final_return: f64::NAN,
-            best_return: f64::NEG_INFINITY,
-            last_eval: None,
-            restarts: 0,
-            unwritten_evals: Vec::new(),
-        }
-    }
-
-    /// The metrics rows a run resumed from this book keeps: those up to the checkpoint's step
-    /// `env_steps`, except the ones of its unwritten evaluations (written after the checkpoint
-    /// by the attempt being abandoned; the book writes them again).
-    pub fn rows_upto(&self, env_steps: u64) -> u64 {
-        self.unwritten_evals
-            .first()
-            .map_or(env_steps, |&(t, _, _)| t - 1)
-    }
-}
+/// The collector's bookkeeping, what a checkpoint keeps of it: every row ≤ T is written by
+/// then, or its evaluation kept in `unwritten_evals`, so a resumed run continues its rows,
+/// episode count, best return and clock.
+pub use mbpo_train::run_files::RunBook;
 
 /// What the supervisor knows about the run.
 pub struct Collector {
@@ -162,7 +117,7 @@ pub struct Collector {
     /// MPC: the last global step each actor reported (`u64::MAX` once done).
     actor_steps: BTreeMap<ProducerId, u64>,
     /// Rows, returns, counters: what a checkpoint keeps.
-    pub book: CollectorBook,
+    pub book: RunBook,
 }
 
 impl Collector {
@@ -179,7 +134,7 @@ impl Collector {
             learner: BTreeMap::new(),
             done: BTreeMap::new(),
             actor_steps: BTreeMap::new(),
-            book: CollectorBook::start(),
+            book: RunBook::start(),
         }
     }
 
@@ -204,9 +159,9 @@ impl Collector {
         }
     }
 
-    /// The book of a checkpoint after step `t` (with its evaluations whose rows are not
-    /// written yet).
-    pub fn book_at(&self, t: u64) -> CollectorBook {
+    /// The book of a checkpoint after step `t` at `elapsed` wall seconds (with its
+    /// evaluations whose rows are not written yet).
+    pub fn book_at(&self, t: u64, elapsed: f64) -> RunBook {
         let unwritten_evals = self
             .rows_unwritten_upto(t)
             .filter_map(|p| {
@@ -214,8 +169,9 @@ impl Collector {
                 Some((p, *self.evals.get(&p)?, version))
             })
             .collect();
-        CollectorBook {
+        RunBook {
             unwritten_evals,
+            elapsed_seconds: elapsed,
             ..self.book.clone()
         }
     }
@@ -224,7 +180,7 @@ impl Collector {
     /// row written: a run extended past its old end (`--resume RUN --steps N`) has other eval
     /// points than the run that wrote the book (the old last step was one), so a row count
     /// would skip one.
-    pub fn restore(&mut self, mut book: CollectorBook) {
+    pub fn restore(&mut self, mut book: RunBook) {
         let last_written = book.last_row.1;
         book.next_row = self.eval_points.partition_point(|&p| p <= last_written);
         for &(t, ret, version) in &book.unwritten_evals {
@@ -330,8 +286,6 @@ impl Collector {
             let dt = (now - self.book.last_row.0).max(1e-9);
             let sps = (t - self.book.last_row.1) as f64 / dt;
             let ups = lr.sac_updates.saturating_sub(self.book.last_row_updates) as f64 / dt;
-            self.book.last_row = (now, t);
-            self.book.last_row_updates = lr.sac_updates;
             let row = MetricsRow {
                 env_steps: t,
                 episodes: done.len() as u64,
@@ -356,10 +310,7 @@ impl Collector {
                 lr.sac_updates,
                 lr.alpha
             );
-            self.book.final_return = ret;
-            self.book.best_return = self.book.best_return.max(ret);
-            self.book.last_eval = Some(ret);
-            self.book.next_row += 1;
+            self.book.wrote_row(t, ret, now, lr.sac_updates);
         }
         Ok(())
     }
@@ -523,21 +474,21 @@ fn mpc_row(t: u64, model_version: u64) -> LearnerRow {
 mod tests {
     use super::*;
 
-    fn book(unwritten_evals: Vec<(u64, f64, u64)>) -> CollectorBook {
-        CollectorBook {
+    fn book(unwritten_evals: Vec<(u64, f64, u64)>) -> RunBook {
+        RunBook {
             next_row: 8,
             unwritten_evals,
-            ..CollectorBook::start()
+            ..RunBook::start()
         }
     }
 
     #[test]
     fn an_extended_run_writes_the_row_of_every_new_eval_point() {
         // Written by a 500-step run: rows 200, 400 and its last step 500 (3 rows).
-        let written = CollectorBook {
+        let written = RunBook {
             next_row: 3,
             last_row: (1.0, 500),
-            ..CollectorBook::start()
+            ..RunBook::start()
         };
         // Extended to 700 steps: eval points 200, 400, 600, 700; the next row is 600's.
         let mut cfg = ExperimentConfig {

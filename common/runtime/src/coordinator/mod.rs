@@ -29,7 +29,7 @@ use crate::error::ensure_protocol;
 use crate::process::Dims;
 use crate::{Result, RuntimeError};
 use checkpoints::{Barrier, SupervisorCheckpoint};
-use collect::{Collector, PipelineSummary};
+use collect::{Collector, PipelineSummary, RunBook};
 pub use signal::{on_signal, OnSignal, RunState};
 
 /// What a run is: its id and how its roles hand work to each other.
@@ -115,13 +115,14 @@ pub struct Coordinator {
 
 impl Coordinator {
     /// The coordinator of the run `cfg` (of sizes `dims`) in `out`, from the start or from a
-    /// checkpoint after `resume.0` env steps; `restarts` so far (`--restart on-failure`).
+    /// checkpoint after `resume.0` env steps with book `resume.1`; `restarts` so far
+    /// (`--restart on-failure`).
     pub fn new(
         cfg: &ExperimentConfig,
         dims: Dims,
         plan: RunPlan,
         out: &Path,
-        resume: Option<(u64, SupervisorCheckpoint)>,
+        resume: Option<(u64, RunBook)>,
         restarts: u32,
     ) -> Self {
         let schedule = Schedule::of(cfg);
@@ -129,8 +130,8 @@ impl Coordinator {
         let every = cfg.checkpoint.every;
         let mut next_checkpoint = every;
         let mut last_checkpoint = 0;
-        if let Some((env_steps, state)) = resume {
-            collector.restore(state.book);
+        if let Some((env_steps, book)) = resume {
+            collector.restore(book);
             next_checkpoint = env_steps + every;
             last_checkpoint = env_steps;
         }
@@ -263,14 +264,16 @@ impl Coordinator {
             mode: self.plan.mode,
             actors: self.plan.actors,
             slack: self.plan.slack,
-            book: self.collector.book_at(cut.env_steps),
-            elapsed_seconds: started.elapsed().as_secs_f64(),
         };
+        let book = self
+            .collector
+            .book_at(cut.env_steps, started.elapsed().as_secs_f64());
         checkpoints::finish(
             &self.out,
             self.cfg.algo,
             cut,
             &state,
+            &book,
             self.cfg.checkpoint.keep,
         )?;
         tracing::info!(

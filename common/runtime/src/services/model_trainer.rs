@@ -108,13 +108,8 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         train_points.next();
         let seconds = started.elapsed().as_secs_f64();
         version = snapshot.version;
-        // The same number the sequential metrics row shows: mean elite holdout MSE.
-        let mse = report
-            .elites
-            .iter()
-            .map(|&e| report.final_holdout_mse[e] as f64)
-            .sum::<f64>()
-            / report.elites.len() as f64;
+        // The same number the sequential metrics row shows.
+        let mse = report.elite_holdout_mse();
         // Stats before weights: whoever sees a later consequence of this model finds its record.
         stats_pub.report(ModelTrained {
             rows: role.real_received(),

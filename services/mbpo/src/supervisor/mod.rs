@@ -20,7 +20,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context};
-use mbpo_runtime::coordinator::checkpoints::{self, SupervisorCheckpoint};
+use mbpo_runtime::coordinator::checkpoints::{self, ResumePoint};
 use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
 use mbpo_runtime::{configure_run, pipeline, Mode};
@@ -159,7 +159,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let run_id = make_run_id(&cfg.env, cfg.seed);
     let ipc = open_ipc(args, &cfg, &run_id, &out)?;
     // A resumed run's clock continues from its checkpoint.
-    let elapsed = resume.as_ref().map_or(0.0, |r| r.2.elapsed_seconds);
+    let elapsed = resume.as_ref().map_or(0.0, |r| r.book.elapsed_seconds);
     let now = Instant::now();
     let started = now
         .checked_sub(Duration::from_secs_f64(elapsed))
@@ -221,12 +221,22 @@ fn plan_run(
     let (cfg, out, resume) = match args.resume.clone() {
         Some(dir) => {
             let cfg = resumed_config(&dir, args.common.steps)?;
-            let (ckpt, env_steps, state) = checkpoints::latest_verified(&dir, cfg.algo)
+            let point = checkpoints::latest_verified(&dir, cfg.algo)
                 .with_context(|| format!("resuming {}", dir.display()))?;
-            args.mode = state.mode;
-            args.actors = state.actors;
-            args.slack = state.slack;
-            (cfg, dir, Some((ckpt, env_steps, state)))
+            // A checkpoint of `mbpo train` (one actor) runs on in the mode given.
+            if let Some(sup) = point.supervisor {
+                args.mode = sup.mode;
+                args.actors = sup.actors;
+                args.slack = sup.slack;
+            } else {
+                args.actors = 1;
+                tracing::info!(
+                    "{} was checkpointed by `mbpo train`: resuming it with one actor, mode {}",
+                    dir.display(),
+                    args.mode.name()
+                );
+            }
+            (cfg, dir, Some(point))
         }
         None => {
             let cfg = resolve_config(&args.common, None, None)?;
@@ -246,7 +256,10 @@ fn open_run_dir(
     out: &Path,
     resume: Option<&ResumePoint>,
 ) -> anyhow::Result<RunDir> {
-    let Some((_, env_steps, state)) = resume else {
+    let Some(ResumePoint {
+        env_steps, book, ..
+    }) = resume
+    else {
         overwrite_earlier_run(&args.common, cfg, out)?;
         return RunDir::create(out, cfg).with_context(|| format!("creating {}", out.display()));
     };
@@ -258,7 +271,7 @@ fn open_run_dir(
             cfg.steps
         );
     }
-    RunDir::reopen_with_config(out, cfg, state.book.rows_upto(*env_steps))
+    RunDir::reopen_with_config(out, cfg, book.rows_upto(*env_steps))
         .with_context(|| format!("reopening {}", out.display()))
 }
 
@@ -309,9 +322,6 @@ fn attempts(
     }
 }
 
-/// A checkpoint to start from: its directory, its env steps, the supervisor's state in it.
-type ResumePoint = (PathBuf, u64, SupervisorCheckpoint);
-
 /// How one attempt of the pipeline ended.
 enum Attempt {
     /// The run ended: its report, and the error that failed it, if any.
@@ -361,15 +371,16 @@ fn roll_back(
             RunDir::create(out, cfg).with_context(|| format!("recreating {}", out.display()))?;
         return Ok((dir, None));
     }
-    let (ckpt, env_steps, state) = checkpoints::latest_verified(out, cfg.algo)
+    let point = checkpoints::latest_verified(out, cfg.algo)
         .with_context(|| format!("rolling {} back to its newest checkpoint", out.display()))?;
     tracing::warn!(
-        "restarting the pipeline from the checkpoint after step {env_steps} ({})",
-        ckpt.display()
+        "restarting the pipeline from the checkpoint after step {} ({})",
+        point.env_steps,
+        point.dir.display()
     );
-    let dir = RunDir::reopen_with_config(out, cfg, state.book.rows_upto(env_steps))
+    let dir = RunDir::reopen_with_config(out, cfg, point.book.rows_upto(point.env_steps))
         .with_context(|| format!("reopening {}", out.display()))?;
-    Ok((dir, Some((ckpt, env_steps, state))))
+    Ok((dir, Some(point)))
 }
 
 /// Everything one attempt of the pipeline needs.
@@ -454,14 +465,18 @@ fn supervise(
         actors: cx.args.actors,
         slack: cx.args.slack,
     };
-    if let Some((dir, env_steps, _)) = &resume {
-        tracing::info!("resuming from {} (after step {env_steps})", dir.display());
+    if let Some(p) = &resume {
+        tracing::info!(
+            "resuming from {} (after step {})",
+            p.dir.display(),
+            p.env_steps
+        );
     }
-    let mut procs = role_processes(cx, resume.as_ref().map(|r| r.0.as_path()));
+    let mut procs = role_processes(cx, resume.as_ref().map(|r| r.dir.as_path()));
     for p in &mut procs {
         p.spawn()?;
     }
-    let from = resume.map(|(_, env_steps, state)| (env_steps, state));
+    let from = resume.map(|p| (p.env_steps, p.book));
     let mut coord = Coordinator::new(cx.cfg, dims, plan, cx.out, from, restarts.total());
     let end = coordinate(cx, &ports, &mut coord, &mut procs, run_dir, restarts)?;
     coord.send_stop(&ports, procs.iter().filter(|p| p.child.is_some()).count());
