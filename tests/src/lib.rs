@@ -44,7 +44,7 @@ pub fn bin_dir() -> &'static Path {
 /// MBPO on Pendulum with tiny networks (as `common/train/tests/mbpo_trainer.rs`).
 pub fn tiny_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
-        algo: Algo::Mbpo,
+        algo: Algo::MBPO,
         steps,
         ..Default::default()
     };
@@ -73,7 +73,7 @@ pub fn tiny_config(steps: u64) -> ExperimentConfig {
 /// evaluations at 200, 300, 400 (the eval point 100 is still warm-up).
 pub fn tiny_mpc_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
-        algo: Algo::Mpc,
+        algo: Algo::MPC,
         steps,
         ..Default::default()
     };

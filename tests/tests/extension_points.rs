@@ -1,17 +1,28 @@
-//! The extension points, proven: a task the project does not ship, added with one
-//! `mbpo_envs::register` call and one `Env` impl (this file only), runs under the sequential
-//! trainer and under the in-process pipeline, and lockstep equals sequential on it too. The toy
-//! does not offer the optional saved-state capability (`RestorableEnv`), as a Python env or a
-//! robot would not: checkpoints still resume, starting a new episode.
+//! The extension points, proven from this file alone:
+//! - a task the project does not ship (one `Env` impl, one `mbpo_envs::register` call) runs
+//!   under the sequential trainer and under the in-process pipeline, and lockstep equals
+//!   sequential on it too. The toy does not offer the optional saved-state capability
+//!   (`RestorableEnv`), as a Python env or a robot would not: checkpoints still resume, starting
+//!   a new episode;
+//! - an algorithm the project does not ship (a uniform-random baseline: one function, one
+//!   `mbpo_train::algorithm::register` call) is a config's `algo`, runs where `mbpo train`
+//!   runs algorithms, and is refused by the pipeline by name.
 
+use std::path::Path;
 use std::time::Duration;
 
-use mbpo_core::rng::{uniform_range_f32, Rng};
+use mbpo_core::rng::{stream, uniform_range_f32, Rng};
+use mbpo_core::{BatchPolicy, UniformPolicy};
 use mbpo_envs::{register, BoxSpace, Env, EnvError, Step, TaskSpec};
 use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
-use mbpo_train::{train_mbpo, train_mbpo_with, RunOptions};
+use mbpo_train::algorithm::{self, AlgorithmSpec};
+use mbpo_train::run_dir::MetricsRow;
+use mbpo_train::{
+    train_mbpo, train_mbpo_with, ExperimentConfig, RunDir, RunOptions, Schedule, Summary,
+    TrainError,
+};
 
 /// A point on a line pushed by the action; reward −x² − 0.1·a²; 50-step episodes.
 struct Toy {
@@ -134,4 +145,121 @@ fn an_env_that_cannot_save_its_state_resumes_with_a_new_episode() {
         .collect();
     // Eval points 100, 200, 300 and the first run's last step.
     assert_eq!(rows, ["100", "125", "200", "300"]);
+}
+
+/// The toy algorithm: a uniform-random policy, evaluated at the config's eval points.
+fn train_random(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+) -> Result<Summary, TrainError> {
+    if opts.resume {
+        return Err(TrainError::Config(
+            "the random baseline keeps no checkpoints".into(),
+        ));
+    }
+    let mut run = RunDir::create(out, cfg)?;
+    let mut env = mbpo_envs::make(&cfg.env)?;
+    let space = env.action_space().clone();
+    let mut policy = UniformPolicy {
+        low: space.low.clone(),
+        high: space.high.clone(),
+    };
+    let mut rng = stream(cfg.seed, "random.eval", 0);
+    let schedule = Schedule::of(cfg);
+    let (mut last, mut best) = (f64::NAN, f64::NEG_INFINITY);
+    for t in (1..=cfg.steps).filter(|&t| schedule.is_eval_point(t)) {
+        // Actions are [-1, 1] inside learners; this one acts in the env's own box.
+        let ret = evaluate_in_box(&mut policy, env.as_mut(), cfg.eval.episodes, &mut rng);
+        run.write_metrics(&MetricsRow {
+            env_steps: t,
+            eval_return: ret,
+            ..Default::default()
+        })?;
+        (last, best) = (ret, best.max(ret));
+    }
+    let summary = Summary {
+        algo: cfg.algo.name().into(),
+        env: cfg.env.clone(),
+        seed: cfg.seed,
+        env_steps: cfg.steps,
+        sac_updates: 0,
+        final_eval_return: last,
+        best_eval_return: best,
+        target_return: cfg.target_return(),
+        env_steps_to_target: run.env_steps_to_target(cfg.target_return())?,
+        policy_sha256: String::new(),
+        wall_seconds: 0.0,
+        median_seconds_per_env_step: None,
+        status: "completed".into(),
+        episodes_cut_by_resume: 0,
+    };
+    run.write_summary(&summary)?;
+    Ok(summary)
+}
+
+/// Mean return of `episodes` episodes of `policy` acting directly in the env's action box.
+fn evaluate_in_box(
+    policy: &mut UniformPolicy,
+    env: &mut dyn Env,
+    episodes: usize,
+    rng: &mut Rng,
+) -> f64 {
+    let (mut obs, mut action) = (vec![0.0f32; env.obs_dim()], vec![0.0f32; env.act_dim()]);
+    let mut total = 0.0;
+    for _ in 0..episodes {
+        env.reset(rng, &mut obs);
+        loop {
+            policy.act_batch(&obs, 1, &mut action, rng);
+            let step = env.step(&action, &mut obs);
+            total += step.reward;
+            if step.terminated || step.truncated {
+                break;
+            }
+        }
+    }
+    total / episodes as f64
+}
+
+#[test]
+fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
+    let unknown = toml::from_str::<ExperimentConfig>("algo = \"random-policy\"").unwrap_err();
+    assert!(
+        unknown
+            .to_string()
+            .contains("unknown algorithm 'random-policy'"),
+        "{unknown}"
+    );
+    let algo = algorithm::register(AlgorithmSpec {
+        name: "random-policy",
+        train: train_random,
+    })
+    .unwrap();
+    let mut cfg: ExperimentConfig =
+        toml::from_str("algo = \"random-policy\"\nenv = \"Pendulum-v1\"\nsteps = 400").unwrap();
+    assert_eq!(cfg.algo, algo);
+    cfg.eval.every = 200;
+    cfg.eval.episodes = 2;
+    cfg.validate("test").unwrap();
+    let dir = scratch("extension-random-algo");
+    let s = algorithm::train(&cfg, &dir.join("train"), RunOptions::default()).unwrap();
+    assert_eq!((s.algo.as_str(), s.env_steps), ("random-policy", 400));
+    // Pendulum under random actions: about -1200 per episode.
+    assert!((-1800.0..-800.0).contains(&s.final_eval_return), "{s:?}");
+    let rows: Vec<String> = metrics_without_timing(&dir.join("train"))
+        .iter()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().to_string())
+        .collect();
+    assert_eq!(rows, ["200", "400"]);
+    let run = InProcessRun {
+        out: dir.join("pipeline"),
+        ipc_root: ipc_root("ext-algo"),
+        mode: Mode::Lockstep,
+        actors: 1,
+        slack: Slack::ZERO,
+        timeout: Duration::from_secs(30),
+    };
+    let err = run_in_process(&cfg, &run).unwrap_err().to_string();
+    assert!(err.contains("runs MBPO or MPC, not random-policy"), "{err}");
 }

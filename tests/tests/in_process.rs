@@ -64,7 +64,7 @@ fn in_process_lockstep_mpc_equals_sequential() {
         metrics_without_timing(&run.out),
         metrics_without_timing(&dir.join("sequential"))
     );
-    assert_last_step_checkpointed(&run.out, Algo::Mpc, 1, cfg.steps);
+    assert_last_step_checkpointed(&run.out, Algo::MPC, 1, cfg.steps);
 }
 
 /// A finished run's newest complete checkpoint is its last step's, with every role's file:
@@ -94,5 +94,5 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
     assert_eq!(s.real_transitions.lost, 0);
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);
-    assert_last_step_checkpointed(&run.out, Algo::Mbpo, 2, 400);
+    assert_last_step_checkpointed(&run.out, Algo::MBPO, 2, 400);
 }

@@ -411,7 +411,7 @@ mod tests {
                 .collect()
         };
         assert_eq!(
-            names(Algo::Mbpo, 2),
+            names(Algo::MBPO, 2),
             [
                 "learner",
                 "model-trainer",
@@ -424,7 +424,7 @@ mod tests {
             ]
         );
         assert_eq!(
-            names(Algo::Mpc, 1),
+            names(Algo::MPC, 1),
             [
                 "model-trainer",
                 "evaluator",
@@ -434,11 +434,11 @@ mod tests {
             ]
         );
         // A checkpoint of `mbpo train` holds the same files but the launcher's.
-        let sequential: Vec<String> = role_files(Algo::Mbpo, 1)
+        let sequential: Vec<String> = role_files(Algo::MBPO, 1)
             .into_iter()
             .map(|(n, _)| n)
             .collect();
-        assert_eq!(sequential, names(Algo::Mbpo, 1)[..6]);
+        assert_eq!(sequential, names(Algo::MBPO, 1)[..6]);
         let kind_of = |algo, name: &str| {
             pipeline_files(algo, 1)
                 .into_iter()
@@ -446,11 +446,11 @@ mod tests {
                 .unwrap()
                 .1
         };
-        assert_eq!(kind_of(Algo::Mpc, "actor-0"), kind::PLANNING_ACTOR);
-        assert_eq!(kind_of(Algo::Mpc, "evaluator"), kind::PLANNING_EVALUATOR);
-        assert_eq!(kind_of(Algo::Mbpo, "actor-0"), kind::ACTOR);
-        assert_eq!(kind_of(Algo::Mbpo, "evaluator"), kind::EVALUATOR);
-        assert_eq!(pausing_processes(Algo::Mbpo, 3), 5);
-        assert_eq!(pausing_processes(Algo::Mpc, 3), 4);
+        assert_eq!(kind_of(Algo::MPC, "actor-0"), kind::PLANNING_ACTOR);
+        assert_eq!(kind_of(Algo::MPC, "evaluator"), kind::PLANNING_EVALUATOR);
+        assert_eq!(kind_of(Algo::MBPO, "actor-0"), kind::ACTOR);
+        assert_eq!(kind_of(Algo::MBPO, "evaluator"), kind::EVALUATOR);
+        assert_eq!(pausing_processes(Algo::MBPO, 3), 5);
+        assert_eq!(pausing_processes(Algo::MPC, 3), 4);
     }
 }

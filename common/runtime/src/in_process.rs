@@ -44,6 +44,12 @@ pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<Pipe
         std::process::id(),
         RUNS.fetch_add(1, Ordering::Relaxed)
     );
+    if !pipeline::runs(cfg.algo) {
+        return Err(RuntimeError::protocol(format!(
+            "the pipeline runs MBPO or MPC, not {}",
+            cfg.algo.name()
+        )));
+    }
     let mut run_dir = RunDir::create(&how.out, cfg).map_err(|source| RuntimeError::Io {
         path: how.out.clone(),
         source,

@@ -76,9 +76,15 @@ impl RoleSpec {
     }
 }
 
-/// The roles of a run of `algo` with `actors` actors, in start order.
+/// Whether the pipeline runs `algo`: MBPO and MPC have role lists; SAC and algorithms
+/// registered at run time (`mbpo_train::algorithm::register`) run under `mbpo train` only.
+pub fn runs(algo: Algo) -> bool {
+    algo == Algo::MBPO || algo == Algo::MPC
+}
+
+/// The roles of a run of `algo` (one [`runs`] runs) with `actors` actors, in start order.
 pub fn roles(algo: Algo, actors: u16) -> Vec<RoleSpec> {
-    let mpc = algo == Algo::Mpc;
+    let mpc = algo == Algo::MPC;
     let one = |kind, name: &str, checkpoint_kind| RoleSpec {
         kind,
         index: 0,
@@ -125,7 +131,7 @@ mod tests {
             roles(algo, actors).into_iter().map(|r| r.name).collect()
         };
         assert_eq!(
-            names(Algo::Mbpo, 2),
+            names(Algo::MBPO, 2),
             [
                 "learner",
                 "model-trainer",
@@ -136,18 +142,18 @@ mod tests {
             ]
         );
         assert_eq!(
-            names(Algo::Mpc, 1),
+            names(Algo::MPC, 1),
             ["model-trainer", "evaluator", "actor-0"]
         );
-        let actor = &roles(Algo::Mbpo, 3)[6];
+        let actor = &roles(Algo::MBPO, 3)[6];
         assert_eq!(
             (actor.binary(), actor.binary_args()),
             ("mbpo-actor", vec!["--index".to_string(), "2".to_string()])
         );
         assert_eq!(
-            roles(Algo::Mbpo, 3).iter().filter(|r| r.pauses()).count(),
+            roles(Algo::MBPO, 3).iter().filter(|r| r.pauses()).count(),
             5
         );
-        assert_eq!(roles(Algo::Mpc, 3).iter().filter(|r| r.pauses()).count(), 4);
+        assert_eq!(roles(Algo::MPC, 3).iter().filter(|r| r.pauses()).count(), 4);
     }
 }

@@ -7,26 +7,53 @@ use mbpo_sac::SacConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// Which training algorithm a config runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Algo {
-    /// Model-free SAC on real data only.
-    Sac,
-    /// Model-based policy optimization.
-    Mbpo,
-    /// Model predictive control with a planner on the learned model (no policy network).
-    Mpc,
-}
+/// Which training algorithm a config runs: a key of the algorithm registry
+/// ([`crate::algorithm`]: `sac`, `mbpo` and `mpc` built in, more with
+/// [`crate::algorithm::register`]). In a config file it is the name, e.g. `algo = "mbpo"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Algo(&'static str);
 
 impl Algo {
+    /// Model-free SAC on real data only.
+    pub const SAC: Algo = Algo("sac");
+    /// Model-based policy optimization.
+    pub const MBPO: Algo = Algo("mbpo");
+    /// Model predictive control with a planner on the learned model (no policy network).
+    pub const MPC: Algo = Algo("mpc");
+
     /// Lower-case name (as in config files and run directory names).
     pub fn name(self) -> &'static str {
-        match self {
-            Algo::Sac => "sac",
-            Algo::Mbpo => "mbpo",
-            Algo::Mpc => "mpc",
-        }
+        self.0
+    }
+
+    /// The registered algorithm called `name`, or an error that lists the known ones.
+    pub fn parse(name: &str) -> Result<Algo, String> {
+        crate::algorithm::lookup(name)
+            .map(|spec| Algo(spec.name))
+            .ok_or_else(|| {
+                format!(
+                    "unknown algorithm '{name}'; known: {}",
+                    crate::algorithm::names().join(", ")
+                )
+            })
+    }
+
+    /// The key of a registered algorithm's name (the registry's own `&'static str`).
+    pub(crate) const fn of_registered(name: &'static str) -> Algo {
+        Algo(name)
+    }
+}
+
+impl Serialize for Algo {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.0)
+    }
+}
+
+impl<'de> Deserialize<'de> for Algo {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Algo::parse(&name).map_err(serde::de::Error::custom)
     }
 }
 
@@ -210,7 +237,7 @@ pub struct ExperimentConfig {
 impl Default for ExperimentConfig {
     fn default() -> Self {
         Self {
-            algo: Algo::Sac,
+            algo: Algo::SAC,
             env: "Pendulum-v1".into(),
             seed: 0,
             steps: 20_000,
@@ -423,10 +450,10 @@ impl ExperimentConfig {
                 format!("{:?}", m.rollout_schedule),
             ));
         }
-        if self.algo == Algo::Mpc {
+        if self.algo == Algo::MPC {
             self.validate_mpc(&bad)?;
         }
-        if matches!(self.algo, Algo::Mbpo | Algo::Mpc) {
+        if matches!(self.algo, Algo::MBPO | Algo::MPC) {
             // The model crate checks its own ranges (dims, elites <= members, decay lengths).
             let env = mbpo_envs::make(&self.env)
                 .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;

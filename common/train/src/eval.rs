@@ -264,7 +264,7 @@ pub fn evaluate_run(
     let cfg = ExperimentConfig::load(&run.join("config.toml")).map_err(|e| {
         TrainError::Config(format!("{} is not a run directory: {e}", run.display()))
     })?;
-    if cfg.algo == crate::Algo::Mpc {
+    if cfg.algo == crate::Algo::MPC {
         return Err(TrainError::Config(format!(
             "{} is an MPC run: it plans with its model and has no policy network to evaluate \
              (its evaluations are in metrics.csv)",

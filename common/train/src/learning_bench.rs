@@ -221,7 +221,7 @@ pub fn learning_benchmark_at(
 ) -> Result<AlgoResult, TrainError> {
     // MPC entries are per planner (mpc-cem, mpc-mppi, ...), so each keeps its own results.
     let algo = match cfg.algo {
-        Algo::Mpc => format!("mpc-{}", cfg.mpc.planner.kind.name()),
+        Algo::MPC => format!("mpc-{}", cfg.mpc.planner.kind.name()),
         other => other.name().to_string(),
     };
     let target = cfg.target_return();
@@ -412,7 +412,7 @@ mod tests {
     fn steps_to_target_are_read_off_the_curve_at_the_tasks_target() {
         let out = temp_out("target");
         let cfg = ExperimentConfig {
-            algo: Algo::Sac,
+            algo: Algo::SAC,
             ..Default::default()
         };
         assert_eq!(cfg.env, "Pendulum-v1");
@@ -442,7 +442,7 @@ mod tests {
             "run_dir": "runs/x"}]}}"#;
         std::fs::write(out.join("learning-Pendulum-v1.json"), old).unwrap();
         let cfg = ExperimentConfig {
-            algo: Algo::Sac,
+            algo: Algo::SAC,
             ..Default::default()
         };
         learning_benchmark(&cfg, "c.toml", &[1], 1, &out, fake_run).unwrap();

@@ -1,6 +1,7 @@
 //! Experiments: validated configs, run directories, and the single-process trainers.
 //!
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
+//! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
@@ -16,6 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod actor;
+pub mod algorithm;
 pub mod checkpoint;
 pub mod config;
 pub mod eval;

@@ -26,7 +26,7 @@ pub struct Schedule {
 impl Schedule {
     /// The schedule of a config (MPC's warm-up and retrain period for algo = "mpc").
     pub fn of(cfg: &ExperimentConfig) -> Self {
-        let mpc = cfg.algo == Algo::Mpc;
+        let mpc = cfg.algo == Algo::MPC;
         let (init_random_steps, epoch_length, model_train_freq) = match mpc {
             true => (
                 cfg.mpc.init_random_steps,
@@ -105,7 +105,7 @@ mod tests {
 
     fn mpc() -> ExperimentConfig {
         let mut cfg = ExperimentConfig {
-            algo: Algo::Mpc,
+            algo: Algo::MPC,
             steps: 1000,
             ..Default::default()
         };

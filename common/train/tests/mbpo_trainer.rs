@@ -7,7 +7,7 @@ use std::path::PathBuf;
 /// MBPO on Pendulum with small networks: 8 SAC updates and 50 rollouts per env step.
 fn small_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
-        algo: Algo::Mbpo,
+        algo: Algo::MBPO,
         steps,
         ..Default::default()
     };

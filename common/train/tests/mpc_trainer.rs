@@ -12,7 +12,7 @@ use std::sync::atomic::AtomicBool;
 /// MPC-CEM on Pendulum with a small model and planner.
 fn small_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
-        algo: Algo::Mpc,
+        algo: Algo::MPC,
         steps,
         ..Default::default()
     };

@@ -11,7 +11,7 @@ use std::sync::atomic::AtomicBool;
 /// MBPO on Pendulum, small: train points at t = 201, 301, 401; checkpoints every 100 steps.
 fn small_mbpo(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
-        algo: Algo::Mbpo,
+        algo: Algo::MBPO,
         steps,
         ..Default::default()
     };

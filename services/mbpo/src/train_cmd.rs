@@ -3,10 +3,7 @@
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
 use mbpo_train::run_dir::holds_a_run;
-use mbpo_train::{
-    train_mbpo_with, train_mpc_with, train_sac_with, Algo, ExperimentConfig, RunOptions, Summary,
-    TrainError,
-};
+use mbpo_train::{algorithm, Algo, ExperimentConfig, RunOptions, Summary, TrainError};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -19,11 +16,7 @@ pub fn resolve_config(
     let mut cfg =
         ExperimentConfig::resolve(common.source.config.as_deref(), &common.source.overrides)?;
     if let Some(a) = algo {
-        cfg.algo = match a {
-            "sac" => Algo::Sac,
-            "mpc" => Algo::Mpc,
-            _ => Algo::Mbpo,
-        };
+        cfg.algo = Algo::parse(a).map_err(|e| anyhow::anyhow!("--algo: {e}"))?;
     }
     if let Some(e) = env {
         cfg.env = e.to_string();
@@ -158,12 +151,8 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         resume,
         stop: Some(stop_on_signals()),
     };
-    let summary = match cfg.algo {
-        Algo::Sac => train_sac_with(&cfg, &out, opts),
-        Algo::Mbpo => train_mbpo_with(&cfg, &out, opts),
-        Algo::Mpc => train_mpc_with(&cfg, &out, opts),
-    }
-    .with_context(|| format!("run {}", out.display()))?;
+    let summary =
+        algorithm::train(&cfg, &out, opts).with_context(|| format!("run {}", out.display()))?;
     println!("{}", serde_json::to_string(&summary)?);
     Ok(())
 }
@@ -220,11 +209,7 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         resume,
         stop: Some(stop_on_signals()),
     };
-    let summary = match cfg.algo {
-        Algo::Sac => train_sac_with(cfg, dir, opts),
-        Algo::Mbpo => train_mbpo_with(cfg, dir, opts),
-        Algo::Mpc => train_mpc_with(cfg, dir, opts),
-    }?;
+    let summary = algorithm::train(cfg, dir, opts)?;
     if summary.status != "completed" {
         return Err(TrainError::Config(format!(
             "{}: stopped at {} env steps (checkpointed); rerun the same command to continue",

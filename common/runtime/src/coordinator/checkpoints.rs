@@ -118,7 +118,7 @@ impl Barrier {
             .chain(of(Role::RolloutGenerator))
             .max();
         let done = done.unwrap_or(0);
-        let abandons = mode == Mode::Pipelined && self.algo == Algo::Mbpo && self.stop_after;
+        let abandons = mode == Mode::Pipelined && self.algo == Algo::MBPO && self.stop_after;
         let model_trainings = if abandons {
             done
         } else {
@@ -206,7 +206,7 @@ pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
         let path = dir.join(&name);
         if !path.is_file() {
             let mpc = match algo {
-                Algo::Mpc => " (`mbpo train` writes MPC checkpoints of its own, which only `mbpo train --resume` continues)",
+                Algo::MPC => " (`mbpo train` writes MPC checkpoints of its own, which only `mbpo train --resume` continues)",
                 _ => "",
             };
             return Err(RuntimeError::Resume(format!(
@@ -248,7 +248,7 @@ mod tests {
             ProducerId::new(Role::ModelTrainer, 0),
             BarrierReport::Paused(1),
         );
-        if algo == Algo::Mbpo {
+        if algo == Algo::MBPO {
             b.on_report(
                 ProducerId::new(Role::RolloutGenerator, 0),
                 BarrierReport::Paused(1),
@@ -261,10 +261,10 @@ mod tests {
     fn only_a_pipelined_mbpo_stop_cuts_without_the_trainings_up_to_t() {
         let cases = [
             // (algo, mode, stop after the barrier, K at T = 651)
-            (Algo::Mbpo, Mode::Pipelined, true, 1),
-            (Algo::Mbpo, Mode::Pipelined, false, 2),
-            (Algo::Mbpo, Mode::Lockstep, true, 2),
-            (Algo::Mpc, Mode::Pipelined, true, 2),
+            (Algo::MBPO, Mode::Pipelined, true, 1),
+            (Algo::MBPO, Mode::Pipelined, false, 2),
+            (Algo::MBPO, Mode::Lockstep, true, 2),
+            (Algo::MPC, Mode::Pipelined, true, 2),
         ];
         for (algo, mode, stop_after, k) in cases {
             let (mut b, schedule) = barrier_at(algo, 650, stop_after);

@@ -257,7 +257,7 @@ impl Collector {
     }
 
     fn mpc(&self) -> bool {
-        self.cfg.algo == mbpo_train::Algo::Mpc
+        self.cfg.algo == mbpo_train::Algo::MPC
     }
 
     /// Write the rows whose records are all in.

@@ -58,7 +58,7 @@ pub struct CoordinatorPorts<S: Transport> {
 impl<S: Transport> CoordinatorPorts<S> {
     /// The ports of the coordinator's `node` for a run of `cfg`.
     pub fn create(node: &WireNode<S>, cfg: &ExperimentConfig, dims: &Dims) -> Result<Self> {
-        let policy = match cfg.algo == Algo::Mpc {
+        let policy = match cfg.algo == Algo::MPC {
             true => WeightsSubscriber::create(
                 node,
                 WeightsKind::Model,
@@ -136,7 +136,7 @@ impl Coordinator {
             last_checkpoint = env_steps;
         }
         collector.book.restarts = restarts;
-        let final_wire = match cfg.algo == Algo::Mpc {
+        let final_wire = match cfg.algo == Algo::MPC {
             true => schedule.train_points_upto(cfg.steps),
             false => policy_wire_version(cfg.steps),
         };
@@ -371,7 +371,7 @@ impl Coordinator {
         run: &mut RunDir,
         started: Instant,
     ) -> Result<PipelineSummary> {
-        let mpc = self.cfg.algo == Algo::Mpc;
+        let mpc = self.cfg.algo == Algo::MPC;
         // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
         let hashed = match mpc {
             true => self.dims.model.n_params,

@@ -23,7 +23,7 @@ use crate::{Result, *};
 /// An actor's service loop (a planning actor's in MPC runs).
 pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let s = Process::<S>::open(args, Role::Actor)?;
-    if s.cfg.algo == mbpo_train::Algo::Mpc {
+    if s.cfg.algo == mbpo_train::Algo::MPC {
         return planning::act(s);
     }
     let (cfg, d) = (&s.cfg, s.dims);
@@ -169,7 +169,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
 /// The evaluator's service loop (the planning evaluator's in MPC runs).
 pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let s = Process::<S>::open(args, Role::Evaluator)?;
-    if s.cfg.algo == mbpo_train::Algo::Mpc {
+    if s.cfg.algo == mbpo_train::Algo::MPC {
         return planning::evaluate(s);
     }
     let (cfg, d) = (&s.cfg, s.dims);

@@ -45,7 +45,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         barrier::file::MODEL_TRAINER,
         barrier::kind::MODEL_TRAINER,
     );
-    let mpc = cfg.algo == mbpo_train::Algo::Mpc;
+    let mpc = cfg.algo == mbpo_train::Algo::MPC;
     let mut prev_train_point = 0;
     if let Some(dir) = &args.resume_from {
         let state: ModelTrainerCheckpoint = file.read(dir)?;

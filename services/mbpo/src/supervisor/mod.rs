@@ -25,7 +25,7 @@ use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
 use mbpo_runtime::{configure_run, pipeline, Mode};
 use mbpo_train::progress::{Display, Progress};
-use mbpo_train::{Algo, RunDir};
+use mbpo_train::RunDir;
 use mbpo_wire::{ipc, RunIpc, WaitOutcome, Waiter};
 
 use crate::cli::{RestartPolicy, RunArgs};
@@ -644,8 +644,11 @@ fn stop_processes(procs: &mut [Proc], interrupted: bool) -> anyhow::Result<()> {
 
 /// What `mbpo run` cannot run: SAC, lockstep with several actors, no actors.
 fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow::Result<()> {
-    if cfg.algo == Algo::Sac {
-        bail!("mbpo run runs MBPO or MPC; the config says algo = \"sac\" (use `mbpo train --algo sac` for the SAC baseline)");
+    if !pipeline::runs(cfg.algo) {
+        bail!(
+            "mbpo run runs MBPO or MPC; the config says algo = \"{}\" (run it with `mbpo train`)",
+            cfg.algo.name()
+        );
     }
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
