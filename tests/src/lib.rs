@@ -263,3 +263,25 @@ pub fn logged_pids(log: &Path, n: usize, timeout: Duration) -> Option<Vec<i32>> 
     }
     None
 }
+
+/// Every rate-limiter range of a pipeline's `summary.json` (`ratios`) lies within the bounds
+/// it documents (`lowest_allowed`, `highest_allowed`; null: unbounded on that side).
+pub fn assert_ratios_within_allowed(summary: &serde_json::Value) {
+    let ratios = &summary["ratios"];
+    for name in [
+        "learner_updates_owed",
+        "actor_policy_lag",
+        "rollout_policy_lag",
+    ] {
+        let r = &ratios[name];
+        if r.is_null() {
+            continue;
+        }
+        if let Some(lowest) = r["lowest_allowed"].as_f64() {
+            assert!(r["min"].as_f64().unwrap() >= lowest, "{name}: {r}");
+        }
+        if let Some(highest) = r["highest_allowed"].as_f64() {
+            assert!(r["max"].as_f64().unwrap() <= highest, "{name}: {r}");
+        }
+    }
+}

@@ -92,6 +92,7 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }
     assert_eq!(s.real_transitions.lost, 0);
+    assert_ratios_within_allowed(&serde_json::to_value(&s).unwrap());
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);
     assert_last_step_checkpointed(&run.out, Algo::MBPO, 2, 400);

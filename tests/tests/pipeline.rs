@@ -95,6 +95,10 @@ fn lockstep_equals_sequential_and_concurrent_runs_do_not_interfere() {
         assert_no_loss(&s, 500);
         assert_eq!(s["ratios"]["updates_per_env_step"], 8.0);
         assert_eq!(s["ratios"]["actor_policy_lag"]["max"], 0.0);
+        // Lockstep allows no slack: the learner owes between 0 and G updates.
+        let owed = &s["ratios"]["learner_updates_owed"];
+        assert_eq!(owed["highest_allowed"], 8.0, "{owed}");
+        assert_ratios_within_allowed(&s);
         assert_eq!(s["ipc_leftovers"].as_array().unwrap().len(), 0);
         assert!(out.join("logs/learner.log").exists());
         let left = leftovers(&run_id(&s), &root);
@@ -144,8 +148,12 @@ fn pipelined_run_holds_its_ratios_and_loses_nothing() {
     assert_eq!(r["updates_per_env_step"], 8.0);
     // ... and never more than the buffer ahead or behind while running.
     let owed = &r["learner_updates_owed"];
-    assert!(owed["min"].as_f64().unwrap() >= -24.0, "{owed}");
-    assert!(owed["max"].as_f64().unwrap() <= 8.0 + 24.0, "{owed}");
+    assert_eq!(
+        (&owed["lowest_allowed"], &owed["highest_allowed"]),
+        (&serde_json::json!(-24.0), &serde_json::json!(8.0 + 24.0)),
+        "{owed}"
+    );
+    assert_ratios_within_allowed(&s);
     assert!(r["actor_policy_lag"]["max"].as_f64().unwrap() <= 3.0, "{r}");
     assert_eq!(r["model_trainings"], 4);
     assert_eq!(r["rollout_batches"], 4);

@@ -28,7 +28,7 @@ pub struct RealCounts {
     pub lost: u64,
 }
 
-/// A slack value's range over the run.
+/// A slack value's range over the run, with the bounds the run's rate limits keep it in.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Range {
     /// Smallest.
@@ -37,8 +37,21 @@ pub struct Range {
     pub max: f32,
     /// Mean.
     pub mean: f32,
-    /// Allowed buffer (0 in lockstep).
-    pub buffer: u64,
+    /// The lowest value the rate limits allow (`None`: not bounded below by one).
+    pub lowest_allowed: Option<f32>,
+    /// The highest value the rate limits allow (`None`: not bounded above by one).
+    pub highest_allowed: Option<f32>,
+}
+
+impl Range {
+    /// This range with the allowed bounds `lowest..=highest`.
+    fn allowed(self, lowest: Option<u64>, highest: Option<u64>) -> Self {
+        Self {
+            lowest_allowed: lowest.map(|v| 0.0 - v as f32),
+            highest_allowed: highest.map(|v| v as f32),
+            ..self
+        }
+    }
 }
 
 /// The ratios the rate limiters hold.
@@ -48,11 +61,19 @@ pub struct Ratios {
     pub updates_per_env_step: f64,
     /// G.
     pub target_updates_per_env_step: usize,
-    /// Updates owed when the learner consumed a step, `(r − warm-up)·G − u`, in [−buffer, buffer].
+    /// Updates owed when the learner consumed a step, `(r − warm-up)·G − u`, in
+    /// [−update_buffer, G + update_buffer] (lockstep: [0, G]): the learner consumes a step only
+    /// while it owes at most `update_buffer` updates, then owes G more; it updates only while
+    /// it is less than `update_buffer` ahead.
     pub learner_updates_owed: Range,
-    /// Policy lag of the actors, `t − 1 − version`, in [0, policy_lag].
+    /// Policy lag of the actors, `g − 1 − version` at global step g, at most policy_lag; below
+    /// 0 when other actors are ahead (a version counts every actor's transitions). MPC: model
+    /// versions behind the exact one, `train_points(g) − version` (bounded through model_lag in
+    /// env steps, not in versions).
     pub actor_policy_lag: Range,
-    /// Policy staleness of the rollouts, `t − 1 − version` at a train point.
+    /// Policy lag of the rollouts, `t − 1 − version` at train point t, in [−model_lag,
+    /// policy_lag]: they wait for version t − 1 − policy_lag, and the learner consumes at most
+    /// model_lag steps past a train point before its imagined batch.
     pub rollout_policy_lag: Range,
     /// Imagined batches (one per model training: M · model_train_freq rollouts each).
     pub rollout_batches: u64,
@@ -380,23 +401,21 @@ impl Collector {
                         min: d.slack_min,
                         max: d.slack_max,
                         mean: d.slack_mean,
-                        buffer: 0,
+                        ..Default::default()
                     };
                     match r {
                         Role::Learner => {
                             sac_updates = d.work;
                             median = (d.median_step_seconds > 0.0)
                                 .then_some(d.median_step_seconds as f64);
-                            ratios.learner_updates_owed = Range {
-                                buffer: self.slack.update_buffer,
-                                ..range
-                            };
+                            let (buffer, g) =
+                                (self.slack.update_buffer, self.cfg.mbpo.updates_per_step);
+                            ratios.learner_updates_owed =
+                                range.allowed(Some(buffer), Some(g as u64 + buffer));
                         }
                         Role::RolloutGenerator => {
-                            ratios.rollout_policy_lag = Range {
-                                buffer: self.slack.policy_lag,
-                                ..range
-                            };
+                            ratios.rollout_policy_lag = range
+                                .allowed(Some(self.slack.model_lag), Some(self.slack.policy_lag));
                             ratios.rollout_batches = d.work;
                         }
                         _ => ratios.model_trainings = d.work,
@@ -406,10 +425,8 @@ impl Collector {
             }
         }
         if lag.min.is_finite() {
-            ratios.actor_policy_lag = Range {
-                buffer: self.slack.policy_lag,
-                ..lag
-            };
+            let highest = (!self.mpc()).then_some(self.slack.policy_lag);
+            ratios.actor_policy_lag = lag.allowed(None, highest);
         }
         let after_warmup = self
             .cfg
