@@ -133,12 +133,20 @@ pub fn tasks() -> Vec<TaskSpec> {
 
 /// The ids this build can make, built-in and registered, joined by ", " (for messages).
 pub fn known_ids() -> String {
-    let ids: Vec<&str> = tasks()
-        .iter()
-        .filter(|t| t.builds())
-        .map(|t| t.id)
-        .collect();
-    ids.join(", ")
+    let all = tasks();
+    let ids = |builds: bool| -> Vec<&str> {
+        let of_build = all.iter().filter(|t| t.builds() == builds);
+        of_build.map(|t| t.id).collect()
+    };
+    let (built, not_built) = (ids(true), ids(false));
+    match not_built.is_empty() {
+        true => built.join(", "),
+        false => format!(
+            "{}; with `bash deploy/setup_mujoco.sh` and a build with `--features mujoco` also {}",
+            built.join(", "),
+            not_built.join(", ")
+        ),
+    }
 }
 
 /// The task `id`, or [`EnvError::UnknownEnv`].
@@ -255,8 +263,18 @@ mod tests {
 
     #[test]
     fn unknown_and_duplicate_ids_are_errors_that_name_them() {
-        let e = make("CartPole-v1").err().unwrap();
-        assert!(e.to_string().contains("CartPole-v1"), "{e}");
+        let e = make("CartPole-v1").err().unwrap().to_string();
+        assert!(
+            e.contains("CartPole-v1") && e.contains("Pendulum-v1"),
+            "{e}"
+        );
+        // Every task is listed; those of another build say how to get them.
+        assert!(e.contains("Hopper-v5"), "{e}");
+        assert_eq!(
+            e.contains("--features mujoco"),
+            !cfg!(feature = "mujoco"),
+            "{e}"
+        );
         let e = register(BUILTIN[0]).unwrap_err();
         assert!(e.to_string().contains("Pendulum-v1"), "{e}");
         if !cfg!(feature = "mujoco") {

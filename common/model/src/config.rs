@@ -131,6 +131,37 @@ pub enum ModelConfigError {
     },
 }
 
+impl ModelConfigError {
+    /// The offending setting (a field of [`ModelConfig`]; `dims` for the environment's), what
+    /// it accepts and the value found: what a config file's error names (`model.<field>`).
+    pub fn parts(&self) -> (&'static str, String, String) {
+        match self {
+            Self::NoMembers => ("members", "at least 1".into(), "0".into()),
+            Self::Elites { elites, members } => (
+                "elites",
+                format!("between 1 and members ({members})"),
+                elites.to_string(),
+            ),
+            Self::Hidden(h) => ("hidden", "positive widths".into(), format!("{h:?}")),
+            Self::WeightDecayLen { layers, found } => (
+                "weight_decay",
+                format!("one value per dense layer ({layers} = hidden layers + output)"),
+                format!("{found} values"),
+            ),
+            Self::Dims { obs_dim, act_dim } => (
+                "dims",
+                "positive observation and action dimensions".into(),
+                format!("obs {obs_dim}, act {act_dim}"),
+            ),
+            Self::OutOfRange {
+                field,
+                value,
+                expected,
+            } => (field, (*expected).into(), value.to_string()),
+        }
+    }
+}
+
 impl ModelConfig {
     /// Check the settings for a model with the given dimensions.
     pub fn validate(&self, obs_dim: usize, act_dim: usize) -> Result<(), ModelConfigError> {

@@ -459,7 +459,10 @@ impl ExperimentConfig {
                 .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
             self.model
                 .validate(env.obs_dim(), env.act_dim())
-                .map_err(|e| bad("model", "a valid model config", e.to_string()))?;
+                .map_err(|e| {
+                    let (field, expected, found) = e.parts();
+                    bad(&format!("model.{field}"), &expected, found)
+                })?;
         }
         for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
             if !(v > 0.0 && v <= 1.0) {
@@ -626,6 +629,27 @@ mod tests {
             err.contains("Pendulum-v1") && err.contains("CartPole-v1"),
             "{err}"
         );
+        // A table's settings are named by their full key, with what they accept.
+        let cases = [
+            (
+                "[model]\nmembers = 3\nelites = 5\n",
+                "`model.elites` must be between 1 and members (3), found 5",
+            ),
+            (
+                "[model]\nhidden = [200, 0]\n",
+                "`model.hidden` must be positive widths, found [200, 0]",
+            ),
+            (
+                "[model]\nholdout_ratio = 1.5\n",
+                "`model.holdout_ratio` must be in (0, 1), found 1.5",
+            ),
+        ];
+        for (text, want) in cases {
+            let err = parse(&format!("algo = \"mbpo\"\n{text}"))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(want), "{err}");
+        }
     }
 
     fn overridden(overrides: &[&str]) -> Result<ExperimentConfig, ConfigError> {
