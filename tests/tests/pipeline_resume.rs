@@ -217,20 +217,6 @@ fn a_finished_lockstep_run_extends_from_its_last_step() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// Copy the directory tree `from` to `to`.
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
-}
-
 /// One checkpoint format for both commands (`mbpo_train::run_files`): an MBPO run
 /// checkpointed by `mbpo train` continues under `mbpo run --mode lockstep`, and one
 /// checkpointed by `mbpo run --mode lockstep` under `mbpo train`; each ends with the

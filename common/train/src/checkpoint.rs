@@ -130,14 +130,21 @@ pub fn write<T: Serialize>(path: &Path, kind: &str, value: &T) -> Result<(), Che
     write_atomically(path, &bytes)
 }
 
-/// Write `bytes` to `path` through a temporary file, synced, then renamed over `path`.
+/// Write `bytes` to `path` through a temporary file, synced, then renamed over `path`. On
+/// failure (a full disk, ...) the temporary file is removed and the error names `path`, whose
+/// directory names the checkpoint's step; an earlier file at `path` is left as it was.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), CheckpointError> {
     let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    let mut file = std::fs::File::create(&tmp).map_err(io_err(&tmp))?;
-    file.write_all(bytes).map_err(io_err(&tmp))?;
-    file.sync_all().map_err(io_err(&tmp))?;
-    drop(file);
-    std::fs::rename(&tmp, path).map_err(io_err(path))?;
+    let written = std::fs::File::create(&tmp).and_then(|mut file| {
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        drop(file);
+        std::fs::rename(&tmp, path)
+    });
+    if let Err(source) = written {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(path)(source));
+    }
     if let Some(dir) = path.parent() {
         // Make the rename itself durable.
         if let Ok(d) = std::fs::File::open(dir) {
@@ -357,6 +364,22 @@ mod tests {
         write(&path, "test-state", &1u8).unwrap();
         let err = read::<(Vec<f32>, u64, String)>(&path, "test-state").unwrap_err();
         assert!(matches!(err, CheckpointError::Decode { .. }), "{err}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_failed_write_names_the_file_and_leaves_no_temporary_file() {
+        let dir = tmp("failed-write");
+        // A directory where the file should go: the rename over it fails after the write.
+        let path = dir.join("learner");
+        std::fs::create_dir_all(path.join("in-the-way")).unwrap();
+        let err = write(&path, "test-state", &1u64).unwrap_err().to_string();
+        assert!(err.contains(&path.display().to_string()), "{err}");
+        let left: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        assert_eq!(left, ["learner"], "a temporary file was left behind");
         std::fs::remove_dir_all(dir).unwrap();
     }
 
