@@ -481,10 +481,11 @@ impl<S: Service> SubscriberSide<S> {
         &self.listener
     }
 
-    /// Consume pending wake-ups; remembers whether a publisher appeared.
-    pub fn consume_events(&self) {
+    /// Consume pending wake-ups; remembers whether a publisher appeared. `true` when there was
+    /// one.
+    pub fn consume_events(&self) -> bool {
         let mut created = false;
-        let _ = self.listener.try_wait(|a| {
+        let pending = self.listener.try_wait(|a| {
             if a.id.as_value() == EV_PUBLISHER_CREATED {
                 created = true;
             }
@@ -492,6 +493,7 @@ impl<S: Service> SubscriberSide<S> {
         if created {
             self.publisher_created.set(true);
         }
+        pending.is_ok_and(|n| n > 0)
     }
 
     /// Connect to new publishers and confirm to them, when anything may have changed.

@@ -47,8 +47,9 @@ mod sealed {
 pub trait Wakeable<S: Service>: sealed::Sealed {
     #[doc(hidden)]
     fn wake_listener(&self) -> &Listener<S>;
+    /// Consume the port's pending wake-ups (and act on them); `true` when there were any.
     #[doc(hidden)]
-    fn on_wake(&self);
+    fn on_wake(&self) -> bool;
 }
 
 macro_rules! wakeable {
@@ -59,7 +60,7 @@ macro_rules! wakeable {
                 let $s = self;
                 $listener
             }
-            fn on_wake(&self) {
+            fn on_wake(&self) -> bool {
                 let $w = self;
                 $wake
             }
@@ -68,22 +69,25 @@ macro_rules! wakeable {
 }
 
 wakeable!(TransitionSubscriber<S>, [S: Service], |s| s.side().listener(), |s| {
-    s.side().consume_events();
+    let woken = s.side().consume_events();
     s.refresh(false);
+    woken
 });
 wakeable!(WeightsSubscriber<S>, [S: Service], |s| s.side().listener(), |s| {
-    s.side().consume_events();
+    let woken = s.side().consume_events();
     s.refresh(false);
+    woken
 });
 wakeable!(MsgSubscriber<T, S>, [T: WireMessage, S: Service], |s| s.side().listener(), |s| {
-    s.side().consume_events();
+    let woken = s.side().consume_events();
     s.refresh(false);
+    woken
 });
 wakeable!(TransitionPublisher<S>, [S: Service], |s| s.side().listener(), |s| {
-    s.side().poll_acks();
+    s.side().poll_acks() > 0
 });
 wakeable!(MsgPublisher<T, S>, [T: WireMessage, S: Service], |s| s.side().listener(), |s| {
-    s.side().poll_acks();
+    s.side().poll_acks() > 0
 });
 wakeable!(WeightsPublisher<S>, [S: Service], |s| s.side().listener(), |s| s.on_wake());
 
@@ -158,6 +162,18 @@ where
         }
         if crate::termination_latched() {
             return Ok(WaitOutcome::Terminate);
+        }
+        // Take what is pending before sleeping. iceoryx2 0.10's event state can be left
+        // "notified" with its socket already drained (a notify racing the drain of an earlier
+        // one); every later notify then skips the socket write, and epoll would sleep through
+        // them to the timeout (the in-process pipeline stalled a second at a time). Draining
+        // resets the state, so the next notify writes again.
+        let mut news = false;
+        for p in &self.ports {
+            news |= p.on_wake();
+        }
+        if news {
+            return Ok(WaitOutcome::Notified);
         }
         // Attach for the duration of this call: level-triggered, so nothing is missed between
         // calls, and the Waiter needs no self-referential guards.

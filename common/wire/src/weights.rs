@@ -194,12 +194,16 @@ impl<S: Service> WeightsPublisher<S> {
     pub(crate) fn side(&self) -> &PublisherSide<S> {
         &self.side
     }
-    pub(crate) fn on_wake(&self) {
-        if self.side.poll_acks() > 0 {
+    /// Take the confirmations that woke the port (connecting to the new subscribers); `true`
+    /// when there were any.
+    pub(crate) fn on_wake(&self) -> bool {
+        let woken = self.side.poll_acks() > 0;
+        if woken {
             if let Err(e) = self.update_connections() {
                 tracing::warn!("{e}");
             }
         }
+        woken
     }
 }
 

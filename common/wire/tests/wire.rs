@@ -804,6 +804,57 @@ fn ports_work_in_process_with_local_service() {
     let _ = run.remove_all::<local::Service>();
 }
 
+/// A waiter never sleeps through a notification: a burst of reports from another thread is
+/// received without any wait running into its timeout. iceoryx2 0.10 can leave an event
+/// "notified" with its socket drained, after which notifications write nothing to wake epoll;
+/// on `local::Service` this test then failed 5 times in 5 (the in-process pipeline stalled a
+/// second at a time) until `Waiter` drained its ports before sleeping. (`ipc::Service` passed
+/// before too; it runs here as well.)
+#[test]
+fn a_waiter_never_sleeps_through_a_notification() {
+    burst_of_reports::<local::Service>("wake-local");
+    burst_of_reports::<ipc::Service>("wake-ipc");
+}
+
+fn burst_of_reports<S: Transport>(tag: &str) {
+    const N: u64 = 20_000;
+    let run = RunIpc::new(&format!("{tag}-{}", std::process::id()), BASE).unwrap();
+    let run = &run;
+    std::thread::scope(|s| {
+        let sup = run.node::<S>(Role::Supervisor, 0).unwrap();
+        let rx = StatsSubscriber::create(&sup).unwrap();
+        s.spawn(move || {
+            let actor = run.node::<S>(Role::Actor, 0).unwrap();
+            let tx = StatsPublisher::create(&actor).unwrap();
+            tx.wait_for_subscribers(1, Duration::from_secs(5)).unwrap();
+            for k in 0..N {
+                let p = Progress {
+                    env_steps: k,
+                    ..Default::default()
+                };
+                tx.report(p).unwrap();
+            }
+        });
+        let mut waiter = Waiter::new().unwrap();
+        waiter.attach(&rx);
+        let mut received = 0;
+        while received < N {
+            while rx.receive().unwrap().is_some() {
+                received += 1;
+            }
+            if received < N {
+                let outcome = waiter.wait(Duration::from_secs(5)).unwrap();
+                assert_ne!(
+                    outcome,
+                    WaitOutcome::TimedOut,
+                    "{tag}: slept through notifications: {received} of {N} received"
+                );
+            }
+        }
+    });
+    let _ = run.remove_all::<S>();
+}
+
 #[test]
 fn bench_runs_and_serializes() {
     let cfg = bench::IpcBenchConfig::quick();
