@@ -130,6 +130,16 @@ impl RunIpc {
             "mbpo{:010x}_",
             mbpo_core::rng::fnv1a(place.as_bytes()) & 0xff_ffff_ffff
         );
+        Self::with_prefix(run_id, run_hash, prefix, base)
+    }
+
+    /// The environment with iceoryx2 prefix `prefix` and root path `<base>/<prefix>/`.
+    fn with_prefix(
+        run_id: &str,
+        run_hash: u64,
+        prefix: String,
+        base: &Path,
+    ) -> Result<Self, RunIpcError> {
         let root = base.join(prefix.trim_end_matches('_'));
         let root_str = format!("{}/", root.display());
         if root_str.len() > MAX_ROOT_LEN {
@@ -265,6 +275,42 @@ impl RunIpc {
             }
         }
         Ok(report)
+    }
+
+    /// Remove what other runs left under `base_dir` once none of their nodes is alive and
+    /// their root path is at least `min_age` old (a run starting this moment has no node yet):
+    /// a launcher killed with SIGKILL cannot clean up after itself, so the next one on the host
+    /// does. Runs with a live node are left alone. Returns the root paths removed.
+    pub fn remove_dead_runs<S: Service>(
+        base_dir: impl AsRef<Path>,
+        min_age: Duration,
+    ) -> Result<Vec<PathBuf>, CleanupError> {
+        let base = base_dir.as_ref();
+        let Ok(entries) = std::fs::read_dir(base) else {
+            return Ok(Vec::new());
+        };
+        let mut removed = Vec::new();
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            let is_run_root = name.len() == 14
+                && name.starts_with("mbpo")
+                && name[4..].bytes().all(|b| b.is_ascii_hexdigit());
+            let old_enough = entry
+                .metadata()
+                .and_then(|m| m.modified())
+                .is_ok_and(|t| t.elapsed().is_ok_and(|age| age >= min_age));
+            if !is_run_root || !old_enough {
+                continue;
+            }
+            let Ok(run) = Self::with_prefix(&name, 0, format!("{name}_"), base) else {
+                continue;
+            };
+            if run.alive_nodes::<S>()?.is_empty() {
+                run.remove_all::<S>()?;
+                removed.push(run.root);
+            }
+        }
+        Ok(removed)
     }
 
     /// Names of the live nodes of this run.

@@ -606,12 +606,45 @@ fn stale_resources_of_a_killed_process_are_removed() {
     );
 }
 
+/// A run whose every process was killed (its launcher too) is cleaned up by the next
+/// launcher on the host: `remove_dead_runs` removes its nodes, shared memory and directory,
+/// and leaves a run with a live node alone.
+#[test]
+fn the_leftovers_of_a_dead_run_are_removed_by_the_next_one() {
+    let base = format!("/tmp/mbpo-wire-dead-{}", std::process::id());
+    let dead = RunIpc::new("dead-run", &base).unwrap();
+    let mut child = spawn_child(
+        "child_publisher_then_hang",
+        &[
+            ("MBPO_WIRE_RUN", dead.run_id().to_string()),
+            ("MBPO_WIRE_BASE", base.clone()),
+        ],
+    );
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    read_until(&mut out, "READY");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!dead.leftovers().is_empty());
+    let live = RunIpc::new("live-run", &base).unwrap();
+    let _node = live.node::<ipc::Service>(Role::Learner, 0).unwrap();
+    let removed = RunIpc::remove_dead_runs::<ipc::Service>(&base, Duration::ZERO).unwrap();
+    assert_eq!(removed, [dead.root_path().to_path_buf()]);
+    assert_eq!(dead.leftovers(), Vec::<std::path::PathBuf>::new());
+    assert!(!live.leftovers().is_empty(), "the live run was touched");
+    drop(_node);
+    live.remove_all::<ipc::Service>().unwrap();
+    let _ = std::fs::remove_dir_all(&base);
+}
+
 #[test]
 fn child_publisher_then_hang() {
     let Some(id) = child_env("MBPO_WIRE_RUN") else {
         return;
     };
-    let run = TestRun::open(&id);
+    let run = match child_env("MBPO_WIRE_BASE") {
+        Some(base) => TestRun(RunIpc::new(&id, base).expect("run")),
+        None => TestRun::open(&id),
+    };
     let node = run.node::<ipc::Service>(Role::Actor, 7).unwrap();
     let layout = RowLayout::new(3, 1);
     let _rx = TransitionSubscriber::create(&node, Channel::Real, layout).unwrap();

@@ -275,7 +275,12 @@ fn open_run_dir(
         .with_context(|| format!("reopening {}", out.display()))
 }
 
-/// The run's own iceoryx2 environment, a dead predecessor's leftovers removed.
+/// A run without a live node is taken for dead only when its iceoryx2 directory is at least
+/// this old: a run starting this moment has its directory but no node yet.
+const DEAD_RUN_MIN_AGE: Duration = Duration::from_secs(30);
+
+/// The run's own iceoryx2 environment, a dead predecessor's leftovers removed (its own, and
+/// those of other runs that died with their launcher).
 fn open_ipc(
     args: &RunArgs,
     cfg: &mbpo_train::ExperimentConfig,
@@ -287,6 +292,11 @@ fn open_ipc(
     let stale = ipc.remove_stale_nodes::<ipc::Service>()?;
     if stale.removed > 0 {
         tracing::warn!("removed the resources of {} dead node(s)", stale.removed);
+    }
+    // What runs whose launcher was killed (SIGKILL) left on this host.
+    let dead = RunIpc::remove_dead_runs::<ipc::Service>(&args.ipc_root, DEAD_RUN_MIN_AGE)?;
+    if !dead.is_empty() {
+        tracing::warn!("removed what {} dead run(s) left: {dead:?}", dead.len());
     }
     tracing::info!(
         "run {run_id}: {} seed {} {} steps, mode {}, {} actor(s), run dir {}, iceoryx2 root {}",
