@@ -296,10 +296,7 @@ pub enum ConfigError {
 impl ExperimentConfig {
     /// Parse and validate a TOML config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text = read_config_text(path)?;
         let cfg: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
             path: path.to_path_buf(),
             message: e.to_string(),
@@ -317,10 +314,7 @@ impl ExperimentConfig {
     pub fn resolve(path: Option<&Path>, overrides: &[String]) -> Result<Self, ConfigError> {
         let (mut table, source) = match path {
             Some(path) => {
-                let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-                    path: path.to_path_buf(),
-                    source,
-                })?;
+                let text = read_config_text(path)?;
                 let table: toml::Table = toml::from_str(&text).map_err(|e| ConfigError::Parse {
                     path: path.to_path_buf(),
                     message: e.to_string(),
@@ -485,6 +479,24 @@ impl ExperimentConfig {
         }
         Ok(())
     }
+}
+
+/// The text of the config file `path`. An empty file is refused: it would run every default,
+/// which is rarely what naming a file meant (no file at all runs the defaults on purpose).
+fn read_config_text(path: &Path) -> Result<String, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if text.trim().is_empty() {
+        return Err(ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: "the file is empty; a config names at least `algo` and `env` (examples in \
+                      deploy/configs/)"
+                .into(),
+        });
+    }
+    Ok(text)
 }
 
 /// Apply one `key=value` override to a parsed TOML table (dotted keys address sub-tables).
