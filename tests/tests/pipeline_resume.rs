@@ -606,6 +606,84 @@ fn crash_service(run: &Path, service: &str, after_checkpoint: bool, child: &mut 
     unsafe { libc::kill(pid, libc::SIGKILL) };
 }
 
+/// Chaos, one kill of each process kind: a pipelined run with two actors and `--restart
+/// on-failure` has its second actor, evaluator, model trainer, rollout generator and learner
+/// SIGKILLed one after the other (each once the previous restart is up). Every kill restarts
+/// the pipeline from the newest checkpoint; the run completes with every real transition
+/// received once by every consumer, every eval row once, nothing left behind.
+#[test]
+fn pipelined_run_survives_a_kill_of_each_process_kind() {
+    let mut cfg = tiny_config(4000);
+    cfg.checkpoint.every = 100;
+    cfg.eval.every = 500;
+    let dir = scratch("chaos-kinds");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("ck");
+    let run = dir.join("run");
+    let log = dir.join("stderr.log");
+    let args = [
+        "--mode",
+        "pipelined",
+        "--actors",
+        "2",
+        "--restart",
+        "on-failure",
+        "--max-restarts",
+        "2",
+    ];
+    let mut child = start(&input, &run, &root, &args, &log);
+    let kinds = [
+        "actor-1",
+        "evaluator",
+        "model-trainer",
+        "rollout-generator",
+        "learner",
+    ];
+    for (attempt, service) in kinds.iter().enumerate() {
+        let t = Instant::now();
+        while checkpoints(&run).is_empty() {
+            assert!(child.try_wait().unwrap().is_none(), "the run ended first");
+            assert!(t.elapsed() < TIMEOUT, "no checkpoint within {TIMEOUT:?}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let service_log = run.join(format!("logs/{service}.log"));
+        // Attempt k of the pipeline has logged the k-th pid of every process.
+        let pids = logged_pids(&service_log, attempt + 1, TIMEOUT)
+            .unwrap_or_else(|| panic!("{service} of attempt {} did not start", attempt + 1));
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before {service}'s kill"
+        );
+        // SAFETY: kill(2) on a grandchild whose pid it just logged; the run is still going.
+        unsafe { libc::kill(pids[attempt], libc::SIGKILL) };
+    }
+    let (status, err) = wait_logged(child, &log);
+    assert!(status.success(), "{err}");
+    for service in kinds {
+        assert!(
+            err.contains(&format!("{service} exited with signal: 9")),
+            "{service}: {err}"
+        );
+    }
+    let s = summary(&run);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["restarts"], 5, "{s}");
+    let real = &s["real_transitions"];
+    assert_eq!(real["produced"], cfg.steps, "{s}");
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["received"][consumer], cfg.steps, "{consumer}: {s}");
+    }
+    assert_eq!(real["lost"], 0, "{s}");
+    let want: Vec<u64> = (1..=cfg.steps)
+        .filter(|t| t % cfg.eval.every == 0)
+        .collect();
+    assert_eq!(metric_steps(&run), want);
+    let left = leftovers(s["run_id"].as_str().unwrap(), &root);
+    assert!(left.is_empty(), "shared-memory leftovers: {left:?}");
+    assert!(processes_mentioning(s["run_id"].as_str().unwrap()).is_empty());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// Lockstep with `--restart on-failure`: the learner is killed after the first checkpoint;
 /// every process restarts from that checkpoint and the run ends exactly as the sequential
 /// reference does (the work redone after the cut is the same work).
