@@ -1,6 +1,7 @@
 //! Acting in the real environment: the part of every trainer (and later of the actor
 //! process) that turns a policy into stored transitions.
 
+use crate::sac_trainer::TrainError;
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{BatchPolicy, Rng, TransitionSink};
 use mbpo_envs::{make, Env, EnvError};
@@ -176,12 +177,13 @@ impl EnvActor {
 
     /// One env step: choose the action (uniformly, or from `policy` on this one observation),
     /// step, store (s, a, r, s', terminated) with the normalised action, reset at episode end.
+    /// A NaN or infinite observation, reward or action stops here, before it is stored.
     pub fn step(
         &mut self,
         behaviour: Behaviour,
         policy: &mut dyn BatchPolicy,
         replay: &mut dyn TransitionSink,
-    ) {
+    ) -> Result<(), TrainError> {
         match behaviour {
             Behaviour::Uniform => self
                 .action
@@ -193,6 +195,7 @@ impl EnvActor {
         }
         self.scale.to_env(&self.action, &mut self.env_action);
         let step = self.env.step(&self.env_action, &mut self.next_obs);
+        self.check_finite(step.reward)?;
         replay.push(
             &self.obs,
             &self.action,
@@ -210,5 +213,32 @@ impl EnvActor {
         } else {
             std::mem::swap(&mut self.obs, &mut self.next_obs);
         }
+        Ok(())
+    }
+
+    /// The step just taken (action, reward, next observation) is all finite numbers.
+    fn check_finite(&self, reward: f64) -> Result<(), TrainError> {
+        let at = || format!("env step {} of {}", self.steps + 1, self.env.id());
+        let bad = |quantity: String, value: f64| TrainError::NonFinite {
+            role: "actor",
+            quantity,
+            value,
+            at: at(),
+        };
+        if let Some((i, &v)) = self.action.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(bad(format!("action[{i}] of the policy"), v as f64));
+        }
+        if let Some((i, &v)) = self
+            .next_obs
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !v.is_finite())
+        {
+            return Err(bad(format!("observation[{i}]"), v as f64));
+        }
+        if !reward.is_finite() {
+            return Err(bad("the reward".into(), reward));
+        }
+        Ok(())
     }
 }

@@ -92,9 +92,9 @@ impl Mbpo {
     }
 
     /// One env step with `behaviour`, its transition handed to every role that keeps real data.
-    fn act_and_distribute(&mut self, behaviour: Behaviour) {
+    fn act_and_distribute(&mut self, behaviour: Behaviour) -> Result<(), TrainError> {
         let episodes = self.actor.env_actor().episodes;
-        let rows = self.actor.act(behaviour);
+        let rows = self.actor.act(behaviour)?;
         self.model_trainer.add_real(rows);
         self.rollout.add_real(rows);
         self.learner.add_real(rows);
@@ -103,12 +103,14 @@ impl Mbpo {
             let ret = actor.last_return.unwrap_or(f64::NAN);
             self.book.episodes.push((actor.steps, ret));
         }
+        Ok(())
     }
 
     /// One uniform-random env step into D_env (the warm-up before the loop).
-    pub fn warm_up_step(&mut self) {
-        self.act_and_distribute(Behaviour::Uniform);
+    pub fn warm_up_step(&mut self) -> Result<(), TrainError> {
+        self.act_and_distribute(Behaviour::Uniform)?;
         self.learner.finish_step();
+        Ok(())
     }
 
     /// Train p_θ on all of D_env (holdout early stopping; elites) and hand it to the rollouts.
@@ -151,17 +153,18 @@ impl Mbpo {
     }
 
     /// One real env step with a ~ π(·|s) into D_env.
-    pub fn env_step(&mut self) {
+    pub fn env_step(&mut self) -> Result<(), TrainError> {
         self.actor.set_policy(&self.learner.policy());
-        self.act_and_distribute(Behaviour::Policy);
+        self.act_and_distribute(Behaviour::Policy)
     }
 
     /// G SAC updates on batches of `real_ratio` D_env and the rest D_model.
-    pub fn policy_updates(&mut self) {
+    pub fn policy_updates(&mut self) -> Result<(), TrainError> {
         for _ in 0..self.updates_per_step {
-            self.learner.update();
+            self.learner.update()?;
         }
         self.learner.finish_step();
+        Ok(())
     }
 
     /// One env step `t` of Algorithm 2 (1-based), warm-up included; `true` when done. When
@@ -170,7 +173,7 @@ impl Mbpo {
     /// wait for a training that can take minutes.
     pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
         if self.schedule.is_warm_up(t) {
-            self.warm_up_step();
+            self.warm_up_step()?;
             return Ok(true);
         }
         // A checkpoint of a lockstep pipeline can hold the training of step t already.
@@ -189,8 +192,8 @@ impl Mbpo {
             );
             self.branch_rollouts(epoch)?;
         }
-        self.env_step();
-        self.policy_updates();
+        self.env_step()?;
+        self.policy_updates()?;
         Ok(true)
     }
 }

@@ -212,7 +212,7 @@ impl PlanningActorRole {
             error: None,
             seconds: 0.0,
         };
-        self.actor.step(behaviour, &mut policy, &mut self.staged);
+        self.actor.step(behaviour, &mut policy, &mut self.staged)?;
         self.last_plan_seconds = policy.seconds;
         if let Some(e) = policy.error {
             return Err(plan_err(e));

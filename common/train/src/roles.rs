@@ -201,10 +201,10 @@ impl ActorRole {
         Ok(())
     }
     /// One real env step; returns the transition as a one-row batch (no allocation).
-    pub fn act(&mut self, behaviour: Behaviour) -> &Batch {
+    pub fn act(&mut self, behaviour: Behaviour) -> Result<&Batch, TrainError> {
         self.actor
-            .step(behaviour, &mut self.policy, &mut self.staged);
-        self.staged.batch()
+            .step(behaviour, &mut self.policy, &mut self.staged)?;
+        Ok(self.staged.batch())
     }
     /// The transition of the last [`Self::act`].
     pub fn last_transition(&self) -> &Batch {
@@ -284,6 +284,7 @@ impl ModelTrainerRole {
             .model
             .train(&data, &mut self.rng)
             .map_err(|e| TrainError::Config(e.to_string()))?;
+        self.check_finite(&report)?;
         Ok(self.trained(report))
     }
 
@@ -308,7 +309,30 @@ impl ModelTrainerRole {
             self.rng = rng;
             return Ok(None);
         };
+        self.check_finite(&report)?;
         Ok(Some(self.trained(report)))
+    }
+
+    /// A training whose elites' holdout MSE is not finite stops the run.
+    fn check_finite(&self, report: &TrainReport) -> Result<(), TrainError> {
+        let bad = report
+            .elites
+            .iter()
+            .map(|&e| (e, report.final_holdout_mse[e]))
+            .find(|(_, m)| !m.is_finite());
+        match bad {
+            Some((member, value)) => Err(TrainError::NonFinite {
+                role: "model trainer",
+                quantity: format!("the holdout MSE of elite member {member}"),
+                value: value as f64,
+                at: format!(
+                    "model training {} on {} transitions",
+                    self.version + 1,
+                    report.n_train + report.n_holdout
+                ),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// The next version, after a completed training.
@@ -553,7 +577,7 @@ impl LearnerRole {
         self.d_model.len()
     }
     /// One SAC update on a batch of `real_ratio` D_env and the rest D_model.
-    pub fn update(&mut self) {
+    pub fn update(&mut self) -> Result<(), TrainError> {
         sample_mixed(
             &self.d_env,
             &self.d_model,
@@ -562,6 +586,17 @@ impl LearnerRole {
             &mut self.batch,
         );
         self.last_stats = self.sac.update(&self.batch, &mut self.update_rng);
+        let s = &self.last_stats;
+        let losses = [("critic loss", s.critic_loss), ("actor loss", s.actor_loss)];
+        match losses.into_iter().find(|(_, v)| !v.is_finite()) {
+            Some((quantity, value)) => Err(TrainError::NonFinite {
+                role: "learner",
+                quantity: quantity.into(),
+                value: value as f64,
+                at: format!("SAC update {}", self.sac.updates()),
+            }),
+            None => Ok(()),
+        }
     }
     /// Mark one learner step complete: env step t consumed (with its G updates after warm-up).
     pub fn finish_step(&mut self) {

@@ -36,6 +36,22 @@ pub enum TrainError {
     /// A results file could not be encoded.
     #[error("results file: {0}")]
     Json(#[from] serde_json::Error),
+    /// NaN or infinity where a number must be finite: the run stops where it appeared (its
+    /// last complete checkpoint stays as it was).
+    #[error(
+        "{role}: {quantity} is {value} at {at}; the run stops here (its last complete checkpoint \
+         is kept). Check the environment's observations and rewards, or lower the learning rates"
+    )]
+    NonFinite {
+        /// The role that met it (`actor`, `learner`, `model trainer`).
+        role: &'static str,
+        /// What was not finite.
+        quantity: String,
+        /// Its value.
+        value: f64,
+        /// Where: env step, update or training.
+        at: String,
+    },
 }
 
 /// The checkpoint file of a SAC run.
@@ -110,7 +126,7 @@ pub fn train_sac_with(
         } else {
             Behaviour::Policy
         };
-        actor.step(behaviour, &mut sac.policy(), &mut replay);
+        actor.step(behaviour, &mut sac.policy(), &mut replay)?;
 
         // Learn.
         if t >= cfg.sac_loop.random_steps && replay.len() >= cfg.sac.batch_size {

@@ -24,7 +24,7 @@ fn an_actor_step_allocates_nothing() {
     role.set_policy(&snapshot);
     // Warm-up: faer sizes its thread-local packing buffers on first use.
     for _ in 0..3 {
-        role.act(Behaviour::Policy);
+        role.act(Behaviour::Policy).unwrap();
     }
     let before = allocations();
     // Pendulum episodes are 200 steps: 450 steps cross two resets.
@@ -34,7 +34,7 @@ fn an_actor_step_allocates_nothing() {
             0 => Behaviour::Uniform,
             _ => Behaviour::Policy,
         };
-        reward += role.act(behaviour).reward[0];
+        reward += role.act(behaviour).unwrap().reward[0];
     }
     let allocs = allocations() - before;
     assert_eq!(allocs, 0, "{allocs} allocations in 450 actor steps");

@@ -71,7 +71,7 @@ fn model_buffer_keeps_retain_epochs_of_rollouts_across_retrains() {
     let cfg = small_config(1000);
     let mut mbpo = Mbpo::new(&cfg).unwrap();
     for _ in 0..200 {
-        mbpo.warm_up_step();
+        mbpo.warm_up_step().unwrap();
     }
     mbpo.train_model().unwrap();
     mbpo.branch_rollouts(0).unwrap();

@@ -119,7 +119,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        role.act(behaviour);
+        role.act(behaviour)?;
         let a = role.env_actor();
         if a.episodes > episodes {
             // Before the transition: the supervisor may rely on having every episode ≤ t.

@@ -208,7 +208,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
             continue;
         }
         if consumed > warm && limiter.can_sample(consumed, updates) && updates < total_updates {
-            role.update();
+            role.update()?;
             updates += 1;
             continue;
         }
