@@ -162,7 +162,9 @@ pub struct RunBook {
     pub unwritten_evals: Vec<(u64, f64, u64)>,
     /// Wall seconds of the run so far (the clock continues from here).
     pub elapsed_seconds: f64,
-    /// Wall seconds of each env step after the warm-up (`mbpo train`'s median per step).
+    /// Wall seconds of each env step after the warm-up, for `mbpo train`'s median per step
+    /// (the pipeline's learner times its own steps and keeps none here, so a run continued
+    /// under the other command reports the median of the steps since then).
     pub step_seconds: Vec<f64>,
 }
 

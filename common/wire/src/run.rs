@@ -130,10 +130,16 @@ impl RunIpc {
             "mbpo{:010x}_",
             mbpo_core::rng::fnv1a(place.as_bytes()) & 0xff_ffff_ffff
         );
-        Self::with_prefix(run_id, run_hash, prefix, base)
+        let run = Self::with_prefix(run_id, run_hash, prefix, base)?;
+        std::fs::create_dir_all(&run.root).map_err(|source| RunIpcError::Io {
+            path: format!("{}/", run.root.display()),
+            source,
+        })?;
+        Ok(run)
     }
 
-    /// The environment with iceoryx2 prefix `prefix` and root path `<base>/<prefix>/`.
+    /// The environment with iceoryx2 prefix `prefix` and root path `<base>/<prefix>/` (not
+    /// created here: cleaning up another run must not recreate its directory).
     fn with_prefix(
         run_id: &str,
         run_hash: u64,
@@ -149,10 +155,6 @@ impl RunIpc {
                 max: MAX_ROOT_LEN,
             });
         }
-        std::fs::create_dir_all(&root).map_err(|source| RunIpcError::Io {
-            path: root_str.clone(),
-            source,
-        })?;
         let mut config = Config::default();
         config.global.prefix =
             FileName::new(prefix.as_bytes()).map_err(|e| RunIpcError::Config {
@@ -277,17 +279,19 @@ impl RunIpc {
         Ok(report)
     }
 
-    /// Remove what other runs left under `base_dir` once none of their nodes is alive and
-    /// their root path is at least `min_age` old (a run starting this moment has no node yet):
-    /// a launcher killed with SIGKILL cannot clean up after itself, so the next one on the host
-    /// does. Runs with a live node are left alone. Returns the root paths removed.
+    /// Remove what other runs left under `base_dir` once every one of their nodes is known
+    /// dead (a node of unknown state, e.g. another user's, counts as alive) and their root path
+    /// is at least `min_age` old (a run starting this moment has no node yet): a launcher
+    /// killed with SIGKILL cannot clean up after itself, so the next one on the host does.
+    /// Returns the root paths removed. A run that cannot be inspected or removed is logged and
+    /// skipped: someone else's leftovers never stop a launch.
     pub fn remove_dead_runs<S: Service>(
         base_dir: impl AsRef<Path>,
         min_age: Duration,
-    ) -> Result<Vec<PathBuf>, CleanupError> {
+    ) -> Vec<PathBuf> {
         let base = base_dir.as_ref();
         let Ok(entries) = std::fs::read_dir(base) else {
-            return Ok(Vec::new());
+            return Vec::new();
         };
         let mut removed = Vec::new();
         for entry in entries.flatten() {
@@ -305,12 +309,32 @@ impl RunIpc {
             let Ok(run) = Self::with_prefix(&name, 0, format!("{name}_"), base) else {
                 continue;
             };
-            if run.alive_nodes::<S>()?.is_empty() {
-                run.remove_all::<S>()?;
-                removed.push(run.root);
+            match run.all_nodes_dead::<S>() {
+                Ok(true) => {}
+                Ok(false) => continue,
+                Err(e) => {
+                    tracing::warn!(run = %run.root.display(), error = %e, "cannot inspect a run's nodes; left as it is");
+                    continue;
+                }
+            }
+            match run.remove_all::<S>() {
+                Ok(_) => removed.push(run.root),
+                Err(e) => {
+                    tracing::warn!(run = %run.root.display(), error = %e, "cannot remove a dead run's leftovers")
+                }
             }
         }
-        Ok(removed)
+        removed
+    }
+
+    /// True when every node of this run is known dead (none alive, none of unknown state).
+    fn all_nodes_dead<S: Service>(&self) -> Result<bool, CleanupError> {
+        let mut all_dead = true;
+        Node::<S>::list(&self.shared.config, |state| {
+            all_dead &= matches!(state, NodeState::Dead(_));
+            CallbackProgression::Continue
+        })?;
+        Ok(all_dead)
     }
 
     /// Names of the live nodes of this run.

@@ -205,12 +205,8 @@ pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
     for (name, kind) in files {
         let path = dir.join(&name);
         if !path.is_file() {
-            let mpc = match algo {
-                Algo::MPC => " (`mbpo train` writes MPC checkpoints of its own, which only `mbpo train --resume` continues)",
-                _ => "",
-            };
             return Err(RuntimeError::Resume(format!(
-                "{} holds no {name} file: it is not a checkpoint of an {} run with {actors} actor(s){mpc}",
+                "{} holds no {name} file: it is not a checkpoint of an {} run with {actors} actor(s)",
                 dir.display(),
                 algo.name()
             )));

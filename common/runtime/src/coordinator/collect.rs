@@ -204,6 +204,8 @@ impl Collector {
     pub fn restore(&mut self, mut book: RunBook) {
         let last_written = book.last_row.1;
         book.next_row = self.eval_points.partition_point(|&p| p <= last_written);
+        // The pipeline's step times are the learner's own (a book of `mbpo train` has them).
+        book.step_seconds.clear();
         for &(t, ret, version) in &book.unwritten_evals {
             self.evals.insert(t, ret);
             if self.mpc() {

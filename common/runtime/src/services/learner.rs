@@ -98,7 +98,11 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     // a resumed learner republishes the version of its checkpoint.
     // Readers that connect later get it too (latest value, see mbpo_wire::weights).
     publish(published, &role, updates, model_batches)?;
-    loop {
+    // Every step consumed and every update paid (a run restarted from its last step's
+    // checkpoint has nothing left): straight to the Done report.
+    let finished =
+        |published: u64, updates: u64| published == cfg.steps && updates >= total_updates;
+    while !finished(published, updates) {
         let t0 = Instant::now();
         control.poll()?;
         if control.stopped() {
