@@ -217,6 +217,72 @@ fn sigint_stops_the_run_cleanly() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// Two SIGTERMs in a row: the run stops within seconds -- `interrupted` when the second one
+/// came during the stop's checkpoint (it stops at once, without one), `stopped` when that
+/// checkpoint was already done -- leaves no process or shared memory, and its last complete
+/// checkpoint is intact and resumes. (Which of the two happens depends on timing; the decision
+/// itself is tested in `coordinator::signal`.)
+#[test]
+fn two_sigterms_stop_the_run_and_the_last_checkpoint_still_resumes() {
+    let mut cfg = tiny_config(20_000);
+    cfg.checkpoint.every = 100;
+    let dir = scratch("sigterm-twice");
+    let input = write_config(&cfg, &dir);
+    let root = ipc_root("sigterm2");
+    let out = dir.join("run");
+    let mut child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ]);
+    let t = Instant::now();
+    while mbpo_train::checkpoint::latest(&out).unwrap().is_none() {
+        assert!(child.try_wait().unwrap().is_none(), "the run ended first");
+        assert!(
+            t.elapsed() < Duration::from_secs(60),
+            "no checkpoint within 60 s"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    for _ in 0..2 {
+        // SAFETY: kill(2) on our child.
+        unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let t = Instant::now();
+    let o = wait_output(child, Duration::from_secs(30));
+    let took = t.elapsed();
+    assert!(took < Duration::from_secs(15), "stop took {took:?}");
+    let s = summary(&out);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    match s["status"].as_str() {
+        Some("interrupted") => assert!(!o.status.success(), "{stderr}"),
+        Some("stopped") => assert!(o.status.success(), "{stderr}"),
+        other => panic!("status {other:?}: {stderr}"),
+    }
+    assert!(processes_mentioning(&run_id(&s)).is_empty());
+    assert!(leftovers(&run_id(&s), &root).is_empty());
+    let point = mbpo_runtime::coordinator::checkpoints::latest_verified(&out, cfg.algo).unwrap();
+    let steps = (point.env_steps + 50).to_string();
+    let o = wait_output(
+        spawn_run(&[
+            "--resume",
+            out.to_str().unwrap(),
+            "--steps",
+            &steps,
+            "--ipc-root",
+            root.to_str().unwrap(),
+        ]),
+        Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(&out)["status"], "completed");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// A crashed service fails the run with a message naming it; nothing is left behind.
 #[test]
 fn a_crash_fails_the_run_with_a_clear_message() {
