@@ -31,8 +31,8 @@ use crate::run_control::RunOptions;
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
 use crate::run_dir::{MetricsRow, Summary};
 use crate::run_files::{
-    actor_file, file, kind, ActorCheckpoint, EvaluatorCheckpoint, LearnerCheckpoint,
-    ModelTrainerCheckpoint, RolloutCheckpoint, RunBook,
+    actor_file, check_one_actor_cut, file, kind, ActorCheckpoint, EvaluatorCheckpoint,
+    LearnerCheckpoint, ModelTrainerCheckpoint, RolloutCheckpoint, RunBook,
 };
 use crate::sac_trainer::TrainError;
 use mbpo_core::Rng;
@@ -98,11 +98,7 @@ impl Mbpo {
         self.model_trainer.add_real(rows);
         self.rollout.add_real(rows);
         self.learner.add_real(rows);
-        let actor = self.actor.env_actor();
-        if actor.episodes > episodes {
-            let ret = actor.last_return.unwrap_or(f64::NAN);
-            self.book.episodes.push((actor.steps, ret));
-        }
+        self.book.note_episode_end(self.actor.env_actor(), episodes);
         Ok(())
     }
 
@@ -243,7 +239,7 @@ impl Mbpo {
         let eval = EvaluatorCheckpoint {
             rng: evaluator.rng().clone(),
             version: t,
-            evals: (1..=t).filter(|&p| self.schedule.is_eval_point(p)).count() as u64,
+            evals: self.schedule.eval_points_upto(t),
             env_steps: t,
         };
         checkpoint::write(&dir.join(file::EVALUATOR), kind::EVALUATOR, &eval)?;
@@ -262,13 +258,6 @@ impl Mbpo {
     /// already, which [`Mbpo::step_unless`] then does not repeat; a pipelined one stopped
     /// during a training may lack one, which only `mbpo run` can continue.
     pub fn restore_checkpoint(&mut self, dir: &Path, t: u64) -> Result<(Rng, RunBook), TrainError> {
-        if dir.join(actor_file(1)).exists() {
-            return Err(TrainError::Config(format!(
-                "{} is a checkpoint of `mbpo run` with several actors; `mbpo train` runs one: \
-                 resume it with `mbpo run --resume`",
-                dir.display()
-            )));
-        }
         let read = |name: &str| dir.join(name);
         let actor: ActorCheckpoint = checkpoint::read(&read(&actor_file(0)), kind::ACTOR)?;
         let trainer: ModelTrainerCheckpoint =
@@ -278,26 +267,17 @@ impl Mbpo {
         let eval: EvaluatorCheckpoint = checkpoint::read(&read(file::EVALUATOR), kind::EVALUATOR)?;
         let book: RunBook = checkpoint::read(&read(file::RUN_BOOK), kind::RUN_BOOK)?;
         let k = trainer.role.version;
-        let (lo, hi) = (
-            self.schedule.train_points_upto(t),
-            self.schedule.train_points_upto(t + 1),
-        );
-        let consistent = actor.steps == t
-            && learner.consumed == t
-            && rollout.branches == k
-            && learner.model_batches == k;
-        if !consistent || !(lo..=hi).contains(&k) {
-            return Err(TrainError::Config(format!(
-                "{}: the roles are not all after step {t} with {lo} model trainings (actor {}, \
-                 learner {}, trainings {k}, branches {}, imagined batches {}); a pipelined run \
-                 stopped during a model training continues only under `mbpo run --resume`",
-                dir.display(),
-                actor.steps,
-                learner.consumed,
-                rollout.branches,
-                learner.model_batches
-            )));
-        }
+        check_one_actor_cut(
+            dir,
+            &self.schedule,
+            t,
+            k,
+            &[("actor", actor.steps), ("learner", learner.consumed)],
+            &[
+                ("rollout branches", rollout.branches),
+                ("imagined batches", learner.model_batches),
+            ],
+        )?;
         self.actor.restore(actor.role)?;
         self.model_trainer.restore(trainer.role)?;
         self.rollout.restore(rollout.role)?;

@@ -23,7 +23,7 @@ use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
 use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, RunOptions};
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::run_files::{
-    actor_file, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
+    actor_file, check_one_actor_cut, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
     PlanningEvaluatorCheckpoint, RunBook,
 };
 use crate::sac_trainer::TrainError;
@@ -449,7 +449,7 @@ impl MpcRun {
         )?;
         let evaluator = PlanningEvaluatorCheckpoint {
             role: self.evaluator.checkpoint(),
-            evals: (1..=t).filter(|&p| self.schedule.is_eval_point(p)).count() as u64,
+            evals: self.schedule.eval_points_upto(t),
             env_steps: t,
         };
         checkpoint::write(
@@ -474,13 +474,6 @@ impl MpcRun {
     /// can hold the model training of step t + 1 already, which [`MpcRun::step_unless`] then
     /// does not repeat.)
     fn restore_checkpoint(&mut self, dir: &Path, t: u64) -> Result<RunBook, TrainError> {
-        if dir.join(actor_file(1)).exists() {
-            return Err(TrainError::Config(format!(
-                "{} is a checkpoint of `mbpo run` with several actors; `mbpo train` runs one: \
-                 resume it with `mbpo run --resume`",
-                dir.display()
-            )));
-        }
         let trainer: ModelTrainerCheckpoint =
             checkpoint::read(&dir.join(file::MODEL_TRAINER), kind::MODEL_TRAINER)?;
         let actor: PlanningActorCheckpoint =
@@ -489,18 +482,7 @@ impl MpcRun {
             checkpoint::read(&dir.join(file::EVALUATOR), kind::PLANNING_EVALUATOR)?;
         let book: RunBook = checkpoint::read(&dir.join(file::RUN_BOOK), kind::RUN_BOOK)?;
         let k = trainer.role.version;
-        let (lo, hi) = (
-            self.schedule.train_points_upto(t),
-            self.schedule.train_points_upto(t + 1),
-        );
-        if actor.steps != t || !(lo..=hi).contains(&k) {
-            return Err(TrainError::Config(format!(
-                "{}: the roles are not all after step {t} with {lo} model trainings (actor {}, \
-                 trainings {k})",
-                dir.display(),
-                actor.steps
-            )));
-        }
+        check_one_actor_cut(dir, &self.schedule, t, k, &[("actor", actor.steps)], &[])?;
         self.model_trainer.restore(trainer.role)?;
         self.actor.restore(actor.role)?;
         self.evaluator.restore(evaluator.role);
@@ -621,11 +603,7 @@ fn record_step(mpc: &MpcRun, book: &mut RunBook, version: u64, episodes: u64) {
     if let Some(r) = mpc.last_model_report.as_ref().filter(|_| v > version) {
         book.models.insert(v, r.elite_holdout_mse());
     }
-    let actor = mpc.actor.env_actor();
-    if actor.episodes > episodes {
-        let ret = actor.last_return.unwrap_or(f64::NAN);
-        book.episodes.push((actor.steps, ret));
-    }
+    book.note_episode_end(mpc.actor.env_actor(), episodes);
 }
 
 /// Evaluate the planner on the current model at env step `t` and build the metrics row.

@@ -13,8 +13,13 @@ use std::collections::BTreeMap;
 use mbpo_core::Rng;
 use serde::{Deserialize, Serialize};
 
+use std::path::Path;
+
+use crate::actor::EnvActor;
 use crate::mpc::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
+use crate::sac_trainer::TrainError;
+use crate::schedule::Schedule;
 
 /// File names in a checkpoint directory (actors: [`actor_file`]).
 pub mod file {
@@ -197,6 +202,14 @@ impl RunBook {
             .map_or(env_steps, |&(t, _, _)| t - 1)
     }
 
+    /// Keep the episode `actor` ended in its last step, if it had `episodes_before` before.
+    pub fn note_episode_end(&mut self, actor: &EnvActor, episodes_before: u64) {
+        if actor.episodes > episodes_before {
+            let ret = actor.last_return.unwrap_or(f64::NAN);
+            self.episodes.push((actor.steps, ret));
+        }
+    }
+
     /// Take a metrics row of eval point `t` with return `ret` at `wall` seconds after
     /// `updates` SAC updates: the returns, and where the next row's rates start.
     pub fn wrote_row(&mut self, t: u64, ret: f64, wall: f64, updates: u64) {
@@ -206,5 +219,87 @@ impl RunBook {
         self.best_return = self.best_return.max(ret);
         self.last_eval = Some(ret);
         self.next_row += 1;
+    }
+}
+
+/// Check that the checkpoint in `dir`, after env step `t` with `k` model trainings, is one
+/// `mbpo train` can continue: one actor, each of `steps` (role, env steps) at `t`, each of
+/// `trainings` (role, trainings or imagined batches) at `k`, and `k` the trainings of the train
+/// points ≤ t -- or one more, a lockstep cut that already holds the training of step t + 1. A
+/// pipelined stop may have abandoned a training; only `mbpo run` continues that.
+pub fn check_one_actor_cut(
+    dir: &Path,
+    schedule: &Schedule,
+    t: u64,
+    k: u64,
+    steps: &[(&str, u64)],
+    trainings: &[(&str, u64)],
+) -> Result<(), TrainError> {
+    if dir.join(actor_file(1)).exists() {
+        return Err(TrainError::Config(format!(
+            "{} is a checkpoint of `mbpo run` with several actors; `mbpo train` runs one: \
+             resume it with `mbpo run --resume`",
+            dir.display()
+        )));
+    }
+    let lo = schedule.train_points_upto(t);
+    let consistent = steps.iter().all(|&(_, s)| s == t)
+        && trainings.iter().all(|&(_, n)| n == k)
+        && (lo..=schedule.train_points_upto(t + 1)).contains(&k);
+    if consistent {
+        return Ok(());
+    }
+    let found: Vec<String> = steps
+        .iter()
+        .chain(trainings)
+        .map(|(role, n)| format!("{role} {n}"))
+        .collect();
+    Err(TrainError::Config(format!(
+        "{}: the roles are not all after step {t} with {lo} model trainings (trainings {k}, {}); \
+         a pipelined run stopped during a model training continues only under `mbpo run --resume`",
+        dir.display(),
+        found.join(", ")
+    )))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::ExperimentConfig;
+
+    #[test]
+    fn only_a_one_actor_cut_after_t_with_its_trainings_is_continued_by_mbpo_train() {
+        let mut cfg = ExperimentConfig {
+            steps: 1000,
+            ..Default::default()
+        };
+        cfg.mbpo.init_random_steps = 200;
+        cfg.mbpo.model_train_freq = 100;
+        let schedule = Schedule::of(&cfg);
+        let dir = std::env::temp_dir().join(format!("mbpo-cut-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        // After 300 the train point 201 is done (K = 1); a lockstep cut may also hold the
+        // training of 301 (K = 2).
+        let check = |t, k, actor, batches| {
+            check_one_actor_cut(
+                &dir,
+                &schedule,
+                t,
+                k,
+                &[("actor", actor)],
+                &[("batches", batches)],
+            )
+        };
+        assert!(check(300, 1, 300, 1).is_ok());
+        assert!(check(300, 2, 300, 2).is_ok());
+        let err = check(300, 0, 300, 0).unwrap_err().to_string();
+        assert!(err.contains("with 1 model trainings (trainings 0"), "{err}");
+        let err = check(300, 1, 299, 1).unwrap_err().to_string();
+        assert!(err.contains("actor 299"), "{err}");
+        assert!(check(300, 1, 300, 2).is_err());
+        std::fs::create_dir_all(dir.join(actor_file(1))).unwrap();
+        let err = check(300, 1, 300, 1).unwrap_err().to_string();
+        assert!(err.contains("several actors"), "{err}");
+        std::fs::remove_dir_all(dir).unwrap();
     }
 }

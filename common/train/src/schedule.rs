@@ -93,6 +93,10 @@ impl Schedule {
     pub fn eval_points(&self) -> impl Iterator<Item = u64> + '_ {
         (1..=self.steps).filter(|&t| self.is_eval_point(t))
     }
+    /// Eval points ≤ `t` (the evaluations a checkpoint after step `t` holds).
+    pub fn eval_points_upto(&self, t: u64) -> u64 {
+        (1..=t).filter(|&p| self.is_eval_point(p)).count() as u64
+    }
     /// SAC updates owed once step `t` is consumed: G per step after the warm-up.
     pub fn updates_owed(&self, t: u64) -> u64 {
         t.saturating_sub(self.init_random_steps) * self.updates_per_step

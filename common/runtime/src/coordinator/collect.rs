@@ -44,10 +44,10 @@ pub struct Range {
 }
 
 impl Range {
-    /// This range with the allowed bounds `lowest..=highest`.
-    fn allowed(self, lowest: Option<u64>, highest: Option<u64>) -> Self {
+    /// This range with the allowed bounds `-below..=highest` (the limits are buffers around 0).
+    fn allowed(self, below: Option<u64>, highest: Option<u64>) -> Self {
         Self {
-            lowest_allowed: lowest.map(|v| 0.0 - v as f32),
+            lowest_allowed: below.map(|v| 0.0 - v as f32),
             highest_allowed: highest.map(|v| v as f32),
             ..self
         }
