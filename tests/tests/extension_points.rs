@@ -47,24 +47,25 @@ impl Env for Toy {
     fn max_episode_steps(&self) -> usize {
         50
     }
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError> {
         self.x = uniform_range_f32(rng, -1.0, 1.0) as f64;
         self.steps = 0;
         obs[0] = self.x as f32;
+        Ok(())
     }
     fn elapsed_steps(&self) -> usize {
         self.steps
     }
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError> {
         let a = action[0].clamp(-1.0, 1.0) as f64;
         self.x = (self.x + 0.1 * a).clamp(-2.0, 2.0);
         self.steps += 1;
         obs[0] = self.x as f32;
-        Step {
+        Ok(Step {
             reward: -self.x * self.x - 0.1 * a * a,
             terminated: false,
             truncated: self.steps >= 50,
-        }
+        })
     }
 }
 
@@ -208,10 +209,10 @@ fn evaluate_in_box(
     let (mut obs, mut action) = (vec![0.0f32; env.obs_dim()], vec![0.0f32; env.act_dim()]);
     let mut total = 0.0;
     for _ in 0..episodes {
-        env.reset(rng, &mut obs);
+        env.reset(rng, &mut obs).unwrap();
         loop {
             policy.act_batch(&obs, 1, &mut action, rng);
-            let step = env.step(&action, &mut obs);
+            let step = env.step(&action, &mut obs).unwrap();
             total += step.reward;
             if step.terminated || step.truncated {
                 break;

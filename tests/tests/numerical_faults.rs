@@ -35,15 +35,16 @@ impl Env for NanAt60 {
     fn max_episode_steps(&self) -> usize {
         20
     }
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError> {
         self.x = uniform_range_f32(rng, -1.0, 1.0) as f64;
         self.steps = 0;
         obs[0] = self.x as f32;
+        Ok(())
     }
     fn elapsed_steps(&self) -> usize {
         self.steps
     }
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError> {
         self.x = (self.x + 0.1 * action[0] as f64).clamp(-1.0, 1.0);
         self.steps += 1;
         self.total += 1;
@@ -52,11 +53,11 @@ impl Env for NanAt60 {
         } else {
             self.x as f32
         };
-        Step {
+        Ok(Step {
             reward: -self.x * self.x,
             terminated: false,
             truncated: self.steps >= 20,
-        }
+        })
     }
 }
 

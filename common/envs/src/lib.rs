@@ -11,7 +11,7 @@
 //! let mut obs = vec![0.0f32; env.obs_dim()];
 //! let restorable = env.restorable_mut().expect("Pendulum can start from a given state");
 //! restorable.reset_to(&[0.5, 0.0], &mut obs).unwrap();
-//! let step = env.step(&[1.0], &mut obs);
+//! let step = env.step(&[1.0], &mut obs).unwrap();
 //! assert!(!step.terminated && !step.truncated);
 //! ```
 //!
@@ -26,6 +26,7 @@ mod mountain_car;
 pub mod mujoco;
 pub mod numpy_sum;
 mod pendulum;
+pub mod python;
 pub mod registry;
 pub mod reward;
 mod space;
@@ -33,6 +34,7 @@ pub mod termination;
 
 pub use mountain_car::MountainCarContinuous;
 pub use pendulum::Pendulum;
+pub use python::{GymSpec, PythonEnv, GYM_PREFIX};
 pub use registry::{
     make, register, reward_fn, target_return, task, tasks, termination_fn, TaskSpec, ENV_IDS,
     MUJOCO_ENV_IDS, REWARD_ENV_IDS, TERMINATION_ENV_IDS,
@@ -95,6 +97,34 @@ pub enum EnvError {
         /// What MuJoCo reported.
         message: String,
     },
+    /// A Python Gymnasium environment could not be started; the message says why and the fix.
+    #[error("{env}: {message}")]
+    PythonStart {
+        /// Environment id (`gym:...`).
+        env: String,
+        /// What went wrong and how to fix it.
+        message: String,
+    },
+    /// A Python environment raised an exception in `reset` or `step`.
+    #[error("{env} raised an exception in {call}:\n{traceback}")]
+    PythonException {
+        /// Environment id (`gym:...`).
+        env: String,
+        /// `reset` or `step`.
+        call: &'static str,
+        /// Python's traceback.
+        traceback: String,
+    },
+    /// The Python process hosting an environment exited; the next reset starts a new one.
+    #[error("{env}: the Python process hosting the environment exited during {call} ({status})")]
+    PythonExited {
+        /// Environment id (`gym:...`).
+        env: String,
+        /// `reset` or `step`.
+        call: &'static str,
+        /// How it ended (exit status or signal).
+        status: String,
+    },
     /// A MuJoCo model could not be loaded.
     #[error("{env}: cannot load the MuJoCo model: {message}")]
     Model {
@@ -121,11 +151,14 @@ pub trait Env: Send {
     /// Episode length after which `truncated` is reported.
     fn max_episode_steps(&self) -> usize;
     /// Draw a start state from Gymnasium's start distribution and write the observation.
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]);
+    /// Built-in environments never fail; a Python one can ([`EnvError::PythonException`],
+    /// [`EnvError::PythonExited`]).
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError>;
     /// Steps taken in the current episode (what the time limit counts).
     fn elapsed_steps(&self) -> usize;
     /// Advance one step with `action` (length `act_dim`) and write the next observation.
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step;
+    /// Fails like [`Env::reset`].
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError>;
 
     /// Observation dimension.
     fn obs_dim(&self) -> usize {

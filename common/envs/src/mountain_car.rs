@@ -138,15 +138,16 @@ impl Env for MountainCarContinuous {
     }
 
     /// p ~ U(−0.6, −0.4), v = 0, kept in f64 as Gymnasium's reset does.
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError> {
         self.position = uniform_range_f64(rng, -0.6, -0.4);
         self.velocity = 0.0;
         self.precision = Precision::F64;
         self.steps = 0;
         self.write_obs(obs);
+        Ok(())
     }
 
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError> {
         debug_assert_eq!(action.len(), 1, "{ID}: action has 1 value");
         let a = action[0];
         // `min(max(a, -1.0), 1.0)` with Python's builtins: an in-bounds action stays a float32
@@ -195,11 +196,11 @@ impl Env for MountainCarContinuous {
         let a = a as f64;
         let goal_bonus = if terminated { 100.0 } else { 0.0 };
         let reward = goal_bonus - a * a * 0.1;
-        Step {
+        Ok(Step {
             reward,
             terminated,
             truncated: self.steps >= MAX_EPISODE_STEPS,
-        }
+        })
     }
 
     fn restorable(&self) -> Option<&dyn RestorableEnv> {
@@ -257,7 +258,7 @@ mod tests {
         let mut env = MountainCarContinuous::new();
         let mut obs = [0.0f32; 2];
         env.reset_to(&[-0.5, 0.0], &mut obs).unwrap();
-        let step = env.step(&[1.5], &mut obs);
+        let step = env.step(&[1.5], &mut obs).unwrap();
         assert_eq!(step.reward, -(1.5f64 * 1.5) * 0.1);
         assert!(!step.terminated && !step.truncated);
     }
@@ -267,10 +268,10 @@ mod tests {
         let mut env = MountainCarContinuous::new();
         let mut obs = [0.0f32; 2];
         env.reset_to(&[-1.19, -0.05], &mut obs).unwrap();
-        env.step(&[-1.0], &mut obs);
+        env.step(&[-1.0], &mut obs).unwrap();
         assert_eq!(obs, [-1.2f32, 0.0]);
         // At the wall the slope pushes back harder than full reverse power.
-        env.step(&[-1.0], &mut obs);
+        env.step(&[-1.0], &mut obs).unwrap();
         assert!(obs[0] > -1.2f32 && obs[1] > 0.0);
     }
 
@@ -280,7 +281,7 @@ mod tests {
         let mut obs = [0.0f32; 2];
         env.reset_to(&[-0.5123456789, 0.0], &mut obs).unwrap();
         assert_eq!(env.state(), vec![-0.5123456789, 0.0]);
-        env.step(&[0.3], &mut obs);
+        env.step(&[0.3], &mut obs).unwrap();
         let s = env.state();
         assert_eq!(s, vec![obs[0] as f64, obs[1] as f64]);
     }

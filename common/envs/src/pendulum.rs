@@ -116,15 +116,16 @@ impl Env for Pendulum {
     }
 
     /// θ ~ U(−π, π), then θ̇ ~ U(−1, 1), as Gymnasium's `np_random.uniform(low, high)` draws them.
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError> {
         use std::f64::consts::PI;
         self.theta = uniform_range_f64(rng, -PI, PI);
         self.thetadot = uniform_range_f64(rng, -1.0, 1.0);
         self.steps = 0;
         self.write_obs(obs);
+        Ok(())
     }
 
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError> {
         debug_assert_eq!(action.len(), 1, "{ID}: action has 1 value");
         let (th, thdot) = (self.theta, self.thetadot);
         // np.clip on the float32 action array: stays float32 (NaN passes through, as in NumPy).
@@ -142,11 +143,11 @@ impl Env for Pendulum {
         self.thetadot = newthdot;
         self.steps += 1;
         self.write_obs(obs);
-        Step {
+        Ok(Step {
             reward: -cost,
             terminated: false,
             truncated: self.steps >= MAX_EPISODE_STEPS,
-        }
+        })
     }
 
     fn restorable(&self) -> Option<&dyn RestorableEnv> {

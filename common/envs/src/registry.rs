@@ -13,7 +13,7 @@ use std::sync::RwLock;
 
 use crate::reward::{self, RewardFn};
 use crate::termination::{self, TerminationFn};
-use crate::{Env, EnvError, MountainCarContinuous, Pendulum};
+use crate::{Env, EnvError, GymSpec, MountainCarContinuous, Pendulum, PythonEnv};
 
 /// Everything the system knows about one task.
 #[derive(Debug, Clone, Copy)]
@@ -162,9 +162,13 @@ pub fn task(id: &str) -> Result<TaskSpec, EnvError> {
         .ok_or_else(|| EnvError::UnknownEnv(id.to_string()))
 }
 
-/// Build an environment by its id.
+/// Build an environment by its id: a task of the table, or a Python Gymnasium env (`gym:...`,
+/// default interpreter, no keyword arguments; [`crate::PythonEnv::start`] takes the rest).
 pub fn make(id: &str) -> Result<Box<dyn Env>, EnvError> {
-    (task(id)?.make)()
+    match GymSpec::from_id(id) {
+        Some(spec) => Ok(Box::new(PythonEnv::start(spec)?)),
+        None => (task(id)?.make)(),
+    }
 }
 
 /// The termination function of the task `id`, or `None` for an unknown id (callers should

@@ -114,12 +114,12 @@ mod tests {
         let (low, high) = (env.action_space().low[0], env.action_space().high[0]);
         let mut steps = 0;
         for _ in 0..episodes {
-            env.reset(&mut rng, &mut obs);
+            env.reset(&mut rng, &mut obs).unwrap();
             loop {
                 // Some actions outside the box: the clip (Pendulum) and the raw-action penalty
                 // (MountainCar) must both be reproduced.
                 let a = [uniform_range_f32(&mut rng, 1.25 * low, 1.25 * high)];
-                let step = env.step(&a, &mut next);
+                let step = env.step(&a, &mut next).unwrap();
                 let got = (r.value)(&obs, &a, &next) as f64;
                 let tol = 2e-5 * step.reward.abs().max(1.0);
                 assert!(

@@ -192,7 +192,7 @@ mod tests {
                 .unwrap();
             for _ in 0..999 {
                 let a = [if obs[1] >= 0.0 { 1.0f32 } else { -1.0 }];
-                let step = env.step(&a, &mut next);
+                let step = env.step(&a, &mut next).unwrap();
                 assert_eq!(f(&obs, &a, &next), step.terminated, "{obs:?} -> {next:?}");
                 obs = next;
                 if step.terminated {

@@ -108,7 +108,7 @@ fn replay(env_id: &str) -> Deviation {
             for (&a, &a64) in action.iter().zip(&ep.actions[t]) {
                 assert_eq!(a as f64, a64, "{ctx}: action is not an f32 value");
             }
-            let step = env.step(&action, &mut obs);
+            let step = env.step(&action, &mut obs).unwrap();
             check_obs(&mut dev, &ctx, &*env, &obs, &ep.obs[t + 1]);
             let want = ep.rewards[t];
             let d = (step.reward - want).abs();
@@ -286,10 +286,10 @@ fn time_limit_truncates_at_1000_steps_and_reset_restarts_the_count() {
     let mut obs = vec![0.0f32; env.obs_dim()];
     let action = vec![0.0f32; env.act_dim()];
     for _ in 0..2 {
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         let truncated_at: Vec<usize> = (1..=MAX_EPISODE_STEPS)
             .filter(|_| {
-                let s = env.step(&action, &mut obs);
+                let s = env.step(&action, &mut obs).unwrap();
                 assert!(!s.terminated);
                 s.truncated
             })
@@ -317,7 +317,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
         let (scale, _) = task.reset_noise();
         let mut draws: Vec<Vec<f64>> = vec![Vec::with_capacity(n); init.len()];
         for _ in 0..n {
-            env.reset(&mut rng, &mut obs);
+            env.reset(&mut rng, &mut obs).unwrap();
             for (d, (s, i)) in draws
                 .iter_mut()
                 .zip(env.restorable().unwrap().state().iter().zip(&init))

@@ -92,7 +92,7 @@ fn replay(env_id: &str) -> Deviation {
             for (&a, &a64) in action.iter().zip(&ep.actions[t]) {
                 assert_eq!(a as f64, a64, "{ctx}: action is not an f32 value");
             }
-            let step = env.step(&action, &mut obs);
+            let step = env.step(&action, &mut obs).unwrap();
             check_obs(&mut dev, &ctx, &obs, &ep.obs[t + 1]);
             let want = ep.rewards[t];
             let rel = (step.reward - want).abs() / want.abs().max(1.0);
@@ -194,7 +194,7 @@ fn run_to_time_limit(env: &mut dyn Env, state: &[f64]) {
         .unwrap();
     let max = env.max_episode_steps();
     for t in 1..=max {
-        let step = env.step(&action, &mut obs);
+        let step = env.step(&action, &mut obs).unwrap();
         assert!(!step.terminated, "{} terminated at step {t}", env.id());
         assert_eq!(step.truncated, t == max, "{} step {t}: truncated", env.id());
     }
@@ -222,14 +222,14 @@ fn random_reset_restarts_the_step_count() {
         let mut env = make(id).unwrap();
         let mut obs = vec![0.0f32; env.obs_dim()];
         let action = vec![0.0f32; env.act_dim()];
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         for _ in 0..10 {
-            env.step(&action, &mut obs);
+            env.step(&action, &mut obs).unwrap();
         }
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         let max = env.max_episode_steps();
         let truncated_at: Vec<usize> = (1..=max)
-            .filter(|_| env.step(&action, &mut obs).truncated)
+            .filter(|_| env.step(&action, &mut obs).unwrap().truncated)
             .collect();
         assert_eq!(truncated_at, vec![max], "{id}");
     }
@@ -316,7 +316,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
     let mut obs = [0.0f32; 3];
     let (mut th, mut thd) = (Vec::with_capacity(n), Vec::with_capacity(n));
     for _ in 0..n {
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         let s = env.restorable().unwrap().state();
         assert_eq!(obs, [s[0].cos() as f32, s[0].sin() as f32, s[1] as f32]);
         th.push(s[0]);
@@ -347,7 +347,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
     let mut obs = [0.0f32; 2];
     let mut pos = Vec::with_capacity(n);
     for _ in 0..n {
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         let s = env.restorable().unwrap().state();
         assert_eq!(s[1], 0.0);
         assert_eq!(obs, [s[0] as f32, 0.0]);

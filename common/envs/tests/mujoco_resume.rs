@@ -13,7 +13,7 @@ fn rollout(env: &mut dyn Env, actions: &[Vec<f32>]) -> Vec<(Vec<u64>, u64, bool,
     let mut obs = vec![0.0f32; env.obs_dim()];
     let mut out = Vec::new();
     for a in actions {
-        let s = env.step(a, &mut obs);
+        let s = env.step(a, &mut obs).unwrap();
         let bits = env
             .observation_f64()
             .unwrap()
@@ -45,9 +45,9 @@ fn actions(env: &dyn Env, n: usize, seed: u64, scale: f32) -> Vec<Vec<f32>> {
 fn played(id: &str, before: &[Vec<f32>]) -> (Box<dyn Env>, Vec<f64>, usize, Vec<f64>) {
     let mut env = make(id).unwrap();
     let mut obs = vec![0.0f32; env.obs_dim()];
-    env.reset(&mut stream(1, "test.reset", 0), &mut obs);
+    env.reset(&mut stream(1, "test.reset", 0), &mut obs).unwrap();
     for a in before {
-        let s = env.step(a, &mut obs);
+        let s = env.step(a, &mut obs).unwrap();
         assert!(
             !s.terminated && !s.truncated,
             "{id}: episode ended before the cut"

@@ -14,18 +14,18 @@ fn main() {
     let mut rng = stream(0, "diag", 0);
     let mut data = Batch::new(3, 1, n);
     let mut obs = [0.0f32; 3];
-    env.reset(&mut rng, &mut obs);
+    env.reset(&mut rng, &mut obs).unwrap();
     for r in 0..n {
         let a = uniform_range_f32(&mut rng, -1.0, 1.0);
         let mut next = [0.0f32; 3];
-        let s = env.step(&[2.0 * a], &mut next);
+        let s = env.step(&[2.0 * a], &mut next).unwrap();
         data.obs[3 * r..3 * r + 3].copy_from_slice(&obs);
         data.act[r] = a;
         data.reward[r] = s.reward as f32;
         data.next_obs[3 * r..3 * r + 3].copy_from_slice(&next);
         obs = next;
         if s.truncated {
-            env.reset(&mut rng, &mut obs);
+            env.reset(&mut rng, &mut obs).unwrap();
         }
     }
     let cfg = ModelConfig {
@@ -50,10 +50,10 @@ fn main() {
     let mut truth = vec![0.0f32; 3 * m];
     let mut r_true = vec![0.0f32; m];
     for i in 0..m {
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         let u = uniform_range_f32(&mut rng, -1.0, 1.0);
         let mut next = [0.0f32; 3];
-        let s = env.step(&[2.0 * u], &mut next);
+        let s = env.step(&[2.0 * u], &mut next).unwrap();
         o[3 * i..3 * i + 3].copy_from_slice(&obs);
         a[i] = u;
         truth[3 * i..3 * i + 3].copy_from_slice(&next);
@@ -101,13 +101,13 @@ fn main() {
     .unwrap();
     let mut mpc = Mpc::new(build(&pc, 1).unwrap(), false);
     for ep in 0..2 {
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         mpc.reset();
         let mut ret = 0.0;
         for _ in 0..200 {
             let mut act = [0.0f32];
             mpc.act(&mut em, &obs, &mut rng, &mut act).unwrap();
-            ret += env.step(&[2.0 * act[0]], &mut obs).reward;
+            ret += env.step(&[2.0 * act[0]], &mut obs).unwrap().reward;
         }
         println!(
             "episode {ep}: return {ret:.1} (predicted last {:.1})",

@@ -67,13 +67,13 @@ fn main() {
     let mut model = TruePendulum;
     for ep in 0..3 {
         let mut obs = [0.0f32; 3];
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs).unwrap();
         mpc.reset();
         let mut ret = 0.0;
         for _ in 0..200 {
             let mut a = [0.0f32];
             mpc.act(&mut model, &obs, &mut rng, &mut a).unwrap();
-            let s = env.step(&[a[0] * 2.0], &mut obs);
+            let s = env.step(&[a[0] * 2.0], &mut obs).unwrap();
             ret += s.reward;
         }
         println!("episode {ep}: return {ret:.1}");

@@ -57,7 +57,7 @@ pub struct Dims {
 impl Dims {
     /// The dimensions of the run configured by `cfg`.
     pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
-        let env = mbpo_envs::make(&cfg.env)?;
+        let env = cfg.make_env()?;
         let (obs, act) = (env.obs_dim(), env.act_dim());
         let net = actor_net(cfg, obs, act);
         // Architecture only; the stream is never used for anything else.

@@ -4,7 +4,7 @@
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{BatchPolicy, Rng, TransitionSink};
-use mbpo_envs::{make, Env, EnvError};
+use mbpo_envs::{Env, EnvError};
 use mbpo_sac::ActionScale;
 use serde::{Deserialize, Serialize};
 
@@ -37,6 +37,11 @@ pub struct EnvActor {
     pub last_return: Option<f64>,
     /// Episodes cut short by resumes (see [`EnvActorState::episodes_cut`]).
     pub episodes_cut: u64,
+    /// Episodes lost to an environment process that exited (see [`EnvActorState::episodes_lost`]).
+    pub episodes_lost: u64,
+    /// Env steps since the environment's process last started (a process that exits before
+    /// its first step is not restarted again: the run fails instead of looping).
+    steps_since_env_start: u64,
 }
 
 /// What a checkpoint keeps of an [`EnvActor`]: the episode in progress (where the environment
@@ -59,6 +64,10 @@ pub struct EnvActorState {
     /// Episodes cut short by a resume: the environment could not save the episode in progress,
     /// so the resumed actor started a new one (never counted in `episodes`).
     pub episodes_cut: u64,
+    /// Episodes lost because the process hosting the environment (a Python env) exited
+    /// mid-episode: the actor started a new process and a new episode, and stored nothing of
+    /// the step that failed (never counted in `episodes`).
+    pub episodes_lost: u64,
 }
 
 /// The episode in progress of an environment that can save its state.
@@ -97,6 +106,7 @@ impl EnvActor {
             last_return: self.last_return,
             episodes_cut: self.episodes_cut
                 + u64::from(self.env.restorable().is_none() && self.env.elapsed_steps() > 0),
+            episodes_lost: self.episodes_lost,
         }
     }
 
@@ -110,14 +120,14 @@ impl EnvActor {
         self.episodes = s.episodes;
         self.last_return = s.last_return;
         self.episodes_cut = s.episodes_cut;
+        self.episodes_lost = s.episodes_lost;
         let Some(episode) = s.episode else {
             tracing::info!(
                 "{}: the environment cannot restore an episode; the resumed actor starts a new one",
                 self.env.id()
             );
             self.episode_return = 0.0;
-            self.env.reset(&mut self.env_rng, &mut self.obs);
-            return Ok(());
+            return self.env.reset(&mut self.env_rng, &mut self.obs);
         };
         if episode.obs.len() != self.obs.len() {
             return Err(EnvError::StateDim {
@@ -141,13 +151,13 @@ impl EnvActor {
         Ok(())
     }
 
-    /// Actor `index` of run `seed` on environment `env_id`, reset to its first start state.
-    pub fn new(env_id: &str, seed: u64, index: u64) -> Result<Self, EnvError> {
-        let mut env = make(env_id)?;
+    /// Actor `index` of run `seed` on `env` (see [`crate::ExperimentConfig::make_env`]),
+    /// reset to its first start state.
+    pub fn new(mut env: Box<dyn Env>, seed: u64, index: u64) -> Result<Self, EnvError> {
         let scale = ActionScale::new(&env.action_space().low, &env.action_space().high);
         let mut env_rng = stream(seed, "actor.env", index);
         let mut obs = vec![0.0; env.obs_dim()];
-        env.reset(&mut env_rng, &mut obs);
+        env.reset(&mut env_rng, &mut obs)?;
         let (o, a) = (env.obs_dim(), env.act_dim());
         Ok(Self {
             env,
@@ -163,6 +173,8 @@ impl EnvActor {
             episodes: 0,
             last_return: None,
             episodes_cut: 0,
+            episodes_lost: 0,
+            steps_since_env_start: 0,
         })
     }
 
@@ -178,23 +190,33 @@ impl EnvActor {
     /// One env step: choose the action (uniformly, or from `policy` on this one observation),
     /// step, store (s, a, r, s', terminated) with the normalised action, reset at episode end.
     /// A NaN or infinite observation, reward or action stops here, before it is stored.
+    ///
+    /// When the environment's process exits mid-step (a Python env), the episode is lost
+    /// (counted in `episodes_lost`), a new process starts a new episode and the step is taken
+    /// there: every call stores exactly one transition. A process that exits again before its
+    /// first step fails the run.
     pub fn step(
         &mut self,
         behaviour: Behaviour,
         policy: &mut dyn BatchPolicy,
         replay: &mut dyn TransitionSink,
     ) -> Result<(), TrainError> {
-        match behaviour {
-            Behaviour::Uniform => self
-                .action
-                .iter_mut()
-                .for_each(|a| *a = uniform_range_f32(&mut self.policy_rng, -1.0, 1.0)),
-            Behaviour::Policy => {
-                policy.act_batch(&self.obs, 1, &mut self.action, &mut self.policy_rng)
+        let step = loop {
+            self.choose_action(behaviour, policy);
+            match self.env.step(&self.env_action, &mut self.next_obs) {
+                Ok(step) => break step,
+                Err(e @ EnvError::PythonExited { .. }) if self.steps_since_env_start > 0 => {
+                    tracing::warn!("{e}; the episode is lost, starting a new process");
+                    self.episodes_lost += 1;
+                    self.episode_return = 0.0;
+                    self.steps_since_env_start = 0;
+                    self.env.reset(&mut self.env_rng, &mut self.obs)?;
+                    self.check_finite_reset()?;
+                }
+                Err(e) => return Err(e.into()),
             }
-        }
-        self.scale.to_env(&self.action, &mut self.env_action);
-        let step = self.env.step(&self.env_action, &mut self.next_obs);
+        };
+        self.steps_since_env_start += 1;
         self.check_finite(step.reward)?;
         replay.push(
             &self.obs,
@@ -209,11 +231,39 @@ impl EnvActor {
             self.episodes += 1;
             self.last_return = Some(self.episode_return);
             self.episode_return = 0.0;
-            self.env.reset(&mut self.env_rng, &mut self.obs);
+            self.env.reset(&mut self.env_rng, &mut self.obs)?;
+            self.check_finite_reset()?;
         } else {
             std::mem::swap(&mut self.obs, &mut self.next_obs);
         }
         Ok(())
+    }
+
+    /// The next action: uniform in [-1, 1] or from the policy, then rescaled to the env's box.
+    fn choose_action(&mut self, behaviour: Behaviour, policy: &mut dyn BatchPolicy) {
+        match behaviour {
+            Behaviour::Uniform => self
+                .action
+                .iter_mut()
+                .for_each(|a| *a = uniform_range_f32(&mut self.policy_rng, -1.0, 1.0)),
+            Behaviour::Policy => {
+                policy.act_batch(&self.obs, 1, &mut self.action, &mut self.policy_rng)
+            }
+        }
+        self.scale.to_env(&self.action, &mut self.env_action);
+    }
+
+    /// A reset's observation is all finite numbers.
+    fn check_finite_reset(&self) -> Result<(), TrainError> {
+        match self.obs.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            Some((i, &v)) => Err(TrainError::NonFinite {
+                role: "actor",
+                quantity: format!("observation[{i}] of a reset"),
+                value: v as f64,
+                at: format!("env step {} of {}", self.steps, self.env.id()),
+            }),
+            None => Ok(()),
+        }
     }
 
     /// The step just taken (action, reward, next observation) is all finite numbers.

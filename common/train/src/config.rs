@@ -212,8 +212,14 @@ impl Default for MpcConfig {
 pub struct ExperimentConfig {
     /// Training algorithm.
     pub algo: Algo,
-    /// Environment id (see `mbpo env list`).
+    /// Environment id: a built-in task (see `mbpo env list`) or a Python Gymnasium env,
+    /// `gym:<registered id>` or `gym:<module>:<class or function>` (settings in `[gym]`).
     pub env: String,
+    /// How model rollouts end (see [`crate::env_config`]): unset = the task's own rule;
+    /// `"never"`; or a built-in task's id. A `gym:` env must set it.
+    pub termination: Option<String>,
+    /// Python Gymnasium environment settings (`env = "gym:..."`).
+    pub gym: crate::env_config::GymConfig,
     /// Run seed: every random stream derives from it.
     pub seed: u64,
     /// Total real environment steps.
@@ -239,6 +245,8 @@ impl Default for ExperimentConfig {
         Self {
             algo: Algo::SAC,
             env: "Pendulum-v1".into(),
+            termination: None,
+            gym: Default::default(),
             seed: 0,
             steps: 20_000,
             eval: EvalConfig::default(),
@@ -349,6 +357,16 @@ impl ExperimentConfig {
         } else {
             format!("{source} with --set {}", overrides.join(" --set "))
         };
+        // gym.path entries are relative to the config file (or to the working directory).
+        let base = match path.and_then(Path::parent) {
+            Some(dir) if !dir.as_os_str().is_empty() => dir.to_path_buf(),
+            _ => std::env::current_dir().unwrap_or_default(),
+        };
+        for p in &mut cfg.gym.path {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        }
         cfg.validate(&source)?;
         Ok(cfg)
     }
@@ -374,7 +392,9 @@ impl ExperimentConfig {
             expected: expected.to_string(),
             found,
         };
+        self.validate_env(&bad)?;
         match mbpo_envs::task(&self.env) {
+            _ if self.is_gym_env() => {}
             Ok(task) if !task.builds() => {
                 return Err(bad(
                     "env",
@@ -447,8 +467,10 @@ impl ExperimentConfig {
         if self.algo == Algo::MPC {
             self.validate_mpc(&bad)?;
         }
-        if matches!(self.algo, Algo::MBPO | Algo::MPC) {
+        if matches!(self.algo, Algo::MBPO | Algo::MPC) && !self.is_gym_env() {
             // The model crate checks its own ranges (dims, elites <= members, decay lengths).
+            // (Not for a Python env: every process validates its config, and starting the
+            // env's interpreter in each would cost seconds; the launcher starts it once.)
             let env = mbpo_envs::make(&self.env)
                 .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
             self.model
@@ -537,6 +559,55 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ConfigError
 }
 
 impl ExperimentConfig {
+    /// `env`, `termination` and `[gym]`: a `gym:` id names something, a model-based run has a
+    /// termination rule, keyword arguments are finite.
+    fn validate_env(&self, bad: &dyn Fn(&str, &str, String) -> ConfigError) -> Result<(), ConfigError> {
+        if self.is_gym_env() && self.env[mbpo_envs::GYM_PREFIX.len()..].trim().is_empty() {
+            return Err(bad(
+                "env",
+                "gym:<registered id> or gym:<module>:<class or function>",
+                format!("{:?}", self.env),
+            ));
+        }
+        if !self.is_gym_env() && self.gym != Default::default() {
+            return Err(bad(
+                "gym",
+                "no [gym] table: it is for Python envs (env = \"gym:...\")",
+                format!("a [gym] table with env = {:?}", self.env),
+            ));
+        }
+        if matches!(self.algo, Algo::MBPO | Algo::MPC) || self.termination.is_some() {
+            self.termination().map_err(|expected| {
+                let found = self.termination.as_ref().map_or("nothing".into(), |t| format!("{t:?}"));
+                bad("termination", &expected, found)
+            })?;
+        }
+        if let Some(p) = self.gym.path.iter().find(|p| !p.is_dir()) {
+            return Err(bad(
+                "gym.path",
+                "folders that exist (relative ones are relative to the config file)",
+                p.display().to_string(),
+            ));
+        }
+        if self.gym.max_episode_steps == Some(0) {
+            return Err(bad("gym.max_episode_steps", "a positive number", "0".into()));
+        }
+        fn non_finite(v: &toml::Value) -> Option<f64> {
+            match v {
+                toml::Value::Float(f) if !f.is_finite() => Some(*f),
+                toml::Value::Array(a) => a.iter().find_map(non_finite),
+                toml::Value::Table(t) => t.values().find_map(non_finite),
+                _ => None,
+            }
+        }
+        for (key, v) in &self.gym.kwargs {
+            if let Some(f) = non_finite(v) {
+                return Err(bad(&format!("gym.kwargs.{key}"), "finite numbers (JSON has no NaN or infinity)", f.to_string()));
+            }
+        }
+        Ok(())
+    }
+
     /// The `[mpc]` table: positive periods, a known reward that exists, a valid planner.
     fn validate_mpc(
         &self,

@@ -6,37 +6,50 @@ use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::run_files::RunBook;
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
-use mbpo_envs::{make, Env, EnvError};
+use mbpo_envs::{Env, EnvError};
 use mbpo_sac::{ActionScale, ActorPolicy, Sac, SacStats};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
 
 /// Mean undiscounted return of `episodes` episodes with `policy` (deterministic: tanh μ(s));
 /// start states come from `rng` (the evaluation stream, separate from training's).
+///
+/// An episode whose environment process exits (a Python env) is played again once in a new
+/// process; a second exit in a row fails the evaluation.
 pub fn evaluate(
     policy: &mut dyn BatchPolicy,
     env: &mut dyn Env,
     episodes: usize,
     rng: &mut Rng,
-) -> f64 {
+) -> Result<f64, EnvError> {
     let scale = ActionScale::new(&env.action_space().low, &env.action_space().high);
     let mut obs = vec![0.0f32; env.obs_dim()];
     let mut action = vec![0.0f32; env.act_dim()];
     let mut env_action = vec![0.0f32; env.act_dim()];
     let mut total = 0.0;
-    for _ in 0..episodes {
-        env.reset(rng, &mut obs);
+    let mut episode = || -> Result<f64, EnvError> {
+        let mut ret = 0.0;
+        env.reset(rng, &mut obs)?;
         loop {
             policy.act_batch(&obs, 1, &mut action, rng);
             scale.to_env(&action, &mut env_action);
-            let step = env.step(&env_action, &mut obs);
-            total += step.reward;
+            let step = env.step(&env_action, &mut obs)?;
+            ret += step.reward;
             if step.terminated || step.truncated {
-                break;
+                return Ok(ret);
             }
         }
+    };
+    for _ in 0..episodes {
+        total += match episode() {
+            Err(e @ EnvError::PythonExited { .. }) => {
+                tracing::warn!("{e}; evaluating the episode again in a new process");
+                episode()?
+            }
+            other => other?,
+        };
     }
-    total / episodes as f64
+    Ok(total / episodes as f64)
 }
 
 /// Periodic evaluation and the bookkeeping around it (best return, rates).
@@ -131,7 +144,7 @@ impl Evaluator {
     /// An evaluator with its own environment and stream (`eval.env`).
     pub fn new(cfg: &ExperimentConfig) -> Result<Self, EnvError> {
         Ok(Self {
-            env: make(&cfg.env)?,
+            env: cfg.make_env()?,
             rng: stream(cfg.seed, "eval.env", 0),
             episodes: cfg.eval.episodes,
             env_id: cfg.env.clone(),
@@ -153,10 +166,10 @@ impl Evaluator {
         sac: &Sac,
         stats: &SacStats,
         actor: &EnvActor,
-    ) -> MetricsRow {
+    ) -> Result<MetricsRow, EnvError> {
         // Evaluation acts with a copy of the parameters, as the pipeline's evaluation actor does.
         let mut policy = ActorPolicy::new(sac.actor.clone(), sac.actor_params.clone(), true);
-        let ret = evaluate(&mut policy, self.env.as_mut(), self.episodes, &mut self.rng);
+        let ret = evaluate(&mut policy, self.env.as_mut(), self.episodes, &mut self.rng)?;
         self.final_return = ret;
         self.best_return = self.best_return.max(ret);
         let now = self.start.elapsed().as_secs_f64();
@@ -167,7 +180,7 @@ impl Evaluator {
         self.last_updates = sac.updates();
         let updated = sac.updates() > 0;
         let some = |v: f32| updated.then_some(v as f64);
-        MetricsRow {
+        Ok(MetricsRow {
             env_steps,
             episodes: actor.episodes,
             eval_return: ret,
@@ -182,7 +195,7 @@ impl Evaluator {
             env_steps_per_sec: sps,
             updates_per_sec: ups,
             ..Default::default()
-        }
+        })
     }
 
     /// One progress line for a metrics row.
@@ -273,7 +286,7 @@ pub fn evaluate_run(
     }
     let found = crate::policy_file::newest_policy(run)?;
     let params = found.policy.actor_params;
-    let mut env = make(&cfg.env)?;
+    let mut env = cfg.make_env()?;
     let net = mbpo_sac::TanhGaussianActor::new(
         env.obs_dim(),
         env.act_dim(),
@@ -293,7 +306,7 @@ pub fn evaluate_run(
     let mut rng = stream(seed, "eval.cli", 0);
     let returns: Vec<f64> = (0..episodes)
         .map(|_| evaluate(&mut policy, env.as_mut(), 1, &mut rng))
-        .collect();
+        .collect::<Result<_, _>>()?;
     let mean = returns.iter().sum::<f64>() / episodes as f64;
     let var = returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / episodes as f64;
     Ok(EvalReport {

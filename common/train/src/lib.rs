@@ -1,6 +1,8 @@
 //! Experiments: validated configs, run directories, and the single-process trainers.
 //!
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
+//! * [`env_config`]: the config's environment (built-in or Python Gymnasium) and the
+//!   termination rule of model rollouts.
 //! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
@@ -20,6 +22,7 @@ pub mod actor;
 pub mod algorithm;
 pub mod checkpoint;
 pub mod config;
+pub mod env_config;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;

@@ -36,6 +36,7 @@ use crate::run_files::{
 };
 use crate::sac_trainer::TrainError;
 use mbpo_core::Rng;
+use mbpo_envs::EnvError;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
 use std::path::Path;
@@ -340,7 +341,7 @@ pub fn train_mbpo_with(
             mbpo.book.step_seconds.push(seconds);
         }
         if mbpo.schedule.is_eval_point(t) {
-            let row = metrics_row(&mbpo, &mut evaluator, t);
+            let row = metrics_row(&mbpo, &mut evaluator, t)?;
             run.write_metrics(&row)?;
             mbpo.book.next_row += 1;
             evaluator.log("mbpo", &row);
@@ -377,19 +378,19 @@ pub fn train_mbpo_with(
 
 /// The metrics row of eval point `t`: evaluation, SAC statistics and the model's (that of the
 /// newest training, as the pipeline's rows show the learner's newest imagined batch's).
-fn metrics_row(mbpo: &Mbpo, evaluator: &mut Evaluator, t: u64) -> MetricsRow {
+fn metrics_row(mbpo: &Mbpo, evaluator: &mut Evaluator, t: u64) -> Result<MetricsRow, EnvError> {
     let learner = &mbpo.learner;
     let mut row = evaluator.evaluate(
         t,
         learner.sac(),
         &learner.last_stats,
         mbpo.actor.env_actor(),
-    );
+    )?;
     let version = mbpo.model_trainer.version();
     if let Some(&mse) = mbpo.book.models.get(&version).filter(|_| version > 0) {
         row.model_holdout_mse = Some(mse);
         row.rollout_length = Some(learner.rollout_length as f64);
         row.model_buffer = Some(learner.model_buffer_len() as f64);
     }
-    row
+    Ok(row)
 }

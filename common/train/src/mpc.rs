@@ -29,7 +29,7 @@ use crate::run_files::{
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
-use mbpo_envs::{make, termination_fn, Env};
+use mbpo_envs::Env;
 use mbpo_model::{ProbabilisticEnsemble, TrainReport};
 use mbpo_plan::{build, EnsembleModel, Mpc, MpcState, PlanError, RewardSource};
 use mbpo_sac::ActionScale;
@@ -64,7 +64,7 @@ pub fn planning_model(cfg: &ExperimentConfig, env: &dyn Env) -> Result<EnsembleM
     EnsembleModel::new(
         ensemble,
         reward,
-        termination_fn(&cfg.env),
+        Some(cfg.termination_fn().map_err(TrainError::Config)?),
         &space.low,
         &space.high,
     )
@@ -154,8 +154,8 @@ pub struct PlanningActorRole {
 impl PlanningActorRole {
     /// Planning actor `index` of the run (streams `actor.env` / `actor.policy`, index `index`).
     pub fn new(cfg: &ExperimentConfig, index: u64) -> Result<Self, TrainError> {
-        let actor = EnvActor::new(&cfg.env, cfg.seed, index)?;
-        let env = make(&cfg.env)?;
+        let actor = EnvActor::new(cfg.make_env()?, cfg.seed, index)?;
+        let env = cfg.make_env()?;
         Ok(Self {
             model: VersionedModel::new(cfg, env.as_ref())?,
             mpc: controller(cfg, env.act_dim())?,
@@ -252,7 +252,7 @@ pub struct PlanningEvaluator {
 impl PlanningEvaluator {
     /// The evaluator of the run.
     pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
-        let env = make(&cfg.env)?;
+        let env = cfg.make_env()?;
         Ok(Self {
             scale: ActionScale::new(&env.action_space().low, &env.action_space().high),
             model: VersionedModel::new(cfg, env.as_ref())?,
@@ -311,7 +311,7 @@ impl PlanningEvaluator {
             (vec![0.0f32; o], vec![0.0f32; a], vec![0.0f32; a]);
         let mut total = 0.0;
         for _ in 0..episodes {
-            self.env.reset(&mut self.env_rng, &mut obs);
+            self.env.reset(&mut self.env_rng, &mut obs)?;
             self.mpc.reset();
             loop {
                 if abandon() {
@@ -321,7 +321,7 @@ impl PlanningEvaluator {
                     .act(&mut self.model.model, &obs, &mut self.plan_rng, &mut action)
                     .map_err(plan_err)?;
                 self.scale.to_env(&action, &mut env_action);
-                let step = self.env.step(&env_action, &mut obs);
+                let step = self.env.step(&env_action, &mut obs)?;
                 total += step.reward;
                 if step.terminated || step.truncated {
                     break;

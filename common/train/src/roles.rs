@@ -19,7 +19,7 @@ use crate::config::ExperimentConfig;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng};
-use mbpo_envs::{termination_fn, EnvError, TerminationFn};
+use mbpo_envs::{EnvError, TerminationFn};
 use mbpo_model::{
     rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
 };
@@ -140,7 +140,7 @@ pub struct ActorRole {
 impl ActorRole {
     /// Actor `index` of the run.
     pub fn new(cfg: &ExperimentConfig, index: u64) -> Result<Self, EnvError> {
-        let actor = EnvActor::new(&cfg.env, cfg.seed, index)?;
+        let actor = EnvActor::new(cfg.make_env()?, cfg.seed, index)?;
         let (o, a) = (actor.obs_dim(), actor.act_dim());
         let net = TanhGaussianActor::new(
             o,
@@ -363,9 +363,7 @@ pub struct RolloutRole {
 impl RolloutRole {
     /// The rollout generator of the run.
     pub fn new(cfg: &ExperimentConfig, obs_dim: usize, act_dim: usize) -> Result<Self, TrainError> {
-        let termination = termination_fn(&cfg.env).ok_or_else(|| {
-            TrainError::Config(format!("no termination function for {}", cfg.env))
-        })?;
+        let termination = cfg.termination_fn().map_err(TrainError::Config)?;
         // Architecture only: the weights arrive as snapshots.
         let model = ProbabilisticEnsemble::new(
             obs_dim,

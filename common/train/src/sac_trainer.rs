@@ -88,7 +88,7 @@ pub fn train_sac_with(
     opts: RunOptions,
 ) -> Result<Summary, TrainError> {
     let seed = cfg.seed;
-    let mut actor = EnvActor::new(&cfg.env, seed, 0)?;
+    let mut actor = EnvActor::new(cfg.make_env()?, seed, 0)?;
     let (obs_dim, act_dim) = (actor.obs_dim(), actor.act_dim());
     let mut sac = Sac::new(
         obs_dim,
@@ -138,7 +138,7 @@ pub fn train_sac_with(
 
         // Evaluate and record.
         if schedule.is_eval_point(t) {
-            let row = evaluator.evaluate(t, &sac, &stats, &actor);
+            let row = evaluator.evaluate(t, &sac, &stats, &actor)?;
             run.write_metrics(&row)?;
             evaluator.log("sac", &row);
             progress.set_eval(row.eval_return);

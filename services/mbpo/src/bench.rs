@@ -69,15 +69,15 @@ fn env(t: &BenchTime) -> anyhow::Result<()> {
                 uniform_range_f32(&mut rng, space.low[d], space.high[d])
             })
             .collect();
-        env.reset(&mut rng, &mut obs);
+        env.reset(&mut rng, &mut obs)?;
         let (mut steps, mut episodes) = (0u64, 0u64);
         let start = Instant::now();
         let budget = Duration::from_secs_f64(t.seconds);
         while start.elapsed() < budget {
             for a in actions.chunks_exact(space.dim()) {
-                let s = env.step(a, &mut obs);
+                let s = env.step(a, &mut obs)?;
                 if s.terminated || s.truncated {
-                    env.reset(&mut rng, &mut obs);
+                    env.reset(&mut rng, &mut obs)?;
                     episodes += 1;
                 }
             }

@@ -99,7 +99,7 @@ fn replay(args: &ReplayArgs) -> anyhow::Result<()> {
     let mut out = std::io::stdout().lock();
     let steps = actions.len() / act_dim;
     for (t, action) in actions.chunks_exact(act_dim).enumerate() {
-        let step = env.step(action, &mut obs);
+        let step = env.step(action, &mut obs)?;
         let line = StepLine {
             t,
             obs: env.observation_f64().map_or(Obs::F32(&obs), Obs::F64),

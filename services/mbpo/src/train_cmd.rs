@@ -113,7 +113,7 @@ pub fn overwrite_earlier_run(
     if !common.overwrite || !holds_a_run(out) {
         return Ok(());
     }
-    mbpo_envs::make(&cfg.env).with_context(|| {
+    cfg.make_env().with_context(|| {
         format!(
             "--overwrite: {} is kept, the new run could not start",
             out.display()

@@ -155,7 +155,7 @@ impl Env for MujocoEnv {
 
     /// qpos = init_qpos + U(−s, s); qvel = init_qvel + U(−s, s) or s·N(0, 1) (per task), drawn
     /// from `rng` (the distributions of Gymnasium's `reset_model`, not NumPy's bits).
-    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) {
+    fn reset(&mut self, rng: &mut Rng, obs: &mut [f32]) -> Result<(), EnvError> {
         let (scale, velocity_noise) = self.task.reset_noise();
         let qpos: Vec<f64> = self
             .init_qpos
@@ -174,13 +174,14 @@ impl Env for MujocoEnv {
             .collect();
         self.set_state(&qpos, &qvel);
         self.write_obs(obs);
+        Ok(())
     }
 
     fn elapsed_steps(&self) -> usize {
         self.steps
     }
 
-    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Step {
+    fn step(&mut self, action: &[f32], obs: &mut [f32]) -> Result<Step, EnvError> {
         debug_assert_eq!(action.len(), self.act_dim(), "{}: action length", self.id());
         let x_before = self
             .restored_x_before
@@ -209,11 +210,11 @@ impl Env for MujocoEnv {
             scratch: &mut self.scratch,
         });
         self.steps += 1;
-        Step {
+        Ok(Step {
             reward,
             terminated,
             truncated: self.steps >= MAX_EPISODE_STEPS,
-        }
+        })
     }
 
     fn observation_f64(&self) -> Option<&[f64]> {

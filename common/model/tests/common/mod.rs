@@ -16,12 +16,12 @@ pub fn pendulum_data(n: usize, seed: u64) -> Batch {
     };
     let mut b = Batch::new(3, 1, n);
     let mut obs = [0.0f32; 3];
-    env.reset(&mut rng, &mut obs);
+    env.reset(&mut rng, &mut obs).unwrap();
     for r in 0..n {
         let mut a = [0.0f32];
         policy.act_batch(&obs, 1, &mut a, &mut rng);
         let mut next = [0.0f32; 3];
-        let step = env.step(&a, &mut next);
+        let step = env.step(&a, &mut next).unwrap();
         b.obs[3 * r..3 * r + 3].copy_from_slice(&obs);
         b.act[r] = a[0];
         b.reward[r] = step.reward as f32;
@@ -29,7 +29,7 @@ pub fn pendulum_data(n: usize, seed: u64) -> Batch {
         b.terminated[r] = step.terminated as u8 as f32;
         obs = next;
         if step.terminated || step.truncated {
-            env.reset(&mut rng, &mut obs);
+            env.reset(&mut rng, &mut obs).unwrap();
         }
     }
     b

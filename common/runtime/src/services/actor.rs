@@ -186,7 +186,7 @@ pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let mut waiter = Waiter::new()?;
     waiter.attach(&control.sub).attach(&policy);
 
-    let mut env = mbpo_envs::make(&cfg.env)?;
+    let mut env = cfg.make_env()?;
     let mut rng = stream(cfg.seed, "eval.env", 0);
     let mut pol = ActorPolicy::new(s.actor_net(), vec![0.0; d.policy_len], true);
     let learner = ProducerId::new(Role::Learner, 0);
@@ -238,7 +238,7 @@ pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
             // The learner publishes version t + 1 only after this: no version is skipped.
             send_ack(&acks, learner, t)?;
         }
-        let ret = mbpo_train::eval::evaluate(&mut pol, env.as_mut(), cfg.eval.episodes, &mut rng);
+        let ret = mbpo_train::eval::evaluate(&mut pol, env.as_mut(), cfg.eval.episodes, &mut rng)?;
         stats_pub.report(EvalResult {
             env_steps: t,
             policy_version: version,

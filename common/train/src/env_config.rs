@@ -1,0 +1,123 @@
+//! Which environment a config runs and how model rollouts end: the one place that turns the
+//! config's `env`, `[gym]` and `termination` into an environment and a termination rule.
+//!
+//! ```toml
+//! env = "gym:my_pkg.envs:MyRobot"   # or a built-in id, or gym:<registered Gymnasium id>
+//! termination = "never"             # or the id of a built-in task whose rule applies
+//! [gym]
+//! python = "/path/to/venv/bin/python"   # default: $MBPO_PYTHON, else the project venv
+//! max_episode_steps = 500               # for an env without a time limit
+//! [gym.kwargs]
+//! friction = 0.8
+//! ```
+
+use mbpo_envs::{termination, Env, EnvError, GymSpec, TerminationFn, GYM_PREFIX};
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+use crate::config::ExperimentConfig;
+
+/// The `[gym]` table: how to start a Python Gymnasium environment (`env = "gym:..."`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GymConfig {
+    /// The Python interpreter (default: `$MBPO_PYTHON`, else the project venv made by
+    /// `deploy/setup_python.sh`, else `python3`); add packages with its pip.
+    pub python: Option<String>,
+    /// A time limit for an env that has none (an entry point), or to override the registered one.
+    pub max_episode_steps: Option<usize>,
+    /// Folders where the env's Python module is, put before `PYTHONPATH`; relative ones are
+    /// relative to the config file's folder (the run directory's copy holds them absolute).
+    pub path: Vec<PathBuf>,
+    /// Keyword arguments of `gymnasium.make` or of the entry point.
+    pub kwargs: toml::Table,
+}
+
+/// How model rollouts decide that a predicted state is terminal.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Termination {
+    /// The built-in rule of the task (the env's own, or another task's named in the config).
+    Task(String),
+    /// No predicted state is terminal (tasks without termination, e.g. Pendulum).
+    Never,
+}
+
+impl ExperimentConfig {
+    /// True when `env` names a Python Gymnasium environment (`gym:...`).
+    pub fn is_gym_env(&self) -> bool {
+        self.env.starts_with(GYM_PREFIX)
+    }
+
+    /// The Python environment's spec (`None` for a built-in task).
+    pub fn gym_spec(&self) -> Option<GymSpec> {
+        let mut spec = GymSpec::from_id(&self.env)?;
+        spec.python = self.gym.python.as_ref().map(PathBuf::from);
+        spec.max_episode_steps = self.gym.max_episode_steps;
+        spec.path = self.gym.path.clone();
+        spec.kwargs = self
+            .gym
+            .kwargs
+            .iter()
+            .map(|(k, v)| (k.clone(), toml_to_json(v)))
+            .collect();
+        Some(spec)
+    }
+
+    /// A fresh environment of this config (a Python one starts its process here).
+    pub fn make_env(&self) -> Result<Box<dyn Env>, EnvError> {
+        match self.gym_spec() {
+            Some(spec) => Ok(Box::new(mbpo_envs::PythonEnv::start(spec)?)),
+            None => mbpo_envs::make(&self.env),
+        }
+    }
+
+    /// The termination rule of model rollouts: `termination` if set, else the task's own.
+    /// Errors say what to set (a Python env has no built-in rule).
+    pub fn termination(&self) -> Result<Termination, String> {
+        match self.termination.as_deref() {
+            Some("never") => Ok(Termination::Never),
+            Some(id) if mbpo_envs::termination_fn(id).is_some() => {
+                Ok(Termination::Task(id.to_string()))
+            }
+            Some(other) => Err(format!(
+                "\"never\" or the id of a built-in task whose rule applies ({}); learned and \
+                 Python termination rules are not available yet, found {other:?}",
+                mbpo_envs::TERMINATION_ENV_IDS.join(", ")
+            )),
+            None if self.is_gym_env() => Err(format!(
+                "a rule for the Python env {}: set `termination = \"never\"` when its episodes \
+                 end only by the time limit, or the id of a built-in task whose rule applies \
+                 (e.g. \"Hopper-v5\" for gym:Hopper-v5)",
+                self.env
+            )),
+            None => Ok(Termination::Task(self.env.clone())),
+        }
+    }
+
+    /// [`ExperimentConfig::termination`] as the function model rollouts call.
+    pub fn termination_fn(&self) -> Result<TerminationFn, String> {
+        Ok(match self.termination()? {
+            Termination::Never => termination::never,
+            Termination::Task(id) => {
+                mbpo_envs::termination_fn(&id).expect("termination() checked the id")
+            }
+        })
+    }
+}
+
+fn toml_to_json(v: &toml::Value) -> serde_json::Value {
+    use serde_json::Value as J;
+    match v {
+        toml::Value::String(s) => J::String(s.clone()),
+        toml::Value::Integer(i) => J::from(*i),
+        toml::Value::Float(f) => serde_json::Number::from_f64(*f).map_or(J::Null, J::Number),
+        toml::Value::Boolean(b) => J::Bool(*b),
+        toml::Value::Datetime(d) => J::String(d.to_string()),
+        toml::Value::Array(a) => J::Array(a.iter().map(toml_to_json).collect()),
+        toml::Value::Table(t) => J::Object(
+            t.iter()
+                .map(|(k, v)| (k.clone(), toml_to_json(v)))
+                .collect(),
+        ),
+    }
+}

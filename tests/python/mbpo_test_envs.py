@@ -1,0 +1,91 @@
+"""Python Gymnasium environments of the test suite (not registered with Gymnasium): the tests
+reach them as `gym:mbpo_test_envs:<Name>` with this folder in `gym.path`."""
+
+import os
+
+import gymnasium as gym
+import numpy as np
+
+
+class PendulumAt(gym.Wrapper):
+    """Gymnasium's Pendulum-v1 whose every episode starts at the given (theta, thetadot), so
+    its transitions can be compared with the built-in Pendulum started at the same state."""
+
+    def __init__(self, theta, thetadot):
+        super().__init__(gym.make("Pendulum-v1"))
+        self.start = np.array([theta, thetadot], dtype=np.float64)
+
+    def reset(self, *, seed=None, options=None):
+        self.env.reset(seed=seed, options=options)
+        self.env.unwrapped.state = self.start.copy()
+        return self.env.unwrapped._get_obs(), {}
+
+
+class Drift(gym.Env):
+    """A point on a line pushed by the action; reward -x^2. No time limit of its own (the
+    config sets one). `raise_at` raises in step at that step of the process's life;
+    `exit_at` ends the interpreter there (os._exit), as a crash would."""
+
+    def __init__(self, raise_at=-1, exit_at=-1, exit_marker=""):
+        self.observation_space = gym.spaces.Box(-5.0, 5.0, shape=(2,), dtype=np.float32)
+        self.action_space = gym.spaces.Box(-2.0, 2.0, shape=(1,), dtype=np.float32)
+        self.raise_at, self.exit_at, self.exit_marker = raise_at, exit_at, exit_marker
+        self.steps = 0
+        self.x = 0.0
+        self.v = 0.0
+
+    def _obs(self):
+        return np.array([self.x, self.v], dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.x = float(self.np_random.uniform(-1.0, 1.0))
+        self.v = 0.0
+        return self._obs(), {}
+
+    def step(self, action):
+        self.steps += 1
+        if self.steps == self.raise_at:
+            raise RuntimeError(f"Drift: failing on purpose at step {self.steps}")
+        if self.steps == self.exit_at and not os.path.exists(self.exit_marker):
+            open(self.exit_marker, "w").close()  # exit once per test, not in every new process
+            os._exit(3)
+        a = float(np.clip(action[0], -2.0, 2.0))
+        self.v = float(np.clip(0.9 * self.v + 0.05 * a, -1.0, 1.0))
+        self.x = float(np.clip(self.x + self.v, -5.0, 5.0))
+        return self._obs(), -self.x * self.x - 0.01 * a * a, False, False, {}
+
+
+class DictObs(gym.Env):
+    """A Dict observation (flattened by the bridge in key order)."""
+
+    def __init__(self):
+        self.observation_space = gym.spaces.Dict(
+            {
+                "b": gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float64),
+                "a": gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32),
+            }
+        )
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        return {"a": np.array([0.5], np.float32), "b": np.array([0.25, -0.25])}, {}
+
+    def step(self, action):
+        return {"a": np.array([float(action[0])], np.float32), "b": np.array([1.0, -1.0])}, 0.0, False, False, {}
+
+
+class DiscreteActions(gym.Env):
+    observation_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+    action_space = gym.spaces.Discrete(3)
+
+
+class UnboundedActions(gym.Env):
+    observation_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+    action_space = gym.spaces.Box(-np.inf, np.inf, shape=(1,), dtype=np.float32)
+
+
+class ImageObs(gym.Env):
+    observation_space = gym.spaces.Box(0, 255, shape=(4, 4), dtype=np.uint8)
+    action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
