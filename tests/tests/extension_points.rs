@@ -194,6 +194,7 @@ fn train_random(
         median_seconds_per_env_step: None,
         status: "completed".into(),
         episodes_cut_by_resume: 0,
+        episodes_lost_to_env_exit: 0,
     };
     run.write_summary(&summary)?;
     Ok(summary)

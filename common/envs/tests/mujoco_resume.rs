@@ -45,7 +45,8 @@ fn actions(env: &dyn Env, n: usize, seed: u64, scale: f32) -> Vec<Vec<f32>> {
 fn played(id: &str, before: &[Vec<f32>]) -> (Box<dyn Env>, Vec<f64>, usize, Vec<f64>) {
     let mut env = make(id).unwrap();
     let mut obs = vec![0.0f32; env.obs_dim()];
-    env.reset(&mut stream(1, "test.reset", 0), &mut obs).unwrap();
+    env.reset(&mut stream(1, "test.reset", 0), &mut obs)
+        .unwrap();
     for a in before {
         let s = env.step(a, &mut obs).unwrap();
         assert!(

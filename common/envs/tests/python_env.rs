@@ -39,7 +39,9 @@ fn gym_pendulum_through_the_bridge_equals_the_builtin_pendulum_bit_for_bit() {
     let mut python = PythonEnv::start(spec("mbpo_test_envs:PendulumAt", kwargs)).unwrap();
     let mut builtin = Pendulum::new();
     let (mut obs_py, mut obs_rs) = ([0f32; 3], [0f32; 3]);
-    python.reset(&mut stream(0, "test", 0), &mut obs_py).unwrap();
+    python
+        .reset(&mut stream(0, "test", 0), &mut obs_py)
+        .unwrap();
     builtin.reset_to(&[theta, thetadot], &mut obs_rs).unwrap();
     assert_eq!(obs_py.map(f32::to_bits), obs_rs.map(f32::to_bits));
     // Actions beyond the bounds too (both clip them), over a whole episode to its time limit.
@@ -48,12 +50,23 @@ fn gym_pendulum_through_the_bridge_equals_the_builtin_pendulum_bit_for_bit() {
         let action = [uniform_range_f32(&mut rng, -3.0, 3.0)];
         let a = python.step(&action, &mut obs_py).unwrap();
         let b = builtin.step(&action, &mut obs_rs).unwrap();
-        assert_eq!(obs_py.map(f32::to_bits), obs_rs.map(f32::to_bits), "step {t}");
+        assert_eq!(
+            obs_py.map(f32::to_bits),
+            obs_rs.map(f32::to_bits),
+            "step {t}"
+        );
         assert_eq!(a.reward.to_bits(), b.reward.to_bits(), "step {t}: reward");
-        assert_eq!((a.terminated, a.truncated), (b.terminated, b.truncated), "step {t}");
+        assert_eq!(
+            (a.terminated, a.truncated),
+            (b.terminated, b.truncated),
+            "step {t}"
+        );
         assert_eq!(python.elapsed_steps(), t);
     }
-    assert!(python.restorable().is_none(), "a Python env cannot restore a state");
+    assert!(
+        python.restorable().is_none(),
+        "a Python env cannot restore a state"
+    );
 }
 
 #[test]
@@ -81,7 +94,11 @@ fn a_registered_id_reports_its_spaces_and_time_limit_and_the_same_seed_gives_the
     let a = run(1);
     assert_eq!(a, run(1), "same stream, same episodes");
     assert_ne!(a, run(2), "another stream, other start states");
-    assert_ne!(a[..3], a[18..21], "each reset draws a new seed from the stream");
+    assert_ne!(
+        a[..3],
+        a[18..21],
+        "each reset draws a new seed from the stream"
+    );
 }
 
 #[test]
@@ -91,7 +108,11 @@ fn a_dict_observation_is_flattened_in_key_order_and_its_layout_reported() {
         ..spec("mbpo_test_envs:DictObs", serde_json::json!({}))
     })
     .unwrap();
-    let keys: Vec<_> = env.obs_layout().iter().map(|p| (p.key.as_str(), p.shape.clone())).collect();
+    let keys: Vec<_> = env
+        .obs_layout()
+        .iter()
+        .map(|p| (p.key.as_str(), p.shape.clone()))
+        .collect();
     assert_eq!(keys, [("a", vec![1]), ("b", vec![2])]);
     let mut obs = [0f32; 3];
     env.reset(&mut stream(0, "t", 0), &mut obs).unwrap();
@@ -101,7 +122,11 @@ fn a_dict_observation_is_flattened_in_key_order_and_its_layout_reported() {
     assert!(!step.truncated);
     for _ in 1..7 {
         let step = env.step(&[0.0], &mut obs).unwrap();
-        assert_eq!(step.truncated, env.elapsed_steps() == 7, "the configured time limit");
+        assert_eq!(
+            step.truncated,
+            env.elapsed_steps() == 7,
+            "the configured time limit"
+        );
     }
 }
 
@@ -118,25 +143,43 @@ fn spaces_the_model_cannot_use_are_refused_naming_the_env_the_space_and_why() {
             max_episode_steps: Some(10),
             ..spec(&target, serde_json::json!({}))
         });
-        assert!(e.contains(&target) && e.contains(space) && e.contains(why), "{class}: {e}");
+        assert!(
+            e.contains(&target) && e.contains(space) && e.contains(why),
+            "{class}: {e}"
+        );
     }
 }
 
 #[test]
 fn what_cannot_start_is_an_error_that_names_the_fix() {
     let e = start_error(spec("no_such_module:Env", serde_json::json!({})));
-    assert!(e.contains("No module named 'no_such_module'") && e.contains("pip install"), "{e}");
+    assert!(
+        e.contains("No module named 'no_such_module'") && e.contains("pip install"),
+        "{e}"
+    );
     let e = start_error(spec("NoSuchEnv-v9", serde_json::json!({})));
-    assert!(e.contains("gym:NoSuchEnv-v9") && e.contains("NoSuchEnv"), "{e}");
+    assert!(
+        e.contains("gym:NoSuchEnv-v9") && e.contains("NoSuchEnv"),
+        "{e}"
+    );
     let e = start_error(spec("mbpo_test_envs:Drift", serde_json::json!({})));
-    assert!(e.contains("no time limit") && e.contains("max_episode_steps"), "{e}");
-    let e = start_error(spec("mbpo_test_envs:Drift", serde_json::json!({ "speed": 2 })));
+    assert!(
+        e.contains("no time limit") && e.contains("max_episode_steps"),
+        "{e}"
+    );
+    let e = start_error(spec(
+        "mbpo_test_envs:Drift",
+        serde_json::json!({ "speed": 2 }),
+    ));
     assert!(e.contains("unexpected keyword argument 'speed'"), "{e}");
     let e = start_error(GymSpec {
         python: Some("/nonexistent/python3".into()),
         ..spec("Pendulum-v1", serde_json::json!({}))
     });
-    assert!(e.contains("/nonexistent/python3") && e.contains("[gym]"), "{e}");
+    assert!(
+        e.contains("/nonexistent/python3") && e.contains("[gym]"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -152,7 +195,10 @@ fn an_exception_in_step_carries_the_python_traceback() {
         env.step(&[1.0], &mut obs).unwrap();
     }
     let e = env.step(&[1.0], &mut obs).unwrap_err();
-    let EnvError::PythonException { call, traceback, .. } = &e else {
+    let EnvError::PythonException {
+        call, traceback, ..
+    } = &e
+    else {
         panic!("{e:?}")
     };
     assert_eq!(*call, "step");

@@ -280,6 +280,27 @@ pub fn idle_until_stop<S: Transport>(
     }
 }
 
+/// An actor's step `g` failed with `e`, after `done` local steps. An environment failure (a
+/// Python exception, a Python process that exited again at once) is reported, and the actor
+/// takes part in the checkpoint that stops the run: nothing of step g was sent, so the
+/// checkpoint holds every transition accepted. Any other error ends the process at once.
+pub fn after_env_failure<S: Transport>(
+    waiter: &Waiter<'_, S>,
+    control: &ControlInbox<S>,
+    stats: &StatsPublisher<S>,
+    e: mbpo_train::TrainError,
+    g: u64,
+    done: u64,
+    at_cut: impl FnMut(Cut) -> Result<bool>,
+) -> Result<()> {
+    let mbpo_train::TrainError::Env(env_error) = e else {
+        return Err(e.into());
+    };
+    tracing::error!("env step {g}: {env_error}");
+    stats.report(mbpo_wire::EnvFailed { env_steps: g })?;
+    idle_until_stop(waiter, control, stats, Some(done), at_cut)
+}
+
 /// How a consumer that keeps its own D_env (model trainer, rollout generator) serves a
 /// barrier: its ports, and `at_cut(role, rows, cut)`, called at the cut with every transition
 /// ≤ T not yet taken in `rows`, which adds them to the role, writes the role's file and waits

@@ -155,7 +155,12 @@ fn drive(
         match coord.advance(ports, run_dir, started)? {
             Phase::Finished => return Ok(()),
             Phase::Running => {}
-            Phase::Stopped => return Err(RuntimeError::protocol("stopped at a checkpoint")),
+            Phase::Stopped => {
+                let why = coord.env_failure();
+                return Err(RuntimeError::protocol(
+                    why.unwrap_or("stopped at a checkpoint".into()),
+                ));
+            }
         }
     }
 }

@@ -28,8 +28,9 @@ const MAGIC: &[u8; 8] = b"MBPOCKPT";
 /// Version of the file layout and of the role states inside; bump on any change to either
 /// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start; 3: an
 /// actor's episode in progress is optional, for environments that cannot save their state, and
-/// the role files are one format for both commands, `run_files`).
-pub const FORMAT_VERSION: u32 = 3;
+/// the role files are one format for both commands, `run_files`; 4: an actor counts the episodes
+/// lost to an environment process that exited).
+pub const FORMAT_VERSION: u32 = 4;
 
 /// Name of the marker that makes a checkpoint directory resumable.
 pub const COMPLETE: &str = "COMPLETE";

@@ -467,18 +467,23 @@ impl ExperimentConfig {
         if self.algo == Algo::MPC {
             self.validate_mpc(&bad)?;
         }
-        if matches!(self.algo, Algo::MBPO | Algo::MPC) && !self.is_gym_env() {
+        if matches!(self.algo, Algo::MBPO | Algo::MPC) {
             // The model crate checks its own ranges (dims, elites <= members, decay lengths).
-            // (Not for a Python env: every process validates its config, and starting the
-            // env's interpreter in each would cost seconds; the launcher starts it once.)
-            let env = mbpo_envs::make(&self.env)
-                .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
-            self.model
-                .validate(env.obs_dim(), env.act_dim())
-                .map_err(|e| {
-                    let (field, expected, found) = e.parts();
-                    bad(&format!("model.{field}"), &expected, found)
-                })?;
+            // A Python env's dims are known only once its interpreter runs, and every process
+            // validates its config: its model is checked with placeholder dims (the bridge
+            // refuses an env with no observation or action values).
+            let (obs_dim, act_dim) = match self.is_gym_env() {
+                true => (1, 1),
+                false => {
+                    let env = mbpo_envs::make(&self.env)
+                        .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
+                    (env.obs_dim(), env.act_dim())
+                }
+            };
+            self.model.validate(obs_dim, act_dim).map_err(|e| {
+                let (field, expected, found) = e.parts();
+                bad(&format!("model.{field}"), &expected, found)
+            })?;
         }
         for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
             if !(v > 0.0 && v <= 1.0) {
@@ -561,7 +566,10 @@ fn apply_override(table: &mut toml::Table, spec: &str) -> Result<(), ConfigError
 impl ExperimentConfig {
     /// `env`, `termination` and `[gym]`: a `gym:` id names something, a model-based run has a
     /// termination rule, keyword arguments are finite.
-    fn validate_env(&self, bad: &dyn Fn(&str, &str, String) -> ConfigError) -> Result<(), ConfigError> {
+    fn validate_env(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
         if self.is_gym_env() && self.env[mbpo_envs::GYM_PREFIX.len()..].trim().is_empty() {
             return Err(bad(
                 "env",
@@ -578,7 +586,10 @@ impl ExperimentConfig {
         }
         if matches!(self.algo, Algo::MBPO | Algo::MPC) || self.termination.is_some() {
             self.termination().map_err(|expected| {
-                let found = self.termination.as_ref().map_or("nothing".into(), |t| format!("{t:?}"));
+                let found = self
+                    .termination
+                    .as_ref()
+                    .map_or("nothing".into(), |t| format!("{t:?}"));
                 bad("termination", &expected, found)
             })?;
         }
@@ -590,7 +601,11 @@ impl ExperimentConfig {
             ));
         }
         if self.gym.max_episode_steps == Some(0) {
-            return Err(bad("gym.max_episode_steps", "a positive number", "0".into()));
+            return Err(bad(
+                "gym.max_episode_steps",
+                "a positive number",
+                "0".into(),
+            ));
         }
         fn non_finite(v: &toml::Value) -> Option<f64> {
             match v {
@@ -602,7 +617,11 @@ impl ExperimentConfig {
         }
         for (key, v) in &self.gym.kwargs {
             if let Some(f) = non_finite(v) {
-                return Err(bad(&format!("gym.kwargs.{key}"), "finite numbers (JSON has no NaN or infinity)", f.to_string()));
+                return Err(bad(
+                    &format!("gym.kwargs.{key}"),
+                    "finite numbers (JSON has no NaN or infinity)",
+                    f.to_string(),
+                ));
             }
         }
         Ok(())

@@ -236,6 +236,7 @@ impl Evaluator {
             median_seconds_per_env_step: seconds_per_env_step,
             status: "completed".into(),
             episodes_cut_by_resume: 0,
+            episodes_lost_to_env_exit: 0,
         }
     }
 }

@@ -399,6 +399,7 @@ mod tests {
             median_seconds_per_env_step: None,
             status: "completed".into(),
             episodes_cut_by_resume: 0,
+            episodes_lost_to_env_exit: 0,
         })
     }
 

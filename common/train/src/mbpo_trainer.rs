@@ -330,7 +330,26 @@ pub fn train_mbpo_with(
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
     for t in done + 1..=cfg.steps {
         let started = Instant::now();
-        if !mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
+        let stepped = match mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps)) {
+            // Step t failed at its env step before anything else of it happened (no model
+            // training at t): steps 1..t-1 are whole, keep them.
+            Err(TrainError::Env(error)) if mbpo.schedule.train_point(t).is_none() => {
+                let kept = match t - 1 {
+                    0 => "nothing was kept (it failed at the first step)".to_string(),
+                    done => {
+                        save(&mbpo, &evaluator, done)?;
+                        format!("the run stopped with a checkpoint after step {done}")
+                    }
+                };
+                return Err(TrainError::EnvFailed {
+                    step: t,
+                    kept,
+                    error,
+                });
+            }
+            other => other?,
+        };
+        if !stepped {
             // Stopped during the model training of step t, which was undone.
             stop_before(t, |at| save(&mbpo, &evaluator, at), out)?;
             status = "stopped";
@@ -368,6 +387,7 @@ pub fn train_mbpo_with(
     summary.env_steps = mbpo.env_steps();
     summary.status = status.into();
     summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;
+    summary.episodes_lost_to_env_exit = mbpo.actor.env_actor().episodes_lost;
     if status == "completed" {
         let actor = &mbpo.learner.sac().actor_params;
         crate::policy_file::write_final_policy(out, summary.env_steps, actor)?;

@@ -591,6 +591,7 @@ pub fn train_mpc_with(
         median_seconds_per_env_step: sorted.get(sorted.len() / 2).copied(),
         status: status.into(),
         episodes_cut_by_resume: mpc.actor.env_actor().episodes_cut,
+        episodes_lost_to_env_exit: mpc.actor.env_actor().episodes_lost,
     };
     run.write_summary(&summary)?;
     Ok(summary)

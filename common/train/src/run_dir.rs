@@ -181,6 +181,10 @@ pub struct Summary {
     /// Python env) starts a new episode when its actor resumes from a checkpoint.
     #[serde(default)]
     pub episodes_cut_by_resume: u64,
+    /// Episodes lost because the process hosting the environment (a Python env) exited: the
+    /// actor started a new process and a new episode.
+    #[serde(default)]
+    pub episodes_lost_to_env_exit: u64,
 }
 
 fn completed() -> String {

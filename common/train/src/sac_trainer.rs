@@ -36,6 +36,20 @@ pub enum TrainError {
     /// A results file could not be encoded.
     #[error("results file: {0}")]
     Json(#[from] serde_json::Error),
+    /// The environment failed at a step (an exception in a Python env); what the run had before
+    /// it is kept in a checkpoint.
+    #[error(
+        "the environment failed at env step {step}: {error}\n{kept}. Fix the environment, then \
+         continue the run with --resume"
+    )]
+    EnvFailed {
+        /// The env step that failed.
+        step: u64,
+        /// What was kept (`the run stopped with a checkpoint after step N`).
+        kept: String,
+        /// The environment's error (with the Python traceback).
+        error: mbpo_envs::EnvError,
+    },
     /// NaN or infinity where a number must be finite: the run stops where it appeared (its
     /// last complete checkpoint stays as it was).
     #[error(
@@ -177,6 +191,7 @@ pub fn train_sac_with(
     summary.env_steps = actor.steps;
     summary.status = status.into();
     summary.episodes_cut_by_resume = actor.episodes_cut;
+    summary.episodes_lost_to_env_exit = actor.episodes_lost;
     if status == "completed" {
         crate::policy_file::write_final_policy(out, summary.env_steps, &sac.actor_params)?;
     }

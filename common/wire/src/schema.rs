@@ -165,6 +165,9 @@ pub enum StatsKind {
     Heartbeat = 6,
     /// A checkpoint barrier step.
     Checkpoint = 7,
+    /// An actor's environment failed (an exception in a Python env): the run checkpoints and
+    /// stops.
+    EnvFailed = 8,
 }
 
 impl StatsKind {
@@ -178,6 +181,7 @@ impl StatsKind {
             5 => StatsKind::Rollout,
             6 => StatsKind::Heartbeat,
             7 => StatsKind::Checkpoint,
+            8 => StatsKind::EnvFailed,
             _ => return None,
         })
     }

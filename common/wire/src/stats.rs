@@ -100,6 +100,14 @@ pub struct RolloutBranch {
     pub seconds: f32,
 }
 
+/// An actor's environment failed at a step (its log holds the error): nothing of that step
+/// was sent, the actor waits for the checkpoint that stops the run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct EnvFailed {
+    /// The run's env step that failed.
+    pub env_steps: u64,
+}
+
 /// Progress counters of a process (for the live line).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Progress {
@@ -137,6 +145,8 @@ pub struct Done {
     pub wall_seconds: f32,
     /// Episodes its resumes cut short (actors whose environment cannot save its state).
     pub episodes_cut: u64,
+    /// Episodes lost to an environment process that exited (actors of Python envs).
+    pub episodes_lost: u64,
 }
 
 /// A step of a checkpoint barrier (protocol: `mbpo_runtime::barrier`).
@@ -168,6 +178,8 @@ pub enum Stats {
     Done(Done),
     /// A checkpoint barrier step.
     Barrier(BarrierReport),
+    /// An actor's environment failed.
+    EnvFailed(EnvFailed),
 }
 
 // Heartbeat records: metrics[0] tells progress (0) from done (1).
@@ -252,6 +264,7 @@ impl Stats {
                 env_steps: d.real,
                 sac_updates: d.work,
                 model_version: d.episodes_cut,
+                model_trainings: d.episodes_lost,
                 value: d.lost as f64,
                 metrics: metrics(&[
                     HEARTBEAT_DONE,
@@ -262,6 +275,11 @@ impl Stats {
                     d.ipc_seconds,
                     d.wall_seconds,
                 ]),
+                ..Default::default()
+            },
+            Stats::EnvFailed(f) => StatsRecord {
+                kind: StatsKind::EnvFailed as u32,
+                env_steps: f.env_steps,
                 ..Default::default()
             },
             Stats::Barrier(b) => {
@@ -336,6 +354,7 @@ impl Stats {
                 ipc_seconds: m[5],
                 wall_seconds: m[6],
                 episodes_cut: r.model_version,
+                episodes_lost: r.model_trainings,
             }),
             StatsKind::Heartbeat => Stats::Progress(Progress {
                 env_steps: r.env_steps,
@@ -347,6 +366,9 @@ impl Stats {
                 Stats::Barrier(BarrierReport::Written(r.env_steps))
             }
             StatsKind::Checkpoint => Stats::Barrier(BarrierReport::Paused(r.env_steps)),
+            StatsKind::EnvFailed => Stats::EnvFailed(EnvFailed {
+                env_steps: r.env_steps,
+            }),
         })
     }
 }
@@ -362,7 +384,7 @@ macro_rules! into_stats {
 }
 into_stats!(EpisodeEnd => Episode, EvalResult => Eval, LearnerRow => Learner,
     ModelTrained => Model, RolloutBranch => Rollout, Progress => Progress, Done => Done,
-    BarrierReport => Barrier);
+    BarrierReport => Barrier, EnvFailed => EnvFailed);
 
 /// Running min / max / mean of a slack value (for [`Done`]).
 #[derive(Debug, Clone, Copy)]
@@ -468,10 +490,12 @@ mod tests {
                 ipc_seconds: 0.125,
                 wall_seconds: 12.0,
                 episodes_cut: 3,
+                episodes_lost: 2,
             }),
             Stats::Barrier(BarrierReport::Paused(0)),
             Stats::Barrier(BarrierReport::Paused(7)),
             Stats::Barrier(BarrierReport::Written(1200)),
+            Stats::EnvFailed(EnvFailed { env_steps: 50 }),
         ];
         for s in all {
             assert_eq!(Stats::decode(&s.record()).unwrap(), s, "{s:?}");

@@ -70,7 +70,10 @@ pub fn default_python() -> PathBuf {
     if let Some(p) = std::env::var_os("MBPO_PYTHON") {
         return PathBuf::from(p);
     }
-    let venv = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../.venv/bin/python"));
+    let venv = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../.venv/bin/python"
+    ));
     match venv.exists() {
         true => venv,
         false => PathBuf::from("python3"),
@@ -134,8 +137,14 @@ impl PythonEnv {
         let id: &'static str = Box::leak(format!("{GYM_PREFIX}{}", spec.target).into_boxed_str());
         let (host, d) = spawn(&spec, id)?;
         let obs_space = BoxSpace::new(
-            d.obs_low.iter().map(|v| v.map_or(f32::NEG_INFINITY, |v| v as f32)).collect(),
-            d.obs_high.iter().map(|v| v.map_or(f32::INFINITY, |v| v as f32)).collect(),
+            d.obs_low
+                .iter()
+                .map(|v| v.map_or(f32::NEG_INFINITY, |v| v as f32))
+                .collect(),
+            d.obs_high
+                .iter()
+                .map(|v| v.map_or(f32::INFINITY, |v| v as f32))
+                .collect(),
         );
         let act_space = BoxSpace::new(
             d.act_low.iter().map(|&v| v as f32).collect(),
@@ -186,7 +195,10 @@ impl PythonEnv {
 
     /// Send one request and read the response into `self.response` / `self.obs_f64`.
     fn call(&mut self, call: &'static str) -> Result<Step, EnvError> {
-        let host = self.host.as_mut().ok_or_else(|| exited(self.id, call, "not running"))?;
+        let host = self
+            .host
+            .as_mut()
+            .ok_or_else(|| exited(self.id, call, "not running"))?;
         let sent = host.to.write_all(&self.request);
         let got = sent.and_then(|()| host.from.read_exact(&mut self.response));
         if got.is_err() {
@@ -252,8 +264,8 @@ impl Env for PythonEnv {
         let seed = rng.next_u64();
         if self.host.is_none() {
             let (host, d) = spawn(&self.spec, self.id)?;
-            let same = d.act_low.len() == self.act_space.dim()
-                && d.obs_low.len() == self.obs_space.dim();
+            let same =
+                d.act_low.len() == self.act_space.dim() && d.obs_low.len() == self.obs_space.dim();
             if !same {
                 return Err(EnvError::PythonStart {
                     env: self.id.to_string(),
@@ -264,7 +276,11 @@ impl Env for PythonEnv {
             }
             self.host = Some(host);
             self.restarts += 1;
-            tracing::warn!("{}: Python process restarted ({} so far)", self.id, self.restarts);
+            tracing::warn!(
+                "{}: Python process restarted ({} so far)",
+                self.id,
+                self.restarts
+            );
         }
         self.request.fill(0);
         self.request[0] = b'r';
@@ -347,9 +363,15 @@ fn spawn(spec: &GymSpec, id: &'static str) -> Result<(Host, Description), EnvErr
         "max_episode_steps": spec.max_episode_steps,
     });
     let mut search = spec.path.clone();
-    search.extend(std::env::var_os("PYTHONPATH").iter().flat_map(std::env::split_paths));
+    search.extend(
+        std::env::var_os("PYTHONPATH")
+            .iter()
+            .flat_map(std::env::split_paths),
+    );
     let pythonpath = std::env::join_paths(&search).map_err(|e| {
-        fail(format!("a folder of the config's gym.path cannot be put in PYTHONPATH: {e}"))
+        fail(format!(
+            "a folder of the config's gym.path cannot be put in PYTHONPATH: {e}"
+        ))
     })?;
     let mut child = Command::new(&python)
         .env("PYTHONPATH", pythonpath)
@@ -385,7 +407,9 @@ fn spawn(spec: &GymSpec, id: &'static str) -> Result<(Host, Description), EnvErr
     let host = Host { child, to, from };
     if read.is_err() {
         let status = reap(host);
-        return Err(fail(format!("the Python process {status} while describing the environment")));
+        return Err(fail(format!(
+            "the Python process {status} while describing the environment"
+        )));
     }
     if head[0] != 0 {
         let _ = reap(host);

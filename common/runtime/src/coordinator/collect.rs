@@ -233,7 +233,7 @@ impl Collector {
             Stats::Model(m) => {
                 self.book.models.insert(m.version, m.holdout_mse);
             }
-            Stats::Rollout(_) | Stats::Barrier(_) => {}
+            Stats::Rollout(_) | Stats::Barrier(_) | Stats::EnvFailed(_) => {}
             Stats::Done(d) => {
                 tracing::info!("{from} finished: {d:?}");
                 if from.role() == Some(Role::Actor) {
@@ -364,6 +364,7 @@ impl Collector {
         };
         let mut sac_updates = 0;
         let mut episodes_cut = 0;
+        let mut episodes_lost = 0;
         let mut median = None;
         let mut lag = Range {
             min: f32::INFINITY,
@@ -387,6 +388,7 @@ impl Collector {
                 Some(Role::Actor) => {
                     real.produced += d.real;
                     episodes_cut += d.episodes_cut;
+                    episodes_lost += d.episodes_lost;
                     if self.mpc() && d.median_step_seconds > 0.0 {
                         // Median planning time of an MPC step (the slowest actor's).
                         let m = d.median_step_seconds as f64;
@@ -458,6 +460,7 @@ impl Collector {
                 // `completed`, `stopped` (checkpointed, resumable), `failed` or `interrupted`.
                 status: status.into(),
                 episodes_cut_by_resume: episodes_cut,
+                episodes_lost_to_env_exit: episodes_lost,
             },
             mode: self.mode.clone(),
             actors: self.actors,

@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 
 use mbpo_train::{policy_sha256, Algo, ExperimentConfig, RunDir, Schedule};
 use mbpo_wire::{
-    policy_wire_version, ControlCommand, ControlMsg, ControlPublisher, Role, Stats,
-    StatsSubscriber, Transport, Waiter, WeightsKind, WeightsSubscriber, WireNode,
+    policy_wire_version, ControlCommand, ControlMsg, ControlPublisher, EnvFailed, ProducerId, Role,
+    Stats, StatsSubscriber, Transport, Waiter, WeightsKind, WeightsSubscriber, WireNode,
     CONTROL_TARGET_ALL,
 };
 
@@ -111,6 +111,9 @@ pub struct Coordinator {
     final_wire: u64,
     final_params: Option<Vec<f32>>,
     finishing: bool,
+    /// An actor whose environment failed, and at which env step: the run stops after the
+    /// checkpoint this started.
+    env_failure: Option<(ProducerId, u64)>,
 }
 
 impl Coordinator {
@@ -154,6 +157,7 @@ impl Coordinator {
             final_params: (final_wire == 0).then(Vec::new),
             final_wire,
             finishing: false,
+            env_failure: None,
         }
     }
 
@@ -177,6 +181,7 @@ impl Coordinator {
                     (Ok(Stats::Barrier(report)), None) => {
                         tracing::warn!("{}: {report:?} outside a barrier", r.producer())
                     }
+                    (Ok(Stats::EnvFailed(f)), _) => self.on_env_failure(ports, r.producer(), f)?,
                     (Ok(stats), _) => self.collector.on_stats(r.producer(), stats),
                     (Err(e), _) => tracing::warn!("stats from {}: {e}", r.producer()),
                 },
@@ -334,6 +339,44 @@ impl Coordinator {
             OnSignal::StopNow => {}
         }
         Ok(decision)
+    }
+
+    /// An actor's environment failed: checkpoint what every role has (the failed step sent
+    /// nothing) and stop, as after a first SIGTERM; the summary then says `failed`.
+    fn on_env_failure<S: Transport>(
+        &mut self,
+        ports: &CoordinatorPorts<S>,
+        actor: ProducerId,
+        f: EnvFailed,
+    ) -> Result<()> {
+        tracing::error!(
+            "{actor}: its environment failed at env step {}: writing a checkpoint, then stopping",
+            f.env_steps
+        );
+        if self.env_failure.is_some() {
+            return Ok(());
+        }
+        self.env_failure = Some((actor, f.env_steps));
+        match self.barrier.as_mut() {
+            None => self.start_barrier(ports, true),
+            Some(b) => {
+                b.stop_after = true;
+                send_pause(ports, true)
+            }
+        }
+    }
+
+    /// Why the run stopped when an actor's environment failed (`None`: it did not).
+    pub fn env_failure(&self) -> Option<String> {
+        let (actor, step) = self.env_failure?;
+        let kept = match self.last_checkpoint {
+            0 => "no checkpoint was written".to_string(),
+            t => format!("the run stopped with a checkpoint after step {t}"),
+        };
+        Some(format!(
+            "{actor}'s environment failed at env step {step} (its error is in its log); {kept}. \
+             Fix the environment, then continue the run with --resume"
+        ))
     }
 
     /// Broadcast the Pause that starts a checkpoint barrier.

@@ -119,7 +119,12 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        role.act(behaviour)?;
+        if let Err(e) = role.act(behaviour) {
+            let (w, c, p) = (&waiter, &control, &stats_pub);
+            return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
+                write_at(&role, t - 1, cut)
+            });
+        }
         let a = role.env_actor();
         if a.episodes > episodes {
             // Before the transition: the supervisor may rely on having every episode ≤ t.
@@ -152,6 +157,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
         real: steps,
         work: role.env_actor().episodes,
         episodes_cut: role.env_actor().episodes_cut,
+        episodes_lost: role.env_actor().episodes_lost,
         slack_min: lo,
         slack_max: hi,
         slack_mean: mean,

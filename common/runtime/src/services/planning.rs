@@ -153,7 +153,12 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        role.act(behaviour)?;
+        if let Err(e) = role.act(behaviour) {
+            let (w, c, p) = (&waiter, &control, &stats_pub);
+            return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
+                write_at(&role, t - 1, cut)
+            });
+        }
         if behaviour == Behaviour::Policy {
             plan_seconds.push(role.last_plan_seconds);
         }
@@ -192,6 +197,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
         real: steps,
         work: role.plans(),
         episodes_cut: role.env_actor().episodes_cut,
+        episodes_lost: role.env_actor().episodes_lost,
         median_step_seconds: median.unwrap_or(0.0) as f32,
         slack_min: lo,
         slack_max: hi,

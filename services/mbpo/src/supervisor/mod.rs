@@ -495,6 +495,13 @@ fn supervise(
         return Ok(Attempt::RollBack { process });
     }
     let mut failure = end.failure;
+    if let Some(why) = coord.env_failure() {
+        // The failed actor's log ends with the environment's error (a Python traceback).
+        let tail = procs.iter().find(|p| why.starts_with(&p.name));
+        let tail =
+            tail.map(|p| format!("; last lines of {}:\n{}", p.log.display(), p.log_tail(12)));
+        failure = Some(anyhow::anyhow!("{why}{}", tail.unwrap_or_default()));
+    }
     for p in &procs {
         match p.exit {
             Some(s) if !s.success() && failure.is_none() && !end.interrupted => {
