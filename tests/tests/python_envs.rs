@@ -1,0 +1,168 @@
+//! Python Gymnasium environments (`env = "gym:..."`) under `mbpo run`: a custom env of the test
+//! suite trains with two actors, the bridge keeps lockstep equal to the sequential run, an env
+//! that raises stops the run with a checkpoint, an interpreter that exits is restarted.
+//!
+//! Needs the project venv (`deploy/setup_python.sh`, run by `deploy/test.sh`).
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use mbpo_integration_tests::*;
+use mbpo_train::{checkpoint, train_mbpo, ExperimentConfig};
+
+const TIMEOUT: Duration = Duration::from_secs(180);
+
+fn test_envs_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("python")
+}
+
+/// MBPO on the test suite's `Drift` env (50-step episodes), with `kwargs`.
+fn drift_config(steps: u64, kwargs: &[(&str, toml::Value)]) -> ExperimentConfig {
+    let mut cfg = tiny_config(steps);
+    cfg.env = "gym:mbpo_test_envs:Drift".into();
+    cfg.termination = Some("never".into());
+    cfg.gym.path = vec![test_envs_dir()];
+    cfg.gym.max_episode_steps = Some(50);
+    for (k, v) in kwargs {
+        cfg.gym.kwargs.insert(k.to_string(), v.clone());
+    }
+    cfg.mbpo.init_random_steps = 100;
+    cfg.mbpo.epoch_length = 100;
+    cfg.eval.every = 100;
+    cfg.eval.episodes = 2;
+    cfg
+}
+
+fn run(input: &Path, out: &Path, root: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    wait_output(spawn_run(&args), TIMEOUT)
+}
+
+fn assert_nothing_lost(s: &serde_json::Value, steps: u64) {
+    let real = &s["real_transitions"];
+    assert_eq!(real["produced"], steps, "{s}");
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
+    }
+    assert_eq!(real["lost"], 0, "{s}");
+}
+
+#[test]
+fn a_custom_python_env_trains_under_mbpo_run_with_two_actors() {
+    let cfg = drift_config(300, &[]);
+    let dir = scratch("gym-two-actors");
+    let input = write_config(&cfg, &dir);
+    let out = dir.join("run");
+    let extra = ["--mode", "pipelined", "--actors", "2"];
+    let o = run(&input, &out, &ipc_root("gym2"), &extra);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["env"], "gym:mbpo_test_envs:Drift");
+    assert_eq!(s["actors"], 2);
+    assert_nothing_lost(&s, 300);
+    assert_eq!(s["episodes_lost_to_env_exit"], 0, "{s}");
+    assert!(s["final_eval_return"].as_f64().unwrap().is_finite(), "{s}");
+    // Evaluation rows at 100, 200, 300, and `mbpo eval` runs the env of the run's config.
+    assert_eq!(metrics_without_timing(&out).len(), 4);
+    let eval = eval_run(&out, 1);
+    assert!(eval["mean_return"].as_f64().unwrap() <= 0.0, "{eval}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn lockstep_through_the_bridge_equals_the_sequential_run() {
+    let mut cfg = tiny_config(300);
+    cfg.env = "gym:Pendulum-v1".into();
+    cfg.termination = Some("never".into());
+    cfg.mbpo.init_random_steps = 100;
+    cfg.mbpo.epoch_length = 100;
+    cfg.eval.every = 150;
+    cfg.eval.episodes = 1;
+    let dir = scratch("gym-lockstep");
+    let input = write_config(&cfg, &dir);
+    let out = dir.join("run");
+    bin_dir();
+    let child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        ipc_root("gymlock").to_str().unwrap(),
+    ]);
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let o = wait_output(child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    assert_eq!(s["policy_sha256"], seq.policy_sha256.as_str(), "{s}");
+    assert_eq!(
+        metrics_without_timing(&out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn an_env_that_raises_stops_the_run_with_a_checkpoint_of_everything_before() {
+    let cfg = drift_config(300, &[("raise_at", 50.into())]);
+    let dir = scratch("gym-raise");
+    let input = write_config(&cfg, &dir);
+    let out = dir.join("run");
+    let o = run(&input, &out, &ipc_root("gymraise"), &["--mode", "pipelined"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("actor-0's environment failed at env step 50")
+            && err.contains("checkpoint after step 49")
+            && err.contains("RuntimeError: Drift: failing on purpose at step 50"),
+        "{err}"
+    );
+    assert_eq!(summary(&out)["status"], "failed");
+    let (dir49, manifest) = checkpoint::latest(&out).unwrap().unwrap();
+    assert_eq!(manifest.env_steps, 49, "{}", dir49.display());
+
+    // The same under `mbpo train`: steps 1..49 are kept.
+    let seq = dir.join("sequential");
+    let e = train_mbpo(&cfg, &seq).unwrap_err().to_string();
+    assert!(
+        e.contains("failed at env step 50") && e.contains("checkpoint after step 49"),
+        "{e}"
+    );
+    assert_eq!(checkpoint::latest(&seq).unwrap().unwrap().1.env_steps, 49);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn an_interpreter_that_exits_is_restarted_and_the_lost_episode_counted() {
+    let dir = scratch("gym-exit");
+    let marker = dir.join("exited-once");
+    let kwargs = [
+        ("exit_at", 30.into()),
+        ("exit_marker", marker.to_str().unwrap().into()),
+    ];
+    let cfg = drift_config(200, &kwargs);
+    let input = write_config(&cfg, &dir);
+    let out = dir.join("run");
+    let o = run(&input, &out, &ipc_root("gymexit"), &["--mode", "pipelined"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(marker.exists(), "the env never exited");
+    let s = summary(&out);
+    assert_eq!(s["status"], "completed", "{s}");
+    assert_eq!(s["episodes_lost_to_env_exit"], 1, "{s}");
+    assert_nothing_lost(&s, 200);
+    let log = std::fs::read_to_string(out.join("logs/actor-0.log")).unwrap();
+    assert!(log.contains("Python process restarted (1 so far)"), "{log}");
+    let _ = std::fs::remove_dir_all(dir);
+}
