@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
 # Runs the whole test suite: unit tests, gradient checks, Gymnasium replays, learning tests.
 # The default build needs only the Rust toolchain (Gymnasium fixtures are committed; see
-# tools/gym_reference.py). The MuJoCo tasks (cargo feature `mujoco`) need libmujoco 3.17.0:
+# tools/gym_reference.py); the Python env bridge's tests (`env = "gym:..."`) need the project
+# venv with Gymnasium, which deploy/setup_python.sh makes first (idempotent). The MuJoCo tasks (cargo feature `mujoco`) need libmujoco 3.17.0:
 # deploy/setup_mujoco.sh installs it from PyPI into the project venv (idempotent, about a
 # second when already done), then their replays against Gymnasium and the config checks run
 # (mbpo-envs, mbpo-train's unit tests and a tiny MBPO run per MuJoCo config family, to keep CI
 # short).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+bash deploy/setup_python.sh
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
 cargo test --locked -p mbpo-envs --features mujoco "$@"

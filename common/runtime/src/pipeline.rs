@@ -66,6 +66,10 @@ impl RoleSpec {
             RoleKind::Actor => actor::act::<S>,
         }
     }
+    /// Steps an environment (actors and the evaluator).
+    pub fn steps_an_env(&self) -> bool {
+        matches!(self.kind, RoleKind::Actor | RoleKind::Evaluator)
+    }
     /// Pauses at a checkpoint barrier and reports a counter (actors, model trainer, rollout
     /// generator); the learner and evaluator only follow the cut.
     pub fn pauses(&self) -> bool {

@@ -1,6 +1,6 @@
 //! `mbpo bench ...`: micro-benchmarks printing one JSON object per line on stdout.
 
-use crate::cli::{BenchCommand, BenchTime};
+use crate::cli::{BenchCommand, BenchTime, EnvBenchArgs};
 use mbpo_core::rng::uniform_range_f32;
 use mbpo_envs::{make, ENV_IDS};
 use serde_json::json;
@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Gemm(t) => gemm(&t),
-        BenchCommand::Env(t) => env(&t),
+        BenchCommand::Env(args) => env(&args),
         BenchCommand::Learning(args) => learning(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::ModelTrain(r) => {
@@ -56,8 +56,17 @@ fn gemm(t: &BenchTime) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn env(t: &BenchTime) -> anyhow::Result<()> {
-    for id in ENV_IDS {
+fn env(args: &EnvBenchArgs) -> anyhow::Result<()> {
+    let t = &args.time;
+    let ids: Vec<&str> = match args.envs.is_empty() {
+        true => ENV_IDS.to_vec(),
+        false => args.envs.iter().map(String::as_str).collect(),
+    };
+    for id in ids {
+        if id.starts_with(mbpo_envs::GYM_PREFIX) {
+            // As `mbpo run` places an actor and its Python env (see the supervisor).
+            pin_to_current_cpu();
+        }
         let mut env = make(id)?;
         let mut rng = mbpo_core::stream(0, "bench.env", 0);
         let mut obs = vec![0.0f32; env.obs_dim()];
@@ -84,13 +93,33 @@ fn env(t: &BenchTime) -> anyhow::Result<()> {
             steps += 4096;
         }
         let secs = start.elapsed().as_secs_f64();
+        // A `gym:` env is Gymnasium's own, stepped through the bridge from Rust.
+        let implementation = match id.starts_with(mbpo_envs::GYM_PREFIX) {
+            true => "gymnasium-over-bridge",
+            false => "rust",
+        };
         println!(
             "{}",
-            json!({"bench": "env", "impl": "rust", "env": id, "steps_per_sec": (steps as f64 / secs).round(),
-                   "episodes": episodes, "threads": 1})
+            json!({"bench": "env", "impl": implementation, "env": id,
+                   "steps_per_sec": (steps as f64 / secs).round(), "episodes": episodes, "threads": 1})
         );
     }
     Ok(())
+}
+
+/// Keep this thread (and the processes it starts) on the CPU it runs on.
+fn pin_to_current_cpu() {
+    // SAFETY: sched_getcpu has no arguments; cpu_set_t is plain data; sched_setaffinity on
+    // the calling thread (pid 0).
+    unsafe {
+        let cpu = libc::sched_getcpu();
+        if cpu < 0 {
+            return;
+        }
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu as usize, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set);
+    }
 }
 
 fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {

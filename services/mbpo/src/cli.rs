@@ -91,7 +91,7 @@ pub enum BenchCommand {
     /// Single-thread faer f32 GEMM GFLOP/s for the shapes the networks use (the roofline).
     Gemm(BenchTime),
     /// Environment steps per second, per environment, single thread.
-    Env(BenchTime),
+    Env(EnvBenchArgs),
     /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims).
     SacUpdate(SacUpdateArgs),
     /// One dynamics-model training epoch over 10k transitions (7 x 4x200, HalfCheetah dims).
@@ -146,6 +146,16 @@ pub struct SacUpdateArgs {
     /// Threads one update runs on (the config's `sac.threads`).
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct EnvBenchArgs {
+    #[command(flatten)]
+    pub time: BenchTime,
+    /// Environment id (repeatable; default: every built-in task of this build). `gym:` ids
+    /// measure a Python env through the bridge (compare with tools/gym_env_speed.py).
+    #[arg(long = "env")]
+    pub envs: Vec<String>,
 }
 
 #[derive(Debug, Args)]

@@ -434,6 +434,10 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
         .into_iter()
         .enumerate()
         .map(|(i, role)| {
+            // A Python env's process inherits its actor's CPU: each env step's two wake-ups are
+            // then context switches (the bridge adds ~6 us a step) instead of cross-CPU wake-ups
+            // (~70 us on a 2-core VM; deploy/bench_python_bridge.sh).
+            let pin = args.pin_cpus || (cx.cfg.is_gym_env() && role.steps_an_env());
             let mut a = common.clone();
             a.extend(role.binary_args());
             Proc {
@@ -443,7 +447,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
                 args: a,
                 child: None,
                 exit: None,
-                cpu: args.pin_cpus.then(|| i % ncpu()),
+                cpu: pin.then(|| i % ncpu()),
             }
         })
         .collect()
