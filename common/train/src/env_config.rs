@@ -63,6 +63,12 @@ impl ExperimentConfig {
         Some(spec)
     }
 
+    /// The env id as it appears in file and folder names (`runs/mbpo-<it>-s0`,
+    /// `learning-<it>.json`): `:` and `/` of a `gym:` id become `-`.
+    pub fn env_file_name(&self) -> String {
+        self.env.replace([':', '/'], "-")
+    }
+
     /// A fresh environment of this config (a Python one starts its process here).
     pub fn make_env(&self) -> Result<Box<dyn Env>, EnvError> {
         match self.gym_spec() {

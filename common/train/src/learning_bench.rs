@@ -225,7 +225,7 @@ pub fn learning_benchmark_at(
         other => other.name().to_string(),
     };
     let target = cfg.target_return();
-    let file = out.join(format!("learning-{}.json", cfg.env));
+    let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
     // A results file that cannot be merged into must stop the benchmark before hours of work,
     // not be found unreadable at the end.
     read_results(&file)?;
@@ -239,7 +239,7 @@ pub fn learning_benchmark_at(
                 };
                 let mut c = cfg.clone();
                 c.seed = seed;
-                let dir = out.join("runs").join(format!("{algo}-{}-s{seed}", cfg.env));
+                let dir = out.join("runs").join(format!("{algo}-{}-s{seed}", cfg.env_file_name()));
                 let r = train(&c, &dir).and_then(|summary| {
                     let metrics = dir.join("metrics.csv");
                     let curve = read_eval_curve(&metrics)?;

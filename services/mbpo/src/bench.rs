@@ -154,7 +154,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
                "env_steps_to_target": r.seeds.iter().map(|s| s.env_steps_to_target).collect::<Vec<_>>(),
                "budgets": r.budgets,
                "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
-               "results": args.out.join(format!("learning-{}.json", cfg.env))})
+               "results": args.out.join(format!("learning-{}.json", cfg.env_file_name()))})
     );
     Ok(())
 }
