@@ -24,12 +24,14 @@ class PendulumAt(gym.Wrapper):
 class Drift(gym.Env):
     """A point on a line pushed by the action; reward -x^2. No time limit of its own (the
     config sets one). `raise_at` raises in step at that step of the process's life;
-    `exit_at` ends the interpreter there (os._exit), as a crash would."""
+    `exit_at` ends the interpreter there (os._exit), as a crash would; `terminate_beyond`
+    ends an episode (terminated) once |x| exceeds it."""
 
-    def __init__(self, raise_at=-1, exit_at=-1, exit_marker=""):
+    def __init__(self, raise_at=-1, exit_at=-1, exit_marker="", terminate_beyond=None):
         self.observation_space = gym.spaces.Box(-5.0, 5.0, shape=(2,), dtype=np.float32)
         self.action_space = gym.spaces.Box(-2.0, 2.0, shape=(1,), dtype=np.float32)
         self.raise_at, self.exit_at, self.exit_marker = raise_at, exit_at, exit_marker
+        self.terminate_beyond = terminate_beyond
         self.steps = 0
         self.x = 0.0
         self.v = 0.0
@@ -53,7 +55,8 @@ class Drift(gym.Env):
         a = float(np.clip(action[0], -2.0, 2.0))
         self.v = float(np.clip(0.9 * self.v + 0.05 * a, -1.0, 1.0))
         self.x = float(np.clip(self.x + self.v, -5.0, 5.0))
-        return self._obs(), -self.x * self.x - 0.01 * a * a, False, False, {}
+        beyond = self.terminate_beyond is not None and abs(self.x) > self.terminate_beyond
+        return self._obs(), -self.x * self.x - 0.01 * a * a, beyond, False, {}
 
 
 class DictObs(gym.Env):

@@ -113,13 +113,60 @@ fn lockstep_through_the_bridge_equals_the_sequential_run() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// The learned termination rule (the default for a gym: env) crosses processes with the model
+/// snapshots: lockstep still equals the sequential run, on an env whose episodes terminate.
+#[test]
+fn lockstep_with_a_learned_termination_rule_equals_the_sequential_run() {
+    let mut cfg = drift_config(300, &[("terminate_beyond", 1.2.into())]);
+    cfg.termination = None;
+    assert_eq!(
+        cfg.termination(),
+        Ok(mbpo_train::env_config::Termination::Learned)
+    );
+    let dir = scratch("gym-learned");
+    let input = write_config(&cfg, &dir);
+    let out = dir.join("run");
+    bin_dir();
+    let child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        ipc_root("gymlearned").to_str().unwrap(),
+    ]);
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let o = wait_output(child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(&out)["policy_sha256"], seq.policy_sha256.as_str());
+    assert_eq!(
+        metrics_without_timing(&out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    // Episodes did terminate, and the model trainer learned the rule from them.
+    let log = std::fs::read_to_string(out.join("logs/model-trainer.log")).unwrap();
+    let line = log
+        .lines()
+        .rfind(|l| l.contains("learned termination"))
+        .unwrap();
+    assert!(!line.contains(" on 0 terminal holdout rows"), "{line}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 #[test]
 fn an_env_that_raises_stops_the_run_with_a_checkpoint_of_everything_before() {
     let cfg = drift_config(300, &[("raise_at", 50.into())]);
     let dir = scratch("gym-raise");
     let input = write_config(&cfg, &dir);
     let out = dir.join("run");
-    let o = run(&input, &out, &ipc_root("gymraise"), &["--mode", "pipelined"]);
+    let o = run(
+        &input,
+        &out,
+        &ipc_root("gymraise"),
+        &["--mode", "pipelined"],
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success(), "{err}");
     assert!(

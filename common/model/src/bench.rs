@@ -224,7 +224,15 @@ pub fn model_rollout(
     let mut run = |model: &mut ProbabilisticEnsemble, rng: &mut mbpo_core::Rng| {
         let start = Instant::now();
         model
-            .rollout(&start_obs, rollouts, &mut policy, 1, &never, rng, &mut pool)
+            .rollout(
+                &start_obs,
+                rollouts,
+                &mut policy,
+                1,
+                Some(&never),
+                rng,
+                &mut pool,
+            )
             .expect("start states and pool are built for the model's dimensions");
         start.elapsed().as_secs_f64()
     };

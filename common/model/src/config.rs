@@ -59,6 +59,11 @@ pub struct ModelConfig {
     /// MBPO: a machine setting (the pipeline's model trainer can use a core the learner
     /// leaves idle).
     pub threads: usize,
+    /// Learn the termination rule of model rollouts with the model (a
+    /// [`crate::TerminationClassifier`] trained after the ensemble on the same data). Not a key
+    /// of the config file: the experiment's `termination = "learned"` sets it.
+    #[serde(skip)]
+    pub learn_termination: bool,
 }
 
 impl Default for ModelConfig {
@@ -81,6 +86,7 @@ impl Default for ModelConfig {
             learn_logvar_bounds: true,
             logvar_bound_penalty: 0.01,
             threads: 1,
+            learn_termination: false,
         }
     }
 }

@@ -114,6 +114,9 @@ pub enum RolloutError {
         /// Buffer action width.
         found_act: usize,
     },
+    /// No termination rule was given and the model learns none.
+    #[error("no termination rule: give the task's, or build the model with learn_termination")]
+    NoTerminationRule,
 }
 
 /// Why parameters or weights could not be loaded into a model.

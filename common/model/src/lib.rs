@@ -35,7 +35,7 @@
 //! let mut policy = UniformPolicy { low: vec![-1.0], high: vec![1.0] };
 //! let mut pool = ReplayBuffer::new(2, 1, 100);
 //! let never = |_: &[f32], _: &[f32], _: &[f32]| false;
-//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, &never, &mut rng, &mut pool).unwrap();
+//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, Some(&never), &mut rng, &mut pool).unwrap();
 //! assert_eq!((stats.transitions, pool.len()), (30, 30));
 //! ```
 #![warn(missing_docs)]
@@ -50,6 +50,7 @@ mod normalizer;
 mod parallel;
 mod rollout;
 mod simd;
+pub mod termination;
 mod train;
 
 pub use config::{ModelConfig, ModelConfigError};
@@ -58,6 +59,7 @@ pub use grad::MeanTape;
 pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
 pub use rollout::{rollout_length, ModelPoolSizing, RolloutStats, Termination};
+pub use termination::{TerminationClassifier, TerminationReport, TerminationWeights};
 pub use train::{
     holdout_size, select_elites, BootstrapIndices, EarlyStopping, StopReason, TrainReport,
 };

@@ -9,6 +9,7 @@ use crate::normalizer::InputNormalizer;
 use crate::parallel::{sum_bound_slots, MemberThreads};
 use crate::rollout::RolloutBuffers;
 use crate::simd::{dispatch, fill_standard_normal};
+use crate::termination::{TerminationClassifier, TerminationWeights};
 use mbpo_core::rng::index;
 use mbpo_core::{Batch, Rng};
 use mbpo_nn::{Adam, AdamConfig, AdamState, Init, ParamLayout, WeightDecay};
@@ -37,6 +38,8 @@ pub struct ProbabilisticEnsemble {
     pub(crate) adam: Adam,
     pub(crate) normalizer: InputNormalizer,
     pub(crate) elites: Vec<usize>,
+    /// The learned termination rule (`config.learn_termination`), trained with the ensemble.
+    pub(crate) termination: Option<TerminationClassifier>,
     pub(crate) ws: Workspace,
 }
 
@@ -52,6 +55,8 @@ pub struct ModelWeights {
     pub normalizer: InputNormalizer,
     /// Elite member indices, best first.
     pub elites: Vec<usize>,
+    /// The learned termination rule, when the model has one.
+    pub termination: Option<TerminationWeights>,
 }
 
 /// What a checkpoint stores of a model being trained: its [`ModelWeights`] and the Adam
@@ -62,6 +67,8 @@ pub struct ModelState {
     pub weights: ModelWeights,
     /// Adam's moments and step count over θ.
     pub adam: AdamState,
+    /// The learned termination rule's Adam moments, when the model has one.
+    pub termination_adam: Option<AdamState>,
 }
 
 /// Scratch memory (not model state: cloning or loading weights never depends on it).
@@ -152,7 +159,12 @@ impl ProbabilisticEnsemble {
                 }
             }
         }
+        // After the ensemble's draws, so a model without it initialises exactly as before.
+        let termination = config
+            .learn_termination
+            .then(|| TerminationClassifier::new(obs_dim, act_dim, rng));
         Ok(Self {
+            termination,
             elites: (0..config.elites).collect(),
             normalizer: InputNormalizer::identity(obs_dim + act_dim),
             config,
@@ -229,7 +241,28 @@ impl ProbabilisticEnsemble {
             params: self.theta.clone(),
             normalizer: self.normalizer.clone(),
             elites: self.elites.clone(),
+            termination: self.termination.as_ref().map(|c| c.weights()),
         }
+    }
+
+    /// The learned termination rule (`None` unless `config.learn_termination`).
+    pub fn termination(&self) -> Option<&TerminationClassifier> {
+        self.termination.as_ref()
+    }
+
+    /// Load the learned termination rule's parts (params, input mean, input std) out of a
+    /// snapshot; an error when the model has none or the shapes differ.
+    pub fn load_termination_parts(
+        &mut self,
+        params: &[f32],
+        mean: &[f32],
+        std: &[f32],
+    ) -> Result<(), ParamsError> {
+        let c = self.termination.as_mut().ok_or_else(|| {
+            ParamsError::Inconsistent("weights with a termination rule for a model without".into())
+        })?;
+        c.load_parts(params, mean, std)
+            .map_err(ParamsError::Inconsistent)
     }
 
     /// Load [`ModelWeights`] from a model of the same architecture.
@@ -242,7 +275,20 @@ impl ProbabilisticEnsemble {
             &normalizer.mean,
             &normalizer.std,
             elites,
-        )
+        )?;
+        match (&w.termination, self.termination.is_some()) {
+            (Some(t), true) => self.load_termination_parts(&t.params, &t.mean, &t.std),
+            (None, false) => Ok(()),
+            (found, _) => Err(ParamsError::Inconsistent(format!(
+                "weights {} a learned termination rule, the model {}",
+                if found.is_some() { "with" } else { "without" },
+                if found.is_some() {
+                    "has none"
+                } else {
+                    "learns one"
+                }
+            ))),
+        }
     }
 
     /// Load weights given as their parts -- θ, the normaliser's mean and std, the elites --
@@ -293,6 +339,7 @@ impl ProbabilisticEnsemble {
         ModelState {
             weights: self.weights(),
             adam: self.adam.state().clone(),
+            termination_adam: self.termination.as_ref().map(|c| c.adam_state().clone()),
         }
     }
 
@@ -308,7 +355,15 @@ impl ProbabilisticEnsemble {
         }
         self.load_weights(&state.weights)?;
         self.adam.set_state(state.adam.clone());
-        Ok(())
+        match (&mut self.termination, &state.termination_adam) {
+            (Some(c), Some(adam)) => c
+                .set_adam_state(adam.clone())
+                .map_err(ParamsError::Inconsistent),
+            (None, None) => Ok(()),
+            _ => Err(ParamsError::Inconsistent(
+                "a checkpoint of a model with another termination rule".into(),
+            )),
+        }
     }
 
     /// The training objective and its gradient on one minibatch per member, *without* weight

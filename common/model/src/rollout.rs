@@ -5,8 +5,8 @@
 //! Follows `mbpo.py::_rollout_model` and `fake_env.py::step`: at each of k steps the policy acts
 //! on the live batch, every sample is predicted by a uniformly random *elite*, the next state and
 //! reward are drawn from that member's Gaussian (`μ + σ·ε`), `done` comes from the task's
-//! hand-written termination function, every transition is pushed to the model buffer, and
-//! terminated samples are dropped before the next step.
+//! hand-written termination function (or, here, the model's learned one), every transition is
+//! pushed to the model buffer, and terminated samples are dropped before the next step.
 
 use crate::error::RolloutError;
 use crate::model::ProbabilisticEnsemble;
@@ -38,11 +38,14 @@ pub(crate) struct RolloutBuffers {
     act: Vec<f32>,
     next_obs: Vec<f32>,
     reward: Vec<f32>,
+    done: Vec<bool>,
 }
 
 impl ProbabilisticEnsemble {
     /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
-    /// `policy`, pushing every transition into `out` (the model buffer D_model).
+    /// `policy`, pushing every transition into `out` (the model buffer D_model). `termination`
+    /// is the task's rule; `None` uses the model's learned one
+    /// ([`ModelConfig::learn_termination`](crate::ModelConfig::learn_termination)).
     ///
     /// Random draws come from `rng` in a fixed order (per step: the policy's actions, one elite
     /// per sample, then the Gaussian noise), so a seed fixes the result.
@@ -53,11 +56,14 @@ impl ProbabilisticEnsemble {
         n: usize,
         policy: &mut dyn BatchPolicy,
         k: usize,
-        termination: Termination,
+        termination: Option<Termination>,
         rng: &mut Rng,
         out: &mut ReplayBuffer,
     ) -> Result<RolloutStats, RolloutError> {
         let (o, a) = (self.obs_dim, self.act_dim);
+        if termination.is_none() && self.termination.is_none() {
+            return Err(RolloutError::NoTerminationRule);
+        }
         if start_obs.len() != n * o {
             return Err(RolloutError::StartObs {
                 n,
@@ -87,6 +93,7 @@ impl ProbabilisticEnsemble {
         buf.act.resize(n * a, 0.0);
         buf.next_obs.resize(n * o, 0.0);
         buf.reward.resize(n, 0.0);
+        buf.done.resize(n, false);
         let mut members = std::mem::take(&mut self.ws.members);
         members.resize(n, 0);
         let mut reward_sum = 0.0f64;
@@ -110,12 +117,19 @@ impl ProbabilisticEnsemble {
                 &mut buf.reward[..alive],
                 &mut buf.next_obs[..alive * o],
             );
+            if let (None, Some(learned)) = (termination, self.termination.as_mut()) {
+                let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
+                learned.predict(s, act, next, alive, &mut buf.done[..alive]);
+            }
             // Push every transition; keep the non-terminated next states, compacted in place.
             let mut kept = 0;
             for i in 0..alive {
                 let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
                 let s_next = &buf.next_obs[i * o..(i + 1) * o];
-                let done = termination(s, act, s_next);
+                let done = match termination {
+                    Some(rule) => rule(s, act, s_next),
+                    None => buf.done[i],
+                };
                 out.push(s, act, buf.reward[i], s_next, done);
                 reward_sum += buf.reward[i] as f64;
                 if done {

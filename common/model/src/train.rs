@@ -57,6 +57,8 @@ pub struct TrainReport {
     pub stop: StopReason,
     /// Wall-clock seconds of the call.
     pub seconds: f64,
+    /// The learned termination rule's training, when the model has one.
+    pub termination: Option<crate::TerminationReport>,
 }
 
 impl TrainReport {
@@ -261,6 +263,7 @@ impl ProbabilisticEnsemble {
             elites: Vec::new(),
             stop: StopReason::NoImprovement,
             seconds: 0.0,
+            termination: None,
         };
         self.ws.grads.resize(self.theta.len(), 0.0);
         self.ws.threads.ensure(cfg.threads, &self.net, batch);
@@ -335,6 +338,10 @@ impl ProbabilisticEnsemble {
         self.elites = select_elites(&mse, cfg.elites);
         report.final_holdout_mse = mse;
         report.elites = self.elites.clone();
+        // The learned termination rule, on the same data, after the ensemble's draws.
+        if let Some(c) = self.termination.as_mut() {
+            report.termination = Some(c.train(data, rng));
+        }
         report.seconds = start.elapsed().as_secs_f64();
         Ok(Some(report))
     }

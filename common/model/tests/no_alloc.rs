@@ -87,7 +87,7 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
     let mut rrng = stream(0, "alloc", 1);
     let mut rollout = |model: &mut ProbabilisticEnsemble, k: usize| {
         model
-            .rollout(&obs, n, &mut policy, k, &never, &mut rrng, &mut pool)
+            .rollout(&obs, n, &mut policy, k, Some(&never), &mut rrng, &mut pool)
             .unwrap();
     };
     rollout(&mut model, 5);

@@ -127,7 +127,7 @@ fn mountain_car_rollouts_stop_at_the_goal() {
             5,
             &mut uniform(1),
             5,
-            &done,
+            Some(&done),
             &mut stream(0, "r", 0),
             &mut out,
         )
@@ -163,7 +163,7 @@ fn everything_terminating_ends_the_rollout_after_one_step() {
             10,
             &mut uniform(1),
             7,
-            &always,
+            Some(&always),
             &mut stream(0, "r", 1),
             &mut out,
         )
@@ -198,7 +198,7 @@ fn stochastic_rollouts_drop_terminated_samples() {
             600,
             &mut uniform(2),
             4,
-            &fake_done,
+            Some(&fake_done),
             &mut rng,
             &mut out,
         )
@@ -225,7 +225,7 @@ fn rollouts_are_bit_reproducible() {
                 700,
                 &mut uniform(2),
                 3,
-                &fake_done,
+                Some(&fake_done),
                 &mut rng,
                 &mut out,
             )
@@ -248,7 +248,7 @@ fn rollouts_use_only_elites() {
             1000,
             &mut uniform(1),
             1,
-            &never,
+            Some(&never),
             &mut stream(5, "r", 0),
             &mut out,
         )
@@ -331,7 +331,15 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
     let never = |_: &[f32], _: &[f32], _: &[f32]| false;
     let mut out = ReplayBuffer::new(2, 1, 10);
     let err = model
-        .rollout(&[0.0; 5], 3, &mut uniform(1), 1, &never, &mut rng, &mut out)
+        .rollout(
+            &[0.0; 5],
+            3,
+            &mut uniform(1),
+            1,
+            Some(&never),
+            &mut rng,
+            &mut out,
+        )
         .unwrap_err();
     assert!(
         matches!(
@@ -351,7 +359,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             3,
             &mut uniform(1),
             1,
-            &never,
+            Some(&never),
             &mut rng,
             &mut wrong,
         )

@@ -64,7 +64,7 @@ impl Dims {
         let model = ProbabilisticEnsemble::new(
             obs,
             act,
-            cfg.model.clone(),
+            cfg.model_config(),
             &mut stream(cfg.seed, "wire.model-shape", 0),
         )
         .map_err(|e| RuntimeError::Model(e.to_string()))?;

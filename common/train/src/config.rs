@@ -585,13 +585,21 @@ impl ExperimentConfig {
             ));
         }
         if matches!(self.algo, Algo::MBPO | Algo::MPC) || self.termination.is_some() {
-            self.termination().map_err(|expected| {
+            let rule = self.termination().map_err(|expected| {
                 let found = self
                     .termination
                     .as_ref()
                     .map_or("nothing".into(), |t| format!("{t:?}"));
                 bad("termination", &expected, found)
             })?;
+            if self.algo == Algo::MPC && rule == crate::env_config::Termination::Learned {
+                return Err(bad(
+                    "termination",
+                    "\"never\" or a built-in task's rule for MPC (a learned rule is trained for \
+                     MBPO's model rollouts; planning does not use it yet)",
+                    "\"learned\" (the default for a gym: env)".into(),
+                ));
+            }
         }
         if let Some(p) = self.gym.path.iter().find(|p| !p.is_dir()) {
             return Err(bad(

@@ -3,7 +3,7 @@
 //!
 //! ```toml
 //! env = "gym:my_pkg.envs:MyRobot"   # or a built-in id, or gym:<registered Gymnasium id>
-//! termination = "never"             # or the id of a built-in task whose rule applies
+//! termination = "learned"           # (the default for gym:) or "never", or a built-in task's id
 //! [gym]
 //! python = "/path/to/venv/bin/python"   # default: $MBPO_PYTHON, else the project venv
 //! max_episode_steps = 500               # for an env without a time limit
@@ -40,6 +40,9 @@ pub enum Termination {
     Task(String),
     /// No predicted state is terminal (tasks without termination, e.g. Pendulum).
     Never,
+    /// Learned with the model from the real transitions' flags
+    /// ([`mbpo_model::TerminationClassifier`]); the default for a Python env.
+    Learned,
 }
 
 impl ExperimentConfig {
@@ -77,37 +80,42 @@ impl ExperimentConfig {
         }
     }
 
-    /// The termination rule of model rollouts: `termination` if set, else the task's own.
-    /// Errors say what to set (a Python env has no built-in rule).
+    /// The termination rule of model rollouts: `termination` if set, else the task's own, and
+    /// learned for a Python env. Errors say what to set.
     pub fn termination(&self) -> Result<Termination, String> {
         match self.termination.as_deref() {
             Some("never") => Ok(Termination::Never),
+            Some("learned") => Ok(Termination::Learned),
             Some(id) if mbpo_envs::termination_fn(id).is_some() => {
                 Ok(Termination::Task(id.to_string()))
             }
             Some(other) => Err(format!(
-                "\"never\" or the id of a built-in task whose rule applies ({}); learned and \
-                 Python termination rules are not available yet, found {other:?}",
+                "\"learned\", \"never\" or the id of a built-in task whose rule applies ({}), \
+                 found {other:?}",
                 mbpo_envs::TERMINATION_ENV_IDS.join(", ")
             )),
-            None if self.is_gym_env() => Err(format!(
-                "a rule for the Python env {}: set `termination = \"never\"` when its episodes \
-                 end only by the time limit, or the id of a built-in task whose rule applies \
-                 (e.g. \"Hopper-v5\" for gym:Hopper-v5)",
-                self.env
-            )),
+            None if self.is_gym_env() => Ok(Termination::Learned),
             None => Ok(Termination::Task(self.env.clone())),
         }
     }
 
-    /// [`ExperimentConfig::termination`] as the function model rollouts call.
-    pub fn termination_fn(&self) -> Result<TerminationFn, String> {
+    /// [`ExperimentConfig::termination`] as the function model rollouts call; `None` for the
+    /// learned rule (the model holds it).
+    pub fn termination_fn(&self) -> Result<Option<TerminationFn>, String> {
         Ok(match self.termination()? {
-            Termination::Never => termination::never,
-            Termination::Task(id) => {
-                mbpo_envs::termination_fn(&id).expect("termination() checked the id")
-            }
+            Termination::Never => Some(termination::never),
+            Termination::Task(id) => mbpo_envs::termination_fn(&id),
+            Termination::Learned => None,
         })
+    }
+
+    /// The dynamics model's config: `[model]`, plus a learned termination rule when
+    /// `termination` is learned. Every model of a run is built from this.
+    pub fn model_config(&self) -> mbpo_model::ModelConfig {
+        mbpo_model::ModelConfig {
+            learn_termination: self.termination() == Ok(Termination::Learned),
+            ..self.model.clone()
+        }
     }
 }
 

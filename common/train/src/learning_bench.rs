@@ -239,7 +239,9 @@ pub fn learning_benchmark_at(
                 };
                 let mut c = cfg.clone();
                 c.seed = seed;
-                let dir = out.join("runs").join(format!("{algo}-{}-s{seed}", cfg.env_file_name()));
+                let dir = out
+                    .join("runs")
+                    .join(format!("{algo}-{}-s{seed}", cfg.env_file_name()));
                 let r = train(&c, &dir).and_then(|summary| {
                     let metrics = dir.join("metrics.csv");
                     let curve = read_eval_curve(&metrics)?;

@@ -181,11 +181,15 @@ impl Mbpo {
             };
             // The same line as the pipeline's model trainer, so runs can be compared.
             tracing::info!(
-                "model trained for step {t} on {} transitions: {} epochs, elites {:?}, {:.2} s",
+                "model trained for step {t} on {} transitions: {} epochs, elites {:?}, {:.2} s{}",
                 report.n_train + report.n_holdout,
                 report.epochs,
                 report.elites,
-                report.seconds
+                report.seconds,
+                report
+                    .termination
+                    .map(|t| format!("; {t}"))
+                    .unwrap_or_default()
             );
             self.branch_rollouts(epoch)?;
         }

@@ -48,7 +48,7 @@ pub fn planning_model(cfg: &ExperimentConfig, env: &dyn Env) -> Result<EnsembleM
     let ensemble = ProbabilisticEnsemble::new(
         o,
         a,
-        cfg.model.clone(),
+        cfg.model_config(),
         &mut stream(cfg.seed, "plan.model-shape", 0),
     )
     .map_err(|e| TrainError::Config(e.to_string()))?;
@@ -64,7 +64,7 @@ pub fn planning_model(cfg: &ExperimentConfig, env: &dyn Env) -> Result<EnsembleM
     EnsembleModel::new(
         ensemble,
         reward,
-        Some(cfg.termination_fn().map_err(TrainError::Config)?),
+        cfg.termination_fn().map_err(TrainError::Config)?,
         &space.low,
         &space.high,
     )

@@ -226,7 +226,7 @@ impl ModelTrainerRole {
         let model = ProbabilisticEnsemble::new(
             obs_dim,
             act_dim,
-            cfg.model.clone(),
+            cfg.model_config(),
             &mut stream(cfg.seed, "model.init", 0),
         )
         .map_err(|e| TrainError::Config(e.to_string()))?;
@@ -353,7 +353,8 @@ pub struct RolloutRole {
     model_version: u64,
     policy: ActorPolicy,
     policy_version: u64,
-    termination: TerminationFn,
+    /// The task's rule; `None`: the model's learned one.
+    termination: Option<TerminationFn>,
     schedule: [usize; 4],
     starts: Batch,
     staged: ReplayBuffer,
@@ -368,7 +369,7 @@ impl RolloutRole {
         let model = ProbabilisticEnsemble::new(
             obs_dim,
             act_dim,
-            cfg.model.clone(),
+            cfg.model_config(),
             &mut stream(cfg.seed, "rollout.model-shape", 0),
         )
         .map_err(|e| TrainError::Config(e.to_string()))?;
@@ -492,7 +493,7 @@ impl RolloutRole {
                 n,
                 &mut self.policy,
                 k,
-                &termination,
+                termination.as_ref().map(|f| f as mbpo_model::Termination),
                 &mut self.rng,
                 &mut self.staged,
             )

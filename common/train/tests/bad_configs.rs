@@ -85,6 +85,32 @@ const CASES: &[(&str, &[&str])] = &[
         "env = \"CartPole-v1\"",
         &["`env`", "Pendulum-v1", "CartPole-v1"],
     ),
+    // Python Gymnasium envs: the id, the termination rule, the [gym] table.
+    ("env = \"gym:\"", &["`env`", "gym:<registered id>", "\"gym:\""]),
+    (
+        "algo = \"mbpo\"\ntermination = \"sometimes\"",
+        &["`termination`", "\"learned\", \"never\"", "Hopper-v5", "\"sometimes\""],
+    ),
+    (
+        "algo = \"mpc\"\nenv = \"gym:Pendulum-v1\"\n[mpc]\nreward = \"model\"",
+        &["`termination`", "for MPC", "\"learned\""],
+    ),
+    (
+        "[gym]\nmax_episode_steps = 50",
+        &["`gym`", "Python envs", "Pendulum-v1"],
+    ),
+    (
+        "env = \"gym:Pendulum-v1\"\n[gym]\npath = [\"/nonexistent/envs\"]",
+        &["`gym.path`", "folders that exist", "/nonexistent/envs"],
+    ),
+    (
+        "env = \"gym:Pendulum-v1\"\n[gym.kwargs]\ng = nan",
+        &["`gym.kwargs.g`", "finite numbers", "NaN"],
+    ),
+    (
+        "env = \"gym:Pendulum-v1\"\n[gym]\nmax_episode_steps = 0",
+        &["`gym.max_episode_steps`", "a positive number"],
+    ),
     (
         "algo = \"mbpo\"\n[mbpo]\nepoch_length = 0",
         &["`mbpo.epoch_length`", "a positive number"],

@@ -23,6 +23,8 @@ pub struct ModelWireLayout {
     pub in_dim: usize,
     /// Number of elites.
     pub elites: usize,
+    /// Floats of the learned termination rule (params, input mean, input std); 0 without one.
+    pub termination: usize,
 }
 
 impl ModelWireLayout {
@@ -33,11 +35,12 @@ impl ModelWireLayout {
             n_params: model.params().len(),
             in_dim: model.obs_dim() + model.act_dim(),
             elites,
+            termination: model.termination().map_or(0, |c| c.wire_len()),
         }
     }
     /// Total floats.
     pub fn len(&self) -> usize {
-        self.n_params + 2 * self.in_dim + self.elites
+        self.n_params + 2 * self.in_dim + self.elites + self.termination
     }
     /// Never empty.
     pub fn is_empty(&self) -> bool {
@@ -50,6 +53,10 @@ impl ModelWireLayout {
             || w.normalizer.mean.len() != self.in_dim
             || w.normalizer.std.len() != self.in_dim
             || w.elites.len() != self.elites
+            || w.termination
+                .as_ref()
+                .map_or(0, |t| t.params.len() + t.mean.len() + t.std.len())
+                != self.termination
         {
             return Err(DecodeError::ModelWeights(format!(
                 "layout {self:?}, weights with hash {:#x}, {} params, {} inputs, {} elites",
@@ -64,10 +71,16 @@ impl ModelWireLayout {
         out.extend_from_slice(&w.normalizer.mean);
         out.extend_from_slice(&w.normalizer.std);
         out.extend(w.elites.iter().map(|&e| e as f32));
+        if let Some(t) = &w.termination {
+            out.extend_from_slice(&t.params);
+            out.extend_from_slice(&t.mean);
+            out.extend_from_slice(&t.std);
+        }
         Ok(())
     }
-    /// θ, normaliser mean, normaliser std and elites (as f32) of the snapshot `flat`.
-    fn parts<'f>(&self, flat: &'f [f32]) -> Result<[&'f [f32]; 4], DecodeError> {
+    /// θ, normaliser mean, normaliser std, elites (as f32) and the termination rule's floats
+    /// of the snapshot `flat`.
+    fn parts<'f>(&self, flat: &'f [f32]) -> Result<[&'f [f32]; 5], DecodeError> {
         if flat.len() != self.len() {
             return Err(DecodeError::ModelLength {
                 expected: self.len(),
@@ -76,8 +89,9 @@ impl ModelWireLayout {
         }
         let (p, rest) = flat.split_at(self.n_params);
         let (mean, rest) = rest.split_at(self.in_dim);
-        let (std, elites) = rest.split_at(self.in_dim);
-        Ok([p, mean, std, elites])
+        let (std, rest) = rest.split_at(self.in_dim);
+        let (elites, termination) = rest.split_at(self.elites);
+        Ok([p, mean, std, elites, termination])
     }
     /// Load the snapshot `flat` into `model` in place: the one copy a receiver makes out of
     /// shared memory (no intermediate [`ModelWeights`]).
@@ -86,11 +100,29 @@ impl ModelWireLayout {
         flat: &[f32],
         model: &mut ProbabilisticEnsemble,
     ) -> Result<(), DecodeError> {
-        let [p, mean, std, elites] = self.parts(flat)?;
+        let [p, mean, std, elites, termination] = self.parts(flat)?;
         let elites = elites.iter().map(|&e| e as usize);
+        let bad = |e: mbpo_model::ParamsError| DecodeError::ModelWeights(e.to_string());
         model
             .load_parts(self.layout_hash, p, mean, std, elites)
-            .map_err(|e| DecodeError::ModelWeights(e.to_string()))
+            .map_err(bad)?;
+        if let Some(c) = model.termination() {
+            // [params | mean | std], the mean and std one value per classifier input.
+            let n = c.in_dim();
+            if termination.len() != c.wire_len() {
+                return Err(DecodeError::ModelWeights(format!(
+                    "a snapshot with {} floats of a termination rule, the model's has {}",
+                    termination.len(),
+                    c.wire_len()
+                )));
+            }
+            let (params, rest) = termination.split_at(termination.len() - 2 * n);
+            let (mean, std) = rest.split_at(n);
+            model
+                .load_termination_parts(params, mean, std)
+                .map_err(bad)?;
+        }
+        Ok(())
     }
 }
 
@@ -119,6 +151,7 @@ mod tests {
                 std: vec![0.5, 0.25, 2.0, 1.0],
             },
             elites: vec![2, 0],
+            termination: None,
         };
         let mut flat = Vec::new();
         l.encode(&w, &mut flat).unwrap();
@@ -131,5 +164,41 @@ mod tests {
         let mut bad = w.clone();
         bad.elites.pop();
         assert!(l.encode(&bad, &mut flat).is_err());
+    }
+
+    #[test]
+    fn a_learned_termination_rule_rides_at_the_end_of_the_snapshot() {
+        let cfg = ModelConfig {
+            members: 2,
+            elites: 1,
+            hidden: vec![8, 8],
+            weight_decay: vec![1e-5, 1e-5, 1e-5],
+            learn_termination: true,
+            ..ModelConfig::default()
+        };
+        let model = ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "t", 0)).unwrap();
+        let l = ModelWireLayout::of_model(&model, 1);
+        let rule = model.termination().unwrap();
+        assert_eq!(l.termination, rule.wire_len());
+        let mut w = model.weights();
+        let t = w.termination.as_mut().unwrap();
+        t.params
+            .iter_mut()
+            .enumerate()
+            .for_each(|(i, v)| *v = i as f32 * 1e-3);
+        t.mean = vec![0.5; rule.in_dim()];
+        t.std = vec![2.0; rule.in_dim()];
+        let mut flat = Vec::new();
+        l.encode(&w, &mut flat).unwrap();
+        assert_eq!(flat.len(), l.len());
+        let mut loaded =
+            ProbabilisticEnsemble::new(3, 1, model.config().clone(), &mut stream(1, "t", 0))
+                .unwrap();
+        l.load_into(&flat, &mut loaded).unwrap();
+        assert_eq!(loaded.weights(), w);
+        // Weights without the rule do not fit this layout.
+        let mut without = w.clone();
+        without.termination = None;
+        assert!(l.encode(&without, &mut flat).is_err());
     }
 }

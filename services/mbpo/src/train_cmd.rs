@@ -40,7 +40,12 @@ pub fn resolve_config(
 /// checkpoints with this run's metrics.
 pub fn fresh_run_dir(common: &CommonTrainArgs, cfg: &ExperimentConfig) -> anyhow::Result<PathBuf> {
     let Some(out) = &common.out else {
-        let base = format!("runs/{}-{}-s{}", cfg.algo.name(), cfg.env_file_name(), cfg.seed);
+        let base = format!(
+            "runs/{}-{}-s{}",
+            cfg.algo.name(),
+            cfg.env_file_name(),
+            cfg.seed
+        );
         for n in 1.. {
             let dir = match n {
                 1 => PathBuf::from(&base),

@@ -133,9 +133,10 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         };
         model_pub.publish(&flat, version, counters)?;
         tracing::info!(
-            "model v{version} trained for step {t} on {} transitions: {} epochs, holdout mse {mse:.5}, {seconds:.2} s",
+            "model v{version} trained for step {t} on {} transitions: {} epochs, holdout mse {mse:.5}, {seconds:.2} s{}",
             role.real_received(),
-            report.epochs
+            report.epochs,
+            report.termination.map(|t| format!("; {t}")).unwrap_or_default()
         );
     }
     // Take the rest so that no actor blocks and the counts are complete.
