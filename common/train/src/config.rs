@@ -374,9 +374,14 @@ impl ExperimentConfig {
     /// The eval return the run's "env steps to target" refers to: `eval.target_return`, else the
     /// task's own (`None` when the task has none and the config sets none).
     pub fn target_return(&self) -> Option<f64> {
+        // `gym:Hopper-v5` is Gymnasium's own Hopper-v5: the built-in task's target applies.
+        let task = self
+            .env
+            .strip_prefix(mbpo_envs::GYM_PREFIX)
+            .unwrap_or(&self.env);
         self.eval
             .target_return
-            .or_else(|| mbpo_envs::target_return(&self.env))
+            .or_else(|| mbpo_envs::target_return(task))
     }
 
     /// The config as TOML (the run directory keeps this resolved copy).

@@ -12,6 +12,7 @@
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
 //! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
+//! * [`termination_bench`]: the learned termination rule against a task's exact one.
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
 //! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
 //!   single-process MPC run).
@@ -36,6 +37,7 @@ pub mod run_files;
 pub mod sac_trainer;
 pub mod schedule;
 pub mod tensorboard;
+pub mod termination_bench;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};

@@ -86,10 +86,18 @@ const CASES: &[(&str, &[&str])] = &[
         &["`env`", "Pendulum-v1", "CartPole-v1"],
     ),
     // Python Gymnasium envs: the id, the termination rule, the [gym] table.
-    ("env = \"gym:\"", &["`env`", "gym:<registered id>", "\"gym:\""]),
+    (
+        "env = \"gym:\"",
+        &["`env`", "gym:<registered id>", "\"gym:\""],
+    ),
     (
         "algo = \"mbpo\"\ntermination = \"sometimes\"",
-        &["`termination`", "\"learned\", \"never\"", "Hopper-v5", "\"sometimes\""],
+        &[
+            "`termination`",
+            "\"learned\", \"never\"",
+            "Hopper-v5",
+            "\"sometimes\"",
+        ],
     ),
     (
         "algo = \"mpc\"\nenv = \"gym:Pendulum-v1\"\n[mpc]\nreward = \"model\"",

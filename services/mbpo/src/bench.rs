@@ -12,6 +12,17 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Env(args) => env(&args),
         BenchCommand::Learning(args) => learning(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
+        BenchCommand::Termination(args) => {
+            let env = make(&args.env)?;
+            let report = mbpo_train::termination_bench::termination_benchmark(
+                env,
+                args.train_steps,
+                args.test_steps,
+                args.seed,
+            )?;
+            println!("{}", serde_json::to_string(&report)?);
+            Ok(())
+        }
         BenchCommand::ModelTrain(r) => {
             let mut cfg = model_bench_config(&r.reps);
             cfg.model.threads = r.threads;

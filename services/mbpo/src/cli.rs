@@ -102,6 +102,25 @@ pub enum BenchCommand {
     Learning(LearningArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
+    /// The learned termination rule against the env's own: trained on random-action
+    /// transitions, tested on other episodes (precision, recall).
+    Termination(TerminationBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct TerminationBenchArgs {
+    /// Environment (a built-in task with termination, e.g. Hopper-v5, or a gym: id).
+    #[arg(long, default_value = "Hopper-v5")]
+    pub env: String,
+    /// Random-action transitions to train on.
+    #[arg(long, default_value_t = 20_000)]
+    pub train_steps: usize,
+    /// Transitions of other episodes to test on.
+    #[arg(long, default_value_t = 10_000)]
+    pub test_steps: usize,
+    /// Seed of the random streams.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 #[derive(Debug, Args)]
