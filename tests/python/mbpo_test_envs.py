@@ -2,6 +2,7 @@
 reach them as `gym:mbpo_test_envs:<Name>` with this folder in `gym.path`."""
 
 import os
+import time
 
 import gymnasium as gym
 import numpy as np
@@ -24,14 +25,17 @@ class PendulumAt(gym.Wrapper):
 class Drift(gym.Env):
     """A point on a line pushed by the action; reward -x^2. No time limit of its own (the
     config sets one). `raise_at` raises in step at that step of the process's life;
-    `exit_at` ends the interpreter there (os._exit), as a crash would; `terminate_beyond`
+    `exit_at` ends the interpreter there (os._exit), as a crash would; `hang_at` sleeps there
+    for two minutes, as a stuck simulator would; `terminate_beyond`
     ends an episode (terminated) once |x| exceeds it."""
 
-    def __init__(self, raise_at=-1, exit_at=-1, exit_marker="", terminate_beyond=None):
+    def __init__(self, raise_at=-1, exit_at=-1, exit_marker="", terminate_beyond=None,
+                 hang_at=-1):
         self.observation_space = gym.spaces.Box(-5.0, 5.0, shape=(2,), dtype=np.float32)
         self.action_space = gym.spaces.Box(-2.0, 2.0, shape=(1,), dtype=np.float32)
         self.raise_at, self.exit_at, self.exit_marker = raise_at, exit_at, exit_marker
         self.terminate_beyond = terminate_beyond
+        self.hang_at = hang_at
         self.steps = 0
         self.x = 0.0
         self.v = 0.0
@@ -47,6 +51,11 @@ class Drift(gym.Env):
 
     def step(self, action):
         self.steps += 1
+        if self.steps == self.hang_at:
+            marker = os.environ.get("MBPO_TEST_HANG_MARKER")
+            if marker:
+                open(marker, "w").close()  # tells the test the env is stuck now
+            time.sleep(120)
         if self.steps == self.raise_at:
             raise RuntimeError(f"Drift: failing on purpose at step {self.steps}")
         if self.steps == self.exit_at and not os.path.exists(self.exit_marker):
@@ -92,3 +101,9 @@ class UnboundedActions(gym.Env):
 class ImageObs(gym.Env):
     observation_space = gym.spaces.Box(0, 255, shape=(4, 4), dtype=np.uint8)
     action_space = gym.spaces.Box(-1.0, 1.0, shape=(1,), dtype=np.float32)
+
+
+def drift_for_orphan_check():
+    """A Drift that hangs in its 10th step (it never reads its closed pipe then), under a name
+    no other test uses (the orphan test looks for processes whose command line holds it)."""
+    return gym.wrappers.TimeLimit(Drift(hang_at=10), max_episode_steps=50)

@@ -151,7 +151,7 @@ fn lockstep_with_a_learned_termination_rule_equals_the_sequential_run() {
         .lines()
         .rfind(|l| l.contains("learned termination"))
         .unwrap();
-    assert!(!line.contains(" on 0 terminal holdout rows"), "{line}");
+    assert!(!line.contains("from 0 terminal rows"), "{line}");
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -211,5 +211,49 @@ fn an_interpreter_that_exits_is_restarted_and_the_lost_episode_counted() {
     assert_nothing_lost(&s, 200);
     let log = std::fs::read_to_string(out.join("logs/actor-0.log")).unwrap();
     assert!(log.contains("Python process restarted (1 so far)"), "{log}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// The Python process dies with the process that started it, even by SIGKILL, also when it is
+/// stuck in `step` and so never reads its closed pipe (the env here hangs in its 10th step).
+#[test]
+fn a_python_env_dies_with_its_actor() {
+    let dir = scratch("gym-orphan");
+    let stuck = dir.join("stuck");
+    let marker = "mbpo_test_envs:drift_for_orphan_check";
+    let mut bench = std::process::Command::new(bin_dir().join("mbpo"))
+        .args([
+            "bench",
+            "env",
+            "--seconds",
+            "60",
+            "--env",
+            &format!("gym:{marker}"),
+        ])
+        .env("PYTHONPATH", test_envs_dir())
+        .env("MBPO_TEST_HANG_MARKER", &stuck)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let python = || {
+        let all = processes_mentioning(marker);
+        all.into_iter()
+            .filter(|p| p.contains("python"))
+            .collect::<Vec<_>>()
+    };
+    let started = std::time::Instant::now();
+    while !stuck.exists() && started.elapsed() < Duration::from_secs(30) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(stuck.exists(), "the env never reached its hanging step");
+    assert_eq!(python().len(), 1, "{:?}", python());
+    bench.kill().unwrap(); // SIGKILL
+    bench.wait().unwrap();
+    let killed = std::time::Instant::now();
+    while !python().is_empty() && killed.elapsed() < Duration::from_secs(5) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(python().is_empty(), "orphaned: {:?}", python());
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -63,12 +63,14 @@ pub struct TerminationReport {
 }
 
 impl std::fmt::Display for TerminationReport {
-    /// `learned termination: precision 0.90, recall 1.00 on 125 terminal holdout rows`.
+    /// `learned termination from 466 terminal rows: holdout precision 0.90, recall 1.00 (125
+    /// terminal)`.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "learned termination: precision {:.2}, recall {:.2} on {} terminal holdout rows",
-            self.precision, self.recall, self.holdout_positives
+            "learned termination from {} terminal rows: holdout precision {:.2}, recall {:.2} \
+             ({} terminal)",
+            self.positives, self.precision, self.recall, self.holdout_positives
         )
     }
 }

@@ -85,6 +85,12 @@ def make(spec):
                 f"registered under that name ({e})"
             ) from None
     limit = steps if steps is not None else getattr(env.spec, "max_episode_steps", None)
+    wrapper = env
+    while limit is None and isinstance(wrapper, gym.Wrapper):
+        # An entry point may return its env inside a TimeLimit of its own.
+        if isinstance(wrapper, gym.wrappers.TimeLimit):
+            limit = wrapper._max_episode_steps
+        wrapper = wrapper.env
     if limit is None:
         raise SpecError(
             "it has no time limit: set `max_episode_steps` in the config's [gym] table"

@@ -13,6 +13,7 @@
 //! are the same wherever the Python env itself is deterministic, also after a resume.
 
 use std::io::{Read, Write};
+use std::os::unix::process::CommandExt;
 use std::path::PathBuf;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -373,7 +374,24 @@ fn spawn(spec: &GymSpec, id: &'static str) -> Result<(Host, Description), EnvErr
             "a folder of the config's gym.path cannot be put in PYTHONPATH: {e}"
         ))
     })?;
-    let mut child = Command::new(&python)
+    let mut command = Command::new(&python);
+    let parent = std::process::id();
+    // SAFETY: runs in the child between fork and exec and calls only async-signal-safe
+    // functions (prctl, getppid, _exit). A Python process whose actor died (SIGKILL included)
+    // is killed too, instead of stepping on as an orphan (an env stuck in `step` never reads
+    // the closed pipe).
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            if libc::getppid() as u32 != parent {
+                libc::_exit(1); // the actor died before the prctl
+            }
+            Ok(())
+        });
+    }
+    let mut child = command
         .env("PYTHONPATH", pythonpath)
         .arg("-c")
         .arg(HOST_PY)
