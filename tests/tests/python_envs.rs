@@ -71,10 +71,31 @@ fn a_custom_python_env_trains_under_mbpo_run_with_two_actors() {
     assert_nothing_lost(&s, 300);
     assert_eq!(s["episodes_lost_to_env_exit"], 0, "{s}");
     assert!(s["final_eval_return"].as_f64().unwrap().is_finite(), "{s}");
+    let env: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("env.json")).unwrap()).unwrap();
+    assert_eq!(
+        (env["obs_dim"].as_u64(), env["restorable"].as_bool()),
+        (Some(2), Some(false))
+    );
     // Evaluation rows at 100, 200, 300, and `mbpo eval` runs the env of the run's config.
     assert_eq!(metrics_without_timing(&out).len(), 4);
     let eval = eval_run(&out, 1);
     assert!(eval["mean_return"].as_f64().unwrap() <= 0.0, "{eval}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn the_run_directory_records_the_layout_of_a_dict_observation() {
+    let mut cfg = drift_config(10, &[]);
+    cfg.env = "gym:mbpo_test_envs:DictObs".into();
+    let dir = scratch("gym-dict");
+    let env = cfg.make_env().unwrap();
+    mbpo_train::run_dir::write_env_file(&dir, env.as_ref()).unwrap();
+    let text = std::fs::read_to_string(dir.join("env.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["obs_dim"], 3, "{text}");
+    let parts = serde_json::json!([{"key": "a", "shape": [1]}, {"key": "b", "shape": [2]}]);
+    assert_eq!(json["observation_parts"], parts, "{text}");
     let _ = std::fs::remove_dir_all(dir);
 }
 

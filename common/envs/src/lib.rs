@@ -40,7 +40,7 @@ pub use registry::{
     MUJOCO_ENV_IDS, REWARD_ENV_IDS, TERMINATION_ENV_IDS,
 };
 pub use reward::{RewardFn, RewardGradFn, RewardValueFn};
-pub use space::BoxSpace;
+pub use space::{BoxSpace, ObsPart};
 pub use termination::TerminationFn;
 
 use mbpo_core::Rng;
@@ -172,6 +172,11 @@ pub trait Env: Send {
     /// tasks return float64 observations, which [`Env::step`] rounds to f32); `None` otherwise.
     fn observation_f64(&self) -> Option<&[f64]> {
         None
+    }
+    /// The parts of a Dict observation in the order the flat observation holds them (a Python
+    /// env's); empty for a Box observation, the default.
+    fn observation_parts(&self) -> &[ObsPart] {
+        &[]
     }
     /// Saving and restoring its state, where the environment can (`None`, the default: it
     /// cannot, e.g. a Python process or a robot).

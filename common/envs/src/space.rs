@@ -1,4 +1,15 @@
-//! Box spaces.
+//! Box spaces, and the parts of a flattened Dict observation.
+
+use serde::{Deserialize, Serialize};
+
+/// One part of a Dict observation, in the order the flat observation holds them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObsPart {
+    /// The Dict key.
+    pub key: String,
+    /// Its shape (the flat observation holds the product of it, row-major).
+    pub shape: Vec<usize>,
+}
 
 /// A box `[low, high]` per dimension (Gymnasium's `Box`).
 #[derive(Debug, Clone, PartialEq)]

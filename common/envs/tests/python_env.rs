@@ -109,7 +109,7 @@ fn a_dict_observation_is_flattened_in_key_order_and_its_layout_reported() {
     })
     .unwrap();
     let keys: Vec<_> = env
-        .obs_layout()
+        .observation_parts()
         .iter()
         .map(|p| (p.key.as_str(), p.shape.clone()))
         .collect();

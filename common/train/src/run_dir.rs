@@ -227,6 +227,31 @@ fn remove_event_files(dir: &Path) -> std::io::Result<()> {
     Ok(())
 }
 
+/// The file describing a run's environment as the run saw it (`env.json`).
+pub const ENV_FILE: &str = "env.json";
+
+/// Write `<dir>/env.json`: the environment's id, spaces, time limit, whether it can save its
+/// state, and the parts of a flattened Dict observation (a Python env's), so the run's
+/// observation columns can be read back by name.
+pub fn write_env_file(dir: &Path, env: &dyn mbpo_envs::Env) -> std::io::Result<()> {
+    let finite =
+        |v: &[f32]| -> Vec<Option<f32>> { v.iter().map(|&x| x.is_finite().then_some(x)).collect() };
+    let text = serde_json::to_string_pretty(&serde_json::json!({
+        "id": env.id(),
+        "obs_dim": env.obs_dim(),
+        "act_dim": env.act_dim(),
+        "observation_low": finite(&env.observation_space().low),
+        "observation_high": finite(&env.observation_space().high),
+        "action_low": env.action_space().low,
+        "action_high": env.action_space().high,
+        "max_episode_steps": env.max_episode_steps(),
+        "restorable": env.restorable().is_some(),
+        "observation_parts": env.observation_parts(),
+    }))?;
+    std::fs::create_dir_all(dir)?;
+    std::fs::write(dir.join(ENV_FILE), text + "\n")
+}
+
 /// Whether `dir` holds what a run wrote: a `metrics.csv` of ours (its header starts with
 /// `env_steps,`) or a complete checkpoint. A directory that merely has a `config.toml` or a
 /// `logs/` folder (a project directory, say) does not count.

@@ -128,6 +128,19 @@ pub fn overwrite_earlier_run(
         .with_context(|| format!("--overwrite: removing the earlier run in {}", out.display()))
 }
 
+/// Start the run's environment once and describe it in `<out>/env.json` (spaces, time limit,
+/// the parts of a Dict observation): a Python env that cannot start fails here, with its
+/// error, before anything else starts.
+pub fn record_env(cfg: &ExperimentConfig, out: &Path) -> anyhow::Result<()> {
+    let env = cfg.make_env()?;
+    mbpo_train::run_dir::write_env_file(out, env.as_ref()).with_context(|| {
+        format!(
+            "writing {}",
+            out.join(mbpo_train::run_dir::ENV_FILE).display()
+        )
+    })
+}
+
 /// The config of the run in `dir` being resumed (`mbpo train/run --resume`): its own resolved
 /// `config.toml`, with `--steps` the only change allowed.
 pub fn resumed_config(dir: &Path, steps: Option<u64>) -> anyhow::Result<ExperimentConfig> {
@@ -152,6 +165,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         }
     };
     crate::logging::also_to_file(&out.join("logs").join("train.log"))?;
+    record_env(&cfg, &out)?;
     let opts = RunOptions {
         resume,
         stop: Some(stop_on_signals()),

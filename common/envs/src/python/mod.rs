@@ -22,7 +22,7 @@ use mbpo_core::Rng;
 use rand::RngCore;
 use serde::{Deserialize, Serialize};
 
-use crate::{BoxSpace, Env, EnvError, Step};
+use crate::{BoxSpace, Env, EnvError, ObsPart, Step};
 
 /// The prefix of a Python Gymnasium environment's id in a config (`gym:Pendulum-v1`).
 pub const GYM_PREFIX: &str = "gym:";
@@ -91,15 +91,6 @@ struct Description {
     act_low: Vec<f64>,
     act_high: Vec<f64>,
     obs_layout: Vec<ObsPart>,
-}
-
-/// One part of a Dict observation, in the order the flat observation holds them.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct ObsPart {
-    /// The Dict key.
-    pub key: String,
-    /// Its shape (the flat observation holds the product of it, row-major).
-    pub shape: Vec<usize>,
 }
 
 /// Why the host could not make the environment (its hello frame).
@@ -184,11 +175,6 @@ impl PythonEnv {
         })
     }
 
-    /// The parts of a Dict observation in flat order (empty for a Box observation).
-    pub fn obs_layout(&self) -> &[ObsPart] {
-        &self.obs_layout
-    }
-
     /// Python processes started after the first one (each after the previous one exited).
     pub fn restarts(&self) -> u64 {
         self.restarts
@@ -257,6 +243,9 @@ impl Env for PythonEnv {
     }
     fn observation_f64(&self) -> Option<&[f64]> {
         Some(&self.obs_f64)
+    }
+    fn observation_parts(&self) -> &[ObsPart] {
+        &self.obs_layout
     }
 
     /// A new episode, `reset(seed=<next u64 of rng>)`; starts a new Python process first if

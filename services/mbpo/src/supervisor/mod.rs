@@ -152,6 +152,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let logs = out.join("logs");
     std::fs::create_dir_all(&logs)?;
     crate::logging::also_to_file(&logs.join("supervisor.log"))?;
+    crate::train_cmd::record_env(&cfg, &out)?;
     let bin_dir = std::env::current_exe()?
         .parent()
         .map(Path::to_path_buf)
