@@ -107,3 +107,16 @@ def drift_for_orphan_check():
     """A Drift that hangs in its 10th step (it never reads its closed pipe then), under a name
     no other test uses (the orphan test looks for processes whose command line holds it)."""
     return gym.wrappers.TimeLimit(Drift(hang_at=10), max_episode_steps=50)
+
+
+def beyond_1_2(obs, act, next_obs):
+    """Drift(terminate_beyond=1.2)'s rule, batched: `termination = "python:mbpo_test_envs:beyond_1_2"`."""
+    return np.abs(next_obs[:, 0]) > 1.2
+
+
+def broken_rule(obs, act, next_obs):
+    raise ValueError("rule broken on purpose")
+
+
+def wrong_length(obs, act, next_obs):
+    return [True]

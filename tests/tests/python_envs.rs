@@ -134,6 +134,30 @@ fn lockstep_through_the_bridge_equals_the_sequential_run() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// A lockstep `mbpo run` of `cfg` and `mbpo train` of it: the same policy and metrics.
+fn assert_lockstep_equals_sequential(cfg: &ExperimentConfig, dir: &Path, out: &Path, name: &str) {
+    let input = write_config(cfg, dir);
+    bin_dir();
+    let child = spawn_run(&[
+        "--config",
+        input.to_str().unwrap(),
+        "--mode",
+        "lockstep",
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        ipc_root(name).to_str().unwrap(),
+    ]);
+    let seq = train_mbpo(cfg, &dir.join("sequential")).unwrap();
+    let o = wait_output(child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(out)["policy_sha256"], seq.policy_sha256.as_str());
+    assert_eq!(
+        metrics_without_timing(out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+}
+
 /// The learned termination rule (the default for a gym: env) crosses processes with the model
 /// snapshots: lockstep still equals the sequential run, on an env whose episodes terminate.
 #[test]
@@ -145,27 +169,8 @@ fn lockstep_with_a_learned_termination_rule_equals_the_sequential_run() {
         Ok(mbpo_train::env_config::Termination::Learned)
     );
     let dir = scratch("gym-learned");
-    let input = write_config(&cfg, &dir);
     let out = dir.join("run");
-    bin_dir();
-    let child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--mode",
-        "lockstep",
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        ipc_root("gymlearned").to_str().unwrap(),
-    ]);
-    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
-    let o = wait_output(child, TIMEOUT);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert_eq!(summary(&out)["policy_sha256"], seq.policy_sha256.as_str());
-    assert_eq!(
-        metrics_without_timing(&out),
-        metrics_without_timing(&dir.join("sequential"))
-    );
+    assert_lockstep_equals_sequential(&cfg, &dir, &out, "gymlearned");
     // Episodes did terminate, and the model trainer learned the rule from them.
     let log = std::fs::read_to_string(out.join("logs/model-trainer.log")).unwrap();
     let line = log
@@ -173,6 +178,28 @@ fn lockstep_with_a_learned_termination_rule_equals_the_sequential_run() {
         .rfind(|l| l.contains("learned termination"))
         .unwrap();
     assert!(!line.contains("from 0 terminal rows"), "{line}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A termination rule written in Python (batched over NumPy arrays) ends model rollouts in
+/// the rollout generator's process as in `mbpo train`.
+#[test]
+fn lockstep_with_a_python_termination_rule_equals_the_sequential_run() {
+    let mut cfg = drift_config(300, &[("terminate_beyond", 1.2.into())]);
+    cfg.termination = Some("python:mbpo_test_envs:beyond_1_2".into());
+    let dir = scratch("gym-python-rule");
+    let out = dir.join("run");
+    assert_lockstep_equals_sequential(&cfg, &dir, &out, "gympyrule");
+    let log = std::fs::read_to_string(out.join("logs/rollout-generator.log")).unwrap();
+    assert!(
+        log.contains("python:mbpo_test_envs:beyond_1_2: termination rule up"),
+        "{log}"
+    );
+    // The rule is in effect: without it the same run learns another policy.
+    let with_rule = summary(&out)["policy_sha256"].clone();
+    cfg.termination = Some("never".into());
+    let never = train_mbpo(&cfg, &dir.join("never")).unwrap();
+    assert_ne!(with_rule, never.policy_sha256.as_str());
     let _ = std::fs::remove_dir_all(dir);
 }
 

@@ -34,7 +34,7 @@ pub mod termination;
 
 pub use mountain_car::MountainCarContinuous;
 pub use pendulum::Pendulum;
-pub use python::{GymSpec, PythonEnv, GYM_PREFIX};
+pub use python::{GymSpec, PythonEnv, PythonTermination, GYM_PREFIX};
 pub use registry::{
     make, register, reward_fn, target_return, task, tasks, termination_fn, TaskSpec, ENV_IDS,
     MUJOCO_ENV_IDS, REWARD_ENV_IDS, TERMINATION_ENV_IDS,

@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 
 use mbpo_core::rng::{stream, uniform_range_f32};
-use mbpo_envs::{Env, EnvError, GymSpec, Pendulum, PythonEnv, RestorableEnv};
+use mbpo_envs::{Env, EnvError, GymSpec, Pendulum, PythonEnv, PythonTermination, RestorableEnv};
 
 /// The test suite's Python envs (tests/python/mbpo_test_envs.py).
 fn test_envs_dir() -> PathBuf {
@@ -236,4 +236,43 @@ fn a_process_that_exits_is_reported_and_the_next_reset_starts_a_new_one() {
         env.step(&[1.0], &mut obs).unwrap();
     }
     let _ = std::fs::remove_file(&marker);
+}
+
+#[test]
+fn a_python_termination_rule_judges_a_batch_and_reports_its_errors() {
+    let spec = spec("", serde_json::json!({}));
+    let mut rule = PythonTermination::start("mbpo_test_envs:beyond_1_2", &spec, 2, 1).unwrap();
+    let obs = [0.0f32; 6];
+    let act = [0.0f32; 3];
+    let next = [1.0f32, 0.0, -1.5, 0.0, 1.25, 9.0];
+    let mut done = [false; 3];
+    rule.done_batch(&obs, &act, &next, 3, &mut done).unwrap();
+    assert_eq!(done, [false, true, true]);
+    rule.done_batch(&obs, &act, &next, 1, &mut done[..1])
+        .unwrap();
+    assert_eq!(done[0], false);
+
+    let mut broken = PythonTermination::start("mbpo_test_envs:broken_rule", &spec, 2, 1).unwrap();
+    let e = broken
+        .done_batch(&obs, &act, &next, 3, &mut done)
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("ValueError: rule broken on purpose"),
+        "{e}"
+    );
+    let mut short = PythonTermination::start("mbpo_test_envs:wrong_length", &spec, 2, 1).unwrap();
+    let e = short
+        .done_batch(&obs, &act, &next, 3, &mut done)
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("returned 1 flags for 3 transitions"),
+        "{e}"
+    );
+    let e = PythonTermination::start("mbpo_test_envs:no_such_rule", &spec, 2, 1)
+        .err()
+        .unwrap();
+    assert!(
+        e.to_string().contains("has no function no_such_rule"),
+        "{e}"
+    );
 }

@@ -18,7 +18,7 @@
 //! measurement, and both figures are the best over the run, so a quiet moment anywhere in the run
 //! counts for both and the fraction stays meaningful when other processes come and go.
 
-use crate::{ModelConfig, ModelConfigError, ProbabilisticEnsemble, TrainError};
+use crate::{ModelConfig, ModelConfigError, ProbabilisticEnsemble, RolloutTermination, TrainError};
 use mbpo_core::rng::{normal_f32, uniform_range_f32};
 use mbpo_core::{stream, Batch, ReplayBuffer, UniformPolicy};
 use serde::{Deserialize, Serialize};
@@ -229,7 +229,7 @@ pub fn model_rollout(
                 rollouts,
                 &mut policy,
                 1,
-                Some(&never),
+                RolloutTermination::Rule(&never),
                 rng,
                 &mut pool,
             )

@@ -114,6 +114,9 @@ pub enum RolloutError {
         /// Buffer action width.
         found_act: usize,
     },
+    /// The batch termination rule failed.
+    #[error("the termination rule failed: {0}")]
+    Termination(String),
     /// No termination rule was given and the model learns none.
     #[error("no termination rule: give the task's, or build the model with learn_termination")]
     NoTerminationRule,

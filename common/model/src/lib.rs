@@ -20,7 +20,7 @@
 //!
 //! ```
 //! use mbpo_core::{stream, Batch, ReplayBuffer, UniformPolicy};
-//! use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
+//! use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination};
 //!
 //! let config = ModelConfig { members: 3, elites: 2, hidden: vec![16, 16],
 //!                            weight_decay: vec![1e-4; 3], max_epochs: Some(2),
@@ -35,7 +35,7 @@
 //! let mut policy = UniformPolicy { low: vec![-1.0], high: vec![1.0] };
 //! let mut pool = ReplayBuffer::new(2, 1, 100);
 //! let never = |_: &[f32], _: &[f32], _: &[f32]| false;
-//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, Some(&never), &mut rng, &mut pool).unwrap();
+//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, RolloutTermination::Rule(&never), &mut rng, &mut pool).unwrap();
 //! assert_eq!((stats.transitions, pool.len()), (30, 30));
 //! ```
 #![warn(missing_docs)]
@@ -58,7 +58,10 @@ pub use error::{ParamsError, PredictError, RolloutError, TrainError};
 pub use grad::MeanTape;
 pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
-pub use rollout::{rollout_length, ModelPoolSizing, RolloutStats, Termination};
+pub use rollout::{
+    rollout_length, BatchTermination, ModelPoolSizing, RolloutStats, RolloutTermination,
+    Termination,
+};
 pub use termination::{TerminationClassifier, TerminationReport, TerminationWeights};
 pub use train::{
     holdout_size, select_elites, BootstrapIndices, EarlyStopping, StopReason, TrainReport,

@@ -16,6 +16,21 @@ use serde::{Deserialize, Serialize};
 /// A termination predicate `done(obs, act, next_obs)` (see `mbpo_envs::termination_fn`).
 pub type Termination<'a> = &'a dyn Fn(&[f32], &[f32], &[f32]) -> bool;
 
+/// A termination rule over a batch: `done(obs, act, next_obs, n, out)` for n row-major
+/// transitions (a Python function); an error ends the rollout.
+pub type BatchTermination<'a> =
+    &'a mut dyn FnMut(&[f32], &[f32], &[f32], usize, &mut [bool]) -> Result<(), String>;
+
+/// How [`ProbabilisticEnsemble::rollout`] decides that a predicted transition is terminal.
+pub enum RolloutTermination<'a> {
+    /// The task's rule, per transition.
+    Rule(Termination<'a>),
+    /// A rule over each step's batch.
+    Batch(BatchTermination<'a>),
+    /// The model's learned rule ([`ModelConfig::learn_termination`](crate::ModelConfig::learn_termination)).
+    Learned,
+}
+
 /// What one call of [`ProbabilisticEnsemble::rollout`] produced.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RolloutStats {
@@ -43,9 +58,8 @@ pub(crate) struct RolloutBuffers {
 
 impl ProbabilisticEnsemble {
     /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
-    /// `policy`, pushing every transition into `out` (the model buffer D_model). `termination`
-    /// is the task's rule; `None` uses the model's learned one
-    /// ([`ModelConfig::learn_termination`](crate::ModelConfig::learn_termination)).
+    /// `policy`, pushing every transition into `out` (the model buffer D_model); `termination`
+    /// decides which transitions end their rollout.
     ///
     /// Random draws come from `rng` in a fixed order (per step: the policy's actions, one elite
     /// per sample, then the Gaussian noise), so a seed fixes the result.
@@ -56,12 +70,12 @@ impl ProbabilisticEnsemble {
         n: usize,
         policy: &mut dyn BatchPolicy,
         k: usize,
-        termination: Option<Termination>,
+        mut termination: RolloutTermination,
         rng: &mut Rng,
         out: &mut ReplayBuffer,
     ) -> Result<RolloutStats, RolloutError> {
         let (o, a) = (self.obs_dim, self.act_dim);
-        if termination.is_none() && self.termination.is_none() {
+        if matches!(termination, RolloutTermination::Learned) && self.termination.is_none() {
             return Err(RolloutError::NoTerminationRule);
         }
         if start_obs.len() != n * o {
@@ -117,18 +131,28 @@ impl ProbabilisticEnsemble {
                 &mut buf.reward[..alive],
                 &mut buf.next_obs[..alive * o],
             );
-            if let (None, Some(learned)) = (termination, self.termination.as_mut()) {
-                let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
-                learned.predict(s, act, next, alive, &mut buf.done[..alive]);
+            let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
+            match (&mut termination, self.termination.as_mut()) {
+                (RolloutTermination::Learned, Some(learned)) => {
+                    learned.predict(s, act, next, alive, &mut buf.done[..alive])
+                }
+                (RolloutTermination::Batch(rule), _) => {
+                    if let Err(e) = rule(s, act, next, alive, &mut buf.done[..alive]) {
+                        self.ws.rollout = buf;
+                        self.ws.members = members;
+                        return Err(RolloutError::Termination(e));
+                    }
+                }
+                _ => {}
             }
             // Push every transition; keep the non-terminated next states, compacted in place.
             let mut kept = 0;
             for i in 0..alive {
                 let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
                 let s_next = &buf.next_obs[i * o..(i + 1) * o];
-                let done = match termination {
-                    Some(rule) => rule(s, act, s_next),
-                    None => buf.done[i],
+                let done = match &termination {
+                    RolloutTermination::Rule(rule) => rule(s, act, s_next),
+                    _ => buf.done[i],
                 };
                 out.push(s, act, buf.reward[i], s_next, done);
                 reward_sum += buf.reward[i] as f64;

@@ -9,7 +9,7 @@ mod common;
 use common::{pendulum_data, small_config};
 use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use mbpo_core::{stream, ReplayBuffer, UniformPolicy};
-use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
+use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination};
 
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;
@@ -87,7 +87,15 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
     let mut rrng = stream(0, "alloc", 1);
     let mut rollout = |model: &mut ProbabilisticEnsemble, k: usize| {
         model
-            .rollout(&obs, n, &mut policy, k, Some(&never), &mut rrng, &mut pool)
+            .rollout(
+                &obs,
+                n,
+                &mut policy,
+                k,
+                RolloutTermination::Rule(&never),
+                &mut rrng,
+                &mut pool,
+            )
             .unwrap();
     };
     rollout(&mut model, 5);

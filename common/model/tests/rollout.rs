@@ -6,7 +6,10 @@ mod common;
 use common::small_config;
 use mbpo_core::{stream, ReplayBuffer, Rng, UniformPolicy};
 use mbpo_envs::termination_fn;
-use mbpo_model::{ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutStats};
+use mbpo_model::{
+    ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutStats,
+    RolloutTermination,
+};
 
 /// A model whose members ignore their input: member e predicts reward `reward[e]` and
 /// Δobs `delta[e]` with σ ≈ e^(−15) (zero weights; output bias only; bounds pulled to −30).
@@ -127,7 +130,7 @@ fn mountain_car_rollouts_stop_at_the_goal() {
             5,
             &mut uniform(1),
             5,
-            Some(&done),
+            RolloutTermination::Rule(&done),
             &mut stream(0, "r", 0),
             &mut out,
         )
@@ -163,7 +166,7 @@ fn everything_terminating_ends_the_rollout_after_one_step() {
             10,
             &mut uniform(1),
             7,
-            Some(&always),
+            RolloutTermination::Rule(&always),
             &mut stream(0, "r", 1),
             &mut out,
         )
@@ -198,7 +201,7 @@ fn stochastic_rollouts_drop_terminated_samples() {
             600,
             &mut uniform(2),
             4,
-            Some(&fake_done),
+            RolloutTermination::Rule(&fake_done),
             &mut rng,
             &mut out,
         )
@@ -225,7 +228,7 @@ fn rollouts_are_bit_reproducible() {
                 700,
                 &mut uniform(2),
                 3,
-                Some(&fake_done),
+                RolloutTermination::Rule(&fake_done),
                 &mut rng,
                 &mut out,
             )
@@ -248,7 +251,7 @@ fn rollouts_use_only_elites() {
             1000,
             &mut uniform(1),
             1,
-            Some(&never),
+            RolloutTermination::Rule(&never),
             &mut stream(5, "r", 0),
             &mut out,
         )
@@ -336,7 +339,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             3,
             &mut uniform(1),
             1,
-            Some(&never),
+            RolloutTermination::Rule(&never),
             &mut rng,
             &mut out,
         )
@@ -359,7 +362,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             3,
             &mut uniform(1),
             1,
-            Some(&never),
+            RolloutTermination::Rule(&never),
             &mut rng,
             &mut wrong,
         )

@@ -4,7 +4,7 @@
 
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{Batch, ReplayBuffer, UniformPolicy};
-use mbpo_model::{ModelConfig, ProbabilisticEnsemble, TerminationClassifier};
+use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination, TerminationClassifier};
 
 const OBS: usize = 3;
 const ACT: usize = 1;
@@ -127,7 +127,15 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
     };
     let mut out = ReplayBuffer::new(OBS, ACT, n * 5);
     let stats = m
-        .rollout(&start, n, &mut policy, 5, None, &mut rng, &mut out)
+        .rollout(
+            &start,
+            n,
+            &mut policy,
+            5,
+            RolloutTermination::Learned,
+            &mut rng,
+            &mut out,
+        )
         .unwrap();
     assert!(stats.terminated > 20, "{stats:?}");
     // Every stored flag is the classifier's verdict on that transition.
@@ -151,7 +159,15 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
     )
     .unwrap();
     let e = plain
-        .rollout(&start, n, &mut policy, 1, None, &mut rng, &mut out)
+        .rollout(
+            &start,
+            n,
+            &mut policy,
+            1,
+            RolloutTermination::Learned,
+            &mut rng,
+            &mut out,
+        )
         .unwrap_err();
     assert!(e.to_string().contains("no termination rule"), "{e}");
 }

@@ -597,12 +597,18 @@ impl ExperimentConfig {
                     .map_or("nothing".into(), |t| format!("{t:?}"));
                 bad("termination", &expected, found)
             })?;
-            if self.algo == Algo::MPC && rule == crate::env_config::Termination::Learned {
+            use crate::env_config::Termination;
+            if self.algo == Algo::MPC
+                && matches!(rule, Termination::Learned | Termination::Python(_))
+            {
                 return Err(bad(
                     "termination",
-                    "\"never\" or a built-in task's rule for MPC (a learned rule is trained for \
-                     MBPO's model rollouts; planning does not use it yet)",
-                    "\"learned\" (the default for a gym: env)".into(),
+                    "\"never\" or a built-in task's rule for MPC (learned and Python rules are \
+                     for MBPO's model rollouts; planning does not use them yet)",
+                    match rule {
+                        Termination::Python(t) => format!("\"python:{t}\""),
+                        _ => "\"learned\" (the default for a gym: env)".into(),
+                    },
                 ));
             }
         }

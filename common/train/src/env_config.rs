@@ -3,7 +3,8 @@
 //!
 //! ```toml
 //! env = "gym:my_pkg.envs:MyRobot"   # or a built-in id, or gym:<registered Gymnasium id>
-//! termination = "learned"           # (the default for gym:) or "never", or a built-in task's id
+//! termination = "learned"           # (the default for gym:) or "never", a built-in task's id,
+//!                                   # or "python:my_pkg.term:done" (batched over NumPy arrays)
 //! [gym]
 //! python = "/path/to/venv/bin/python"   # default: $MBPO_PYTHON, else the project venv
 //! max_episode_steps = 500               # for an env without a time limit
@@ -43,6 +44,38 @@ pub enum Termination {
     /// Learned with the model from the real transitions' flags
     /// ([`mbpo_model::TerminationClassifier`]); the default for a Python env.
     Learned,
+    /// A Python function `module:function` of `obs, act, next_obs` (NumPy arrays, n rows)
+    /// returning n booleans ([`mbpo_envs::PythonTermination`]).
+    Python(String),
+}
+
+/// The termination rule a rollout generator holds (built by
+/// [`ExperimentConfig::rollout_termination`]).
+pub enum RolloutRule {
+    /// A Rust function of one transition.
+    Rule(TerminationFn),
+    /// The model's learned rule.
+    Learned,
+    /// A Python function over each step's batch, in its own process.
+    Python(mbpo_envs::PythonTermination),
+}
+
+impl RolloutRule {
+    /// Run `f` with the rule as a rollout takes it (a Python rule as a closure that lives as
+    /// long as the call).
+    pub fn with<R>(&mut self, f: impl FnOnce(mbpo_model::RolloutTermination) -> R) -> R {
+        use mbpo_model::RolloutTermination as T;
+        match self {
+            RolloutRule::Rule(rule) => f(T::Rule(rule)),
+            RolloutRule::Learned => f(T::Learned),
+            RolloutRule::Python(p) => {
+                let mut batch = |o: &[f32], a: &[f32], n: &[f32], k: usize, out: &mut [bool]| {
+                    p.done_batch(o, a, n, k, out).map_err(|e| e.to_string())
+                };
+                f(T::Batch(&mut batch))
+            }
+        }
+    }
 }
 
 impl ExperimentConfig {
@@ -86,12 +119,23 @@ impl ExperimentConfig {
         match self.termination.as_deref() {
             Some("never") => Ok(Termination::Never),
             Some("learned") => Ok(Termination::Learned),
+            Some(python) if python.starts_with("python:") => {
+                let target = &python["python:".len()..];
+                match target.split_once(':') {
+                    Some((module, function)) if !module.is_empty() && !function.is_empty() => {
+                        Ok(Termination::Python(target.to_string()))
+                    }
+                    _ => Err(format!(
+                        "\"python:<module>:<function>\" for a Python rule, found {python:?}"
+                    )),
+                }
+            }
             Some(id) if mbpo_envs::termination_fn(id).is_some() => {
                 Ok(Termination::Task(id.to_string()))
             }
             Some(other) => Err(format!(
-                "\"learned\", \"never\" or the id of a built-in task whose rule applies ({}), \
-                 found {other:?}",
+                "\"learned\", \"never\", \"python:<module>:<function>\" or the id of a built-in \
+                 task whose rule applies ({}), found {other:?}",
                 mbpo_envs::TERMINATION_ENV_IDS.join(", ")
             )),
             None if self.is_gym_env() => Ok(Termination::Learned),
@@ -99,13 +143,36 @@ impl ExperimentConfig {
         }
     }
 
-    /// [`ExperimentConfig::termination`] as the function model rollouts call; `None` for the
-    /// learned rule (the model holds it).
+    /// [`ExperimentConfig::termination`] as a Rust function; `None` for the learned rule (the
+    /// model holds it) and a Python one (see [`ExperimentConfig::rollout_termination`]).
     pub fn termination_fn(&self) -> Result<Option<TerminationFn>, String> {
         Ok(match self.termination()? {
             Termination::Never => Some(termination::never),
             Termination::Task(id) => mbpo_envs::termination_fn(&id),
-            Termination::Learned => None,
+            Termination::Learned | Termination::Python(_) => None,
+        })
+    }
+
+    /// The rule of this run's model rollouts, for a model of `obs_dim`/`act_dim` (a Python
+    /// rule starts its process here, with the `[gym]` table's interpreter and path).
+    pub fn rollout_termination(
+        &self,
+        obs_dim: usize,
+        act_dim: usize,
+    ) -> Result<RolloutRule, crate::TrainError> {
+        let config = crate::TrainError::Config;
+        Ok(match self.termination().map_err(config)? {
+            Termination::Learned => RolloutRule::Learned,
+            Termination::Python(target) => {
+                let spec = GymSpec {
+                    python: self.gym.python.as_ref().map(PathBuf::from),
+                    path: self.gym.path.clone(),
+                    ..GymSpec::default()
+                };
+                let rule = mbpo_envs::PythonTermination::start(&target, &spec, obs_dim, act_dim)?;
+                RolloutRule::Python(rule)
+            }
+            _ => RolloutRule::Rule(self.termination_fn().map_err(config)?.expect("a Rust rule")),
         })
     }
 

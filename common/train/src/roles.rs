@@ -16,10 +16,11 @@
 
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::ExperimentConfig;
+use crate::env_config::RolloutRule;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng};
-use mbpo_envs::{EnvError, TerminationFn};
+use mbpo_envs::EnvError;
 use mbpo_model::{
     rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
 };
@@ -353,8 +354,8 @@ pub struct RolloutRole {
     model_version: u64,
     policy: ActorPolicy,
     policy_version: u64,
-    /// The task's rule; `None`: the model's learned one.
-    termination: Option<TerminationFn>,
+    /// How rollouts end: the task's rule, the model's learned one or a Python function.
+    termination: RolloutRule,
     schedule: [usize; 4],
     starts: Batch,
     staged: ReplayBuffer,
@@ -364,7 +365,7 @@ pub struct RolloutRole {
 impl RolloutRole {
     /// The rollout generator of the run.
     pub fn new(cfg: &ExperimentConfig, obs_dim: usize, act_dim: usize) -> Result<Self, TrainError> {
-        let termination = cfg.termination_fn().map_err(TrainError::Config)?;
+        let termination = cfg.rollout_termination(obs_dim, act_dim)?;
         // Architecture only: the weights arrive as snapshots.
         let model = ProbabilisticEnsemble::new(
             obs_dim,
@@ -486,17 +487,10 @@ impl RolloutRole {
             self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
         }
         self.d_env.sample_into(&mut self.rng, &mut self.starts);
-        let termination = self.termination;
-        self.model
-            .rollout(
-                &self.starts.obs,
-                n,
-                &mut self.policy,
-                k,
-                termination.as_ref().map(|f| f as mbpo_model::Termination),
-                &mut self.rng,
-                &mut self.staged,
-            )
+        let (model, policy, rng) = (&mut self.model, &mut self.policy, &mut self.rng);
+        let (starts, staged) = (&self.starts.obs, &mut self.staged);
+        self.termination
+            .with(|rule| model.rollout(starts, n, policy, k, rule, rng, staged))
             .map_err(|e| TrainError::Config(e.to_string()))?;
         let rows = self.staged.to_batch();
         self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);

@@ -104,6 +104,18 @@ const CASES: &[(&str, &[&str])] = &[
         &["`termination`", "for MPC", "\"learned\""],
     ),
     (
+        "algo = \"mbpo\"\ntermination = \"python:my_rules\"",
+        &[
+            "`termination`",
+            "python:<module>:<function>",
+            "\"python:my_rules\"",
+        ],
+    ),
+    (
+        "algo = \"mpc\"\n termination = \"python:rules:done\"\n[mpc]\nreward = \"model\"",
+        &["`termination`", "for MPC", "\"python:rules:done\""],
+    ),
+    (
         "[gym]\nmax_episode_steps = 50",
         &["`gym`", "Python envs", "Pendulum-v1"],
     ),

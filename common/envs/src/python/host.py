@@ -12,6 +12,12 @@ Every frame has a fixed size, so one read and one write carry a step (little-end
             | f64[act_dim] action
   response  u8 status (0 ok, 1 exception) | u8 terminated | u8 truncated | 5 pad | f64 reward
             | u64 n | f64[obs_dim] observation | on status 1: n bytes of UTF-8 traceback
+
+With {"termination": "module:function"} in the spec it hosts a termination rule instead:
+`function(obs, act, next_obs)` on float32 arrays of n rows returns n booleans.
+
+  request   u64 n (0: quit) | f32[n, obs] obs | f32[n, act] act | f32[n, obs] next_obs
+  response  u8 status (0 ok, 1 exception) | 7 pad | u64 m | m bytes: n flags (0/1) or a traceback
 """
 
 import json
@@ -35,6 +41,8 @@ def main():
     os.dup2(null, 0)
     os.dup2(2, 1)
     spec = json.loads(sys.argv[1])
+    if "termination" in spec:
+        return serve_termination(spec, proto_in, proto_out)
     try:
         env, describe, flatten = make(spec)
     except SpecError as e:
@@ -44,6 +52,61 @@ def main():
         return hello(proto_out, 1, {"kind": kind, "message": traceback.format_exc()})
     hello(proto_out, 0, describe)
     serve(env, flatten, len(describe["act_low"]), len(describe["obs_low"]), proto_in, proto_out)
+
+
+def serve_termination(spec, proto_in, proto_out):
+    import numpy as np
+
+    target = spec["termination"]
+    try:
+        module, _, name = target.partition(":")
+        import importlib
+
+        rule = getattr(importlib.import_module(module), name, None)
+        if not callable(rule):
+            raise SpecError(f"module {module} has no function {name}")
+    except SpecError as e:
+        return hello(proto_out, 1, {"kind": "spec", "message": str(e)})
+    except BaseException as e:
+        kind = "import" if isinstance(e, ImportError) else "make"
+        return hello(proto_out, 1, {"kind": kind, "message": traceback.format_exc()})
+    obs_dim, act_dim = spec["obs_dim"], spec["act_dim"]
+    hello(proto_out, 0, {"termination": target})
+    while True:
+        head = read_exactly(proto_in, 8)
+        if head is None:
+            return
+        (n,) = struct.unpack("<Q", head)
+        if n == 0:
+            return
+        body = read_exactly(proto_in, 4 * n * (2 * obs_dim + act_dim))
+        if body is None:
+            return
+        flat = np.frombuffer(body, dtype="<f4")
+        obs = flat[: n * obs_dim].reshape(n, obs_dim)
+        act = flat[n * obs_dim : n * (obs_dim + act_dim)].reshape(n, act_dim)
+        next_obs = flat[n * (obs_dim + act_dim) :].reshape(n, obs_dim)
+        try:
+            done = np.asarray(rule(obs, act, next_obs), dtype=bool).reshape(-1)
+            if done.shape != (n,):
+                raise ValueError(f"{target} returned {done.size} flags for {n} transitions")
+            out = done.astype(np.uint8).tobytes()
+            proto_out.write(struct.pack("<B7xQ", 0, len(out)) + out)
+        except BaseException:
+            message = traceback.format_exc().encode()
+            proto_out.write(struct.pack("<B7xQ", 1, len(message)) + message)
+
+
+def read_exactly(stream, size):
+    """`size` bytes, or None once the actor is gone."""
+    buf = bytearray(size)
+    view, got = memoryview(buf), 0
+    while got < size:
+        n = stream.readinto(view[got:])
+        if not n:
+            return None
+        got += n
+    return buf
 
 
 def hello(out, status, payload):

@@ -342,16 +342,31 @@ fn reap(mut host: Host) -> String {
 
 /// Start the host process and read its description of the environment.
 fn spawn(spec: &GymSpec, id: &'static str) -> Result<(Host, Description), EnvError> {
-    let python = spec.interpreter();
-    let fail = |message: String| EnvError::PythonStart {
-        env: id.to_string(),
-        message,
-    };
     let request = serde_json::json!({
         "env": spec.target,
         "kwargs": spec.kwargs,
         "max_episode_steps": spec.max_episode_steps,
     });
+    let (host, body) = start_host(spec, request, id)?;
+    let d: Description = serde_json::from_slice(&body).map_err(|e| EnvError::PythonStart {
+        env: id.to_string(),
+        message: format!("unreadable description from the host: {e}"),
+    })?;
+    Ok((host, d))
+}
+
+/// Start `host.py` with `request` (argv) under `spec`'s interpreter and path, and read its
+/// hello: the body of a success, or the start error (naming the fix) of a failure.
+fn start_host(
+    spec: &GymSpec,
+    request: serde_json::Value,
+    id: &str,
+) -> Result<(Host, Vec<u8>), EnvError> {
+    let python = spec.interpreter();
+    let fail = |message: String| EnvError::PythonStart {
+        env: id.to_string(),
+        message,
+    };
     let mut search = spec.path.clone();
     search.extend(
         std::env::var_os("PYTHONPATH")
@@ -434,7 +449,97 @@ fn spawn(spec: &GymSpec, id: &'static str) -> Result<(Host, Description), EnvErr
             _ => f.message,
         }));
     }
-    let d: Description = serde_json::from_slice(&body)
-        .map_err(|e| fail(format!("unreadable description from the host: {e}")))?;
-    Ok((host, d))
+    Ok((host, body))
+}
+
+/// A termination rule written in Python (`termination = "python:module:function"`): the
+/// function gets NumPy float32 arrays `obs`, `act`, `next_obs` of n rows each and returns n
+/// booleans, one call per batch of model transitions. Its own process, as an env's.
+pub struct PythonTermination {
+    id: String,
+    host: Host,
+    obs_dim: usize,
+    act_dim: usize,
+    request: Vec<u8>,
+    reply: Vec<u8>,
+}
+
+impl PythonTermination {
+    /// Import `target` (`module:function`) in a new Python process of `spec`'s interpreter and
+    /// path (its `target` is not used).
+    pub fn start(
+        target: &str,
+        spec: &GymSpec,
+        obs_dim: usize,
+        act_dim: usize,
+    ) -> Result<Self, EnvError> {
+        let id = format!("python:{target}");
+        let request = serde_json::json!({
+            "termination": target,
+            "obs_dim": obs_dim,
+            "act_dim": act_dim,
+        });
+        let (host, _) = start_host(spec, request, &id)?;
+        tracing::info!("{id}: termination rule up");
+        Ok(Self {
+            id,
+            host,
+            obs_dim,
+            act_dim,
+            request: Vec::new(),
+            reply: Vec::new(),
+        })
+    }
+
+    /// `done` of `n` transitions (row-major `obs`, `act`, `next_obs`) into `out`.
+    pub fn done_batch(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), EnvError> {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        self.request.clear();
+        self.request.extend_from_slice(&(n as u64).to_le_bytes());
+        for part in [&obs[..n * o], &act[..n * a], &next_obs[..n * o]] {
+            self.request
+                .extend(part.iter().flat_map(|v| v.to_le_bytes()));
+        }
+        let exited = |status: &str| exited(&self.id, "termination", status);
+        let mut head = [0u8; 16];
+        let sent = self.host.to.write_all(&self.request);
+        if sent
+            .and_then(|()| self.host.from.read_exact(&mut head))
+            .is_err()
+        {
+            return Err(exited("its pipe closed"));
+        }
+        let m = u64::from_le_bytes(head[8..16].try_into().expect("8 bytes")) as usize;
+        self.reply.resize(m, 0);
+        if self.host.from.read_exact(&mut self.reply).is_err() {
+            return Err(exited("its pipe closed"));
+        }
+        if head[0] != 0 {
+            return Err(EnvError::PythonException {
+                env: self.id.clone(),
+                call: "termination",
+                traceback: String::from_utf8_lossy(&self.reply).into_owned(),
+            });
+        }
+        for (o, &b) in out[..n].iter_mut().zip(&self.reply) {
+            *o = b != 0;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for PythonTermination {
+    fn drop(&mut self) {
+        // n = 0 asks the host to quit; closing the pipe would too.
+        let _ = self.host.to.write_all(&0u64.to_le_bytes());
+        let _ = self.host.child.kill();
+        let _ = self.host.child.wait();
+    }
 }
