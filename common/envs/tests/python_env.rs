@@ -250,7 +250,7 @@ fn a_python_termination_rule_judges_a_batch_and_reports_its_errors() {
     assert_eq!(done, [false, true, true]);
     rule.done_batch(&obs, &act, &next, 1, &mut done[..1])
         .unwrap();
-    assert_eq!(done[0], false);
+    assert!(!done[0]);
 
     let mut broken = PythonTermination::start("mbpo_test_envs:broken_rule", &spec, 2, 1).unwrap();
     let e = broken

@@ -192,7 +192,7 @@ impl TerminationClassifier {
     ) {
         for start in (0..n).step_by(BATCH) {
             let m = BATCH.min(n - start);
-            self.fill_inputs(obs, act, next_obs, Rows::Range(start, m), &[]);
+            self.fill_inputs(obs, act, next_obs, Rows::Range(start, m));
             let logits = self
                 .mlp
                 .forward(&self.params, &self.ws.x, m, &mut self.ws.cache);
@@ -264,7 +264,7 @@ impl TerminationClassifier {
     /// Weighted BCE (mean over `rows`) and its gradient in the scratch `grads`.
     pub fn loss_and_gradient(&mut self, data: &Batch, rows: &[u32], pos_weight: f32) -> f64 {
         let m = rows.len();
-        self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked, rows);
+        self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked(rows));
         let logits = self
             .mlp
             .forward(&self.params, &self.ws.x, m, &mut self.ws.cache);
@@ -297,7 +297,7 @@ impl TerminationClassifier {
     fn loss_on(&mut self, data: &Batch, rows: &[u32], pos_weight: f32) -> f64 {
         let mut total = 0.0;
         for chunk in rows.chunks(BATCH) {
-            self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked, chunk);
+            self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked(chunk));
             let logits =
                 self.mlp
                     .forward(&self.params, &self.ws.x, chunk.len(), &mut self.ws.cache);
@@ -313,7 +313,7 @@ impl TerminationClassifier {
     fn precision_recall(&mut self, data: &Batch, rows: &[u32]) -> (f64, f64) {
         let (mut tp, mut fp, mut fneg) = (0usize, 0usize, 0usize);
         for chunk in rows.chunks(BATCH) {
-            self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked, chunk);
+            self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked(chunk));
             let logits =
                 self.mlp
                     .forward(&self.params, &self.ws.x, chunk.len(), &mut self.ws.cache);
@@ -359,21 +359,13 @@ impl TerminationClassifier {
         }
     }
 
-    /// Standardised `[s, a, s']` rows into the scratch input: `rows` picked from data-shaped
+    /// Standardised `[s, a, s']` rows into the scratch input: rows picked from data-shaped
     /// arrays, or a contiguous range.
-    fn fill_inputs(&mut self, obs: &[f32], act: &[f32], next: &[f32], which: Rows, rows: &[u32]) {
+    fn fill_inputs(&mut self, obs: &[f32], act: &[f32], next: &[f32], rows: Rows) {
         let (o, a, d) = (self.obs_dim, self.act_dim, self.in_dim());
-        let m = match which {
-            Rows::Picked => rows.len(),
-            Rows::Range(_, m) => m,
-        };
-        self.ws.x.resize(m * d, 0.0);
-        for k in 0..m {
-            let i = match which {
-                Rows::Picked => rows[k] as usize,
-                Rows::Range(start, _) => start + k,
-            };
-            let x = &mut self.ws.x[k * d..(k + 1) * d];
+        self.ws.x.resize(rows.len() * d, 0.0);
+        for (k, x) in self.ws.x.chunks_exact_mut(d).enumerate() {
+            let i = rows.index(k);
             x[..o].copy_from_slice(&obs[i * o..(i + 1) * o]);
             x[o..o + a].copy_from_slice(&act[i * a..(i + 1) * a]);
             x[o + a..].copy_from_slice(&next[i * o..(i + 1) * o]);
@@ -386,11 +378,27 @@ impl TerminationClassifier {
 
 /// Which rows [`TerminationClassifier::fill_inputs`] takes.
 #[derive(Clone, Copy)]
-enum Rows {
+enum Rows<'r> {
     /// The listed row indices.
-    Picked,
+    Picked(&'r [u32]),
     /// `m` rows from `start`.
     Range(usize, usize),
+}
+
+impl Rows<'_> {
+    fn len(self) -> usize {
+        match self {
+            Rows::Picked(rows) => rows.len(),
+            Rows::Range(_, m) => m,
+        }
+    }
+    /// The data row of input row `k`.
+    fn index(self, k: usize) -> usize {
+        match self {
+            Rows::Picked(rows) => rows[k] as usize,
+            Rows::Range(start, _) => start + k,
+        }
+    }
 }
 
 /// `[s, a, s']` of row `i`.
