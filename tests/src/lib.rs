@@ -118,6 +118,26 @@ pub fn write_config(cfg: &ExperimentConfig, dir: &Path) -> PathBuf {
     p
 }
 
+/// The arguments of `mbpo run` for config `input`, run directory `out` and iceoryx2 base
+/// directory `root`, then `extra`.
+pub fn run_args<'a>(
+    input: &'a Path,
+    out: &'a Path,
+    root: &'a Path,
+    extra: &[&'a str],
+) -> Vec<&'a str> {
+    let mut args = vec![
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    args
+}
+
 /// `mbpo run` with `args` (plus `--quiet`), not waited for.
 pub fn spawn_run(args: &[&str]) -> Child {
     Command::new(bin_dir().join("mbpo"))
@@ -164,6 +184,17 @@ pub fn eval_run(run: &Path, episodes: usize) -> serde_json::Value {
         String::from_utf8_lossy(&out.stderr)
     );
     serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// A pipelined MBPO run's summary says every one of `steps` real transitions reached every
+/// consumer, none lost.
+pub fn assert_no_loss(s: &serde_json::Value, steps: u64) {
+    let real = &s["real_transitions"];
+    assert_eq!(real["produced"], steps, "{s}");
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
+    }
+    assert_eq!(real["lost"], 0, "{s}");
 }
 
 /// `<dir>/summary.json`.

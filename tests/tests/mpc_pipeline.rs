@@ -17,16 +17,7 @@ fn run(
     let input = write_config(cfg, &dir);
     let root = ipc_root(name);
     let out = dir.join("run");
-    let mut args = vec![
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    let o = wait_output(spawn_run(&args), TIMEOUT);
+    let o = wait_output(spawn_run(&run_args(&input, &out, &root, extra)), TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&out);
     assert_eq!(s["status"], "completed");

@@ -12,15 +12,6 @@ fn run_id(s: &serde_json::Value) -> String {
     s["run_id"].as_str().unwrap().to_string()
 }
 
-fn assert_no_loss(s: &serde_json::Value, steps: u64) {
-    let real = &s["real_transitions"];
-    assert_eq!(real["produced"], steps, "{s}");
-    for consumer in ["model-trainer", "rollout-generator", "learner"] {
-        assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
-    }
-    assert_eq!(real["lost"], 0, "{s}");
-}
-
 /// THE correctness oracle: a lockstep pipeline equals the sequential reference bit for bit
 /// (final policy, every metrics column but the timings). Two lockstep runs of the same run
 /// config go concurrently on one iceoryx2 base directory: they must not see each other.
@@ -178,14 +169,7 @@ fn sigint_stops_the_run_cleanly() {
     let input = write_config(&cfg, &dir);
     let root = ipc_root("sigint");
     let out = dir.join("run");
-    let child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ]);
+    let child = spawn_run(&run_args(&input, &out, &root, &[]));
     // Let it get past start-up and into training.
     assert!(logged_pid(&out.join("logs/learner.log"), Duration::from_secs(30)).is_some());
     std::thread::sleep(Duration::from_millis(1500));
@@ -230,14 +214,7 @@ fn two_sigterms_stop_the_run_and_the_last_checkpoint_still_resumes() {
     let input = write_config(&cfg, &dir);
     let root = ipc_root("sigterm2");
     let out = dir.join("run");
-    let mut child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ]);
+    let mut child = spawn_run(&run_args(&input, &out, &root, &[]));
     let t = Instant::now();
     while mbpo_train::checkpoint::latest(&out).unwrap().is_none() {
         assert!(child.try_wait().unwrap().is_none(), "the run ended first");
@@ -291,14 +268,7 @@ fn a_crash_fails_the_run_with_a_clear_message() {
     let input = write_config(&cfg, &dir);
     let root = ipc_root("crash");
     let out = dir.join("run");
-    let child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ]);
+    let child = spawn_run(&run_args(&input, &out, &root, &[]));
     let pid = logged_pid(&out.join("logs/model-trainer.log"), Duration::from_secs(30)).unwrap();
     std::thread::sleep(Duration::from_millis(800));
     // SAFETY: kill(2) on a grandchild we just read the pid of (still alive: the run is long).

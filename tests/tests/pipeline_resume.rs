@@ -99,16 +99,7 @@ fn metric_steps(run: &Path) -> Vec<u64> {
 }
 
 fn start(input: &Path, out: &Path, root: &Path, extra: &[&str], log: &Path) -> Child {
-    let mut args = vec![
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    spawn_logged(&args, log)
+    spawn_logged(&run_args(input, out, root, extra), log)
 }
 
 /// Lockstep: periodic checkpoints, a SIGINT stop and a resume from disk change nothing -- the

@@ -34,25 +34,7 @@ fn drift_config(steps: u64, kwargs: &[(&str, toml::Value)]) -> ExperimentConfig 
 }
 
 fn run(input: &Path, out: &Path, root: &Path, extra: &[&str]) -> std::process::Output {
-    let mut args = vec![
-        "--config",
-        input.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        root.to_str().unwrap(),
-    ];
-    args.extend_from_slice(extra);
-    wait_output(spawn_run(&args), TIMEOUT)
-}
-
-fn assert_nothing_lost(s: &serde_json::Value, steps: u64) {
-    let real = &s["real_transitions"];
-    assert_eq!(real["produced"], steps, "{s}");
-    for consumer in ["model-trainer", "rollout-generator", "learner"] {
-        assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
-    }
-    assert_eq!(real["lost"], 0, "{s}");
+    wait_output(spawn_run(&run_args(input, out, root, extra)), TIMEOUT)
 }
 
 #[test]
@@ -68,7 +50,7 @@ fn a_custom_python_env_trains_under_mbpo_run_with_two_actors() {
     assert_eq!(s["status"], "completed", "{s}");
     assert_eq!(s["env"], "gym:mbpo_test_envs:Drift");
     assert_eq!(s["actors"], 2);
-    assert_nothing_lost(&s, 300);
+    assert_no_loss(&s, 300);
     assert_eq!(s["episodes_lost_to_env_exit"], 0, "{s}");
     assert!(s["final_eval_return"].as_f64().unwrap().is_finite(), "{s}");
     let env: serde_json::Value =
@@ -109,28 +91,7 @@ fn lockstep_through_the_bridge_equals_the_sequential_run() {
     cfg.eval.every = 150;
     cfg.eval.episodes = 1;
     let dir = scratch("gym-lockstep");
-    let input = write_config(&cfg, &dir);
-    let out = dir.join("run");
-    bin_dir();
-    let child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--mode",
-        "lockstep",
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        ipc_root("gymlock").to_str().unwrap(),
-    ]);
-    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
-    let o = wait_output(child, TIMEOUT);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = summary(&out);
-    assert_eq!(s["policy_sha256"], seq.policy_sha256.as_str(), "{s}");
-    assert_eq!(
-        metrics_without_timing(&out),
-        metrics_without_timing(&dir.join("sequential"))
-    );
+    assert_lockstep_equals_sequential(&cfg, &dir, &dir.join("run"), "gymlock");
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -138,16 +99,8 @@ fn lockstep_through_the_bridge_equals_the_sequential_run() {
 fn assert_lockstep_equals_sequential(cfg: &ExperimentConfig, dir: &Path, out: &Path, name: &str) {
     let input = write_config(cfg, dir);
     bin_dir();
-    let child = spawn_run(&[
-        "--config",
-        input.to_str().unwrap(),
-        "--mode",
-        "lockstep",
-        "--out",
-        out.to_str().unwrap(),
-        "--ipc-root",
-        ipc_root(name).to_str().unwrap(),
-    ]);
+    let root = ipc_root(name);
+    let child = spawn_run(&run_args(&input, out, &root, &["--mode", "lockstep"]));
     let seq = train_mbpo(cfg, &dir.join("sequential")).unwrap();
     let o = wait_output(child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
@@ -256,7 +209,7 @@ fn an_interpreter_that_exits_is_restarted_and_the_lost_episode_counted() {
     let s = summary(&out);
     assert_eq!(s["status"], "completed", "{s}");
     assert_eq!(s["episodes_lost_to_env_exit"], 1, "{s}");
-    assert_nothing_lost(&s, 200);
+    assert_no_loss(&s, 200);
     let log = std::fs::read_to_string(out.join("logs/actor-0.log")).unwrap();
     assert!(log.contains("Python process restarted (1 so far)"), "{log}");
     let _ = std::fs::remove_dir_all(dir);

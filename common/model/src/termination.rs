@@ -75,6 +75,52 @@ impl std::fmt::Display for TerminationReport {
     }
 }
 
+/// Counts of a classifier's verdicts against the truth.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Confusion {
+    /// Predicted terminal, and terminal.
+    pub true_positives: usize,
+    /// Predicted terminal, not terminal.
+    pub false_positives: usize,
+    /// Terminal, not predicted.
+    pub false_negatives: usize,
+    /// Verdicts counted.
+    pub total: usize,
+}
+
+impl Confusion {
+    /// Count one verdict.
+    pub fn add(&mut self, predicted: bool, actual: bool) {
+        self.total += 1;
+        match (predicted, actual) {
+            (true, true) => self.true_positives += 1,
+            (true, false) => self.false_positives += 1,
+            (false, true) => self.false_negatives += 1,
+            (false, false) => {}
+        }
+    }
+    /// Of the transitions predicted terminal, the share that are (1 when none predicted).
+    pub fn precision(&self) -> f64 {
+        share(self.true_positives, self.false_positives)
+    }
+    /// Of the terminal transitions, the share predicted terminal (1 when there are none).
+    pub fn recall(&self) -> f64 {
+        share(self.true_positives, self.false_negatives)
+    }
+    /// Share of verdicts that are right.
+    pub fn accuracy(&self) -> f64 {
+        let wrong = self.false_positives + self.false_negatives;
+        (self.total - wrong) as f64 / self.total.max(1) as f64
+    }
+}
+
+fn share(hits: usize, misses: usize) -> f64 {
+    match hits + misses {
+        0 => 1.0,
+        n => hits as f64 / n as f64,
+    }
+}
+
 /// A learned `done(s, a, s')` (see the module docs).
 #[derive(Debug, Clone)]
 pub struct TerminationClassifier {
@@ -294,46 +340,34 @@ impl TerminationClassifier {
         &mut self.params
     }
 
-    fn loss_on(&mut self, data: &Batch, rows: &[u32], pos_weight: f32) -> f64 {
-        let mut total = 0.0;
+    /// Call `f(logit, row)` for each of `rows`, in order.
+    fn for_each_logit(&mut self, data: &Batch, rows: &[u32], mut f: impl FnMut(f32, usize)) {
         for chunk in rows.chunks(BATCH) {
             self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked(chunk));
-            let logits =
-                self.mlp
-                    .forward(&self.params, &self.ws.x, chunk.len(), &mut self.ws.cache);
+            let (x, cache) = (&self.ws.x, &mut self.ws.cache);
+            let logits = self.mlp.forward(&self.params, x, chunk.len(), cache);
             for (&z, &i) in logits.iter().zip(chunk) {
-                let y = data.terminated[i as usize];
-                let w = if y > 0.5 { pos_weight } else { 1.0 };
-                total += (w * bce_with_logit(z, y)) as f64;
+                f(z, i as usize);
             }
         }
+    }
+
+    fn loss_on(&mut self, data: &Batch, rows: &[u32], pos_weight: f32) -> f64 {
+        let mut total = 0.0;
+        self.for_each_logit(data, rows, |z, i| {
+            let y = data.terminated[i];
+            let w = if y > 0.5 { pos_weight } else { 1.0 };
+            total += (w * bce_with_logit(z, y)) as f64;
+        });
         total / rows.len().max(1) as f64
     }
 
     fn precision_recall(&mut self, data: &Batch, rows: &[u32]) -> (f64, f64) {
-        let (mut tp, mut fp, mut fneg) = (0usize, 0usize, 0usize);
-        for chunk in rows.chunks(BATCH) {
-            self.fill_inputs(&data.obs, &data.act, &data.next_obs, Rows::Picked(chunk));
-            let logits =
-                self.mlp
-                    .forward(&self.params, &self.ws.x, chunk.len(), &mut self.ws.cache);
-            for (&z, &i) in logits.iter().zip(chunk) {
-                match (z > 0.0, data.terminated[i as usize] > 0.5) {
-                    (true, true) => tp += 1,
-                    (true, false) => fp += 1,
-                    (false, true) => fneg += 1,
-                    (false, false) => {}
-                }
-            }
-        }
-        let ratio = |a: usize, b: usize| {
-            if a + b == 0 {
-                1.0
-            } else {
-                a as f64 / (a + b) as f64
-            }
-        };
-        (ratio(tp, fp), ratio(tp, fneg))
+        let mut counts = Confusion::default();
+        self.for_each_logit(data, rows, |z, i| {
+            counts.add(z > 0.0, data.terminated[i] > 0.5)
+        });
+        (counts.precision(), counts.recall())
     }
 
     /// Mean and standard deviation of `[s, a, s']` over `rows` (a constant column keeps 1).

@@ -8,6 +8,7 @@ use std::time::Instant;
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::Batch;
 use mbpo_envs::Env;
+use mbpo_model::termination::Confusion;
 use mbpo_model::TerminationClassifier;
 use serde::Serialize;
 
@@ -62,22 +63,10 @@ pub fn termination_benchmark(
         test.len,
         &mut predicted,
     );
-    let (mut tp, mut fp, mut fneg) = (0usize, 0usize, 0usize);
+    let mut counts = Confusion::default();
     for (&p, &t) in predicted.iter().zip(&test.terminated) {
-        match (p, t > 0.5) {
-            (true, true) => tp += 1,
-            (true, false) => fp += 1,
-            (false, true) => fneg += 1,
-            (false, false) => {}
-        }
+        counts.add(p, t > 0.5);
     }
-    let ratio = |a: usize, b: usize| {
-        if a + b == 0 {
-            1.0
-        } else {
-            a as f64 / (a + b) as f64
-        }
-    };
     let positives = |b: &Batch| b.terminated.iter().filter(|&&t| t > 0.5).count();
     Ok(TerminationBenchReport {
         env: env.id().to_string(),
@@ -85,9 +74,9 @@ pub fn termination_benchmark(
         train_positives: positives(&train),
         test_rows: test.len,
         test_positives: positives(&test),
-        precision: ratio(tp, fp),
-        recall: ratio(tp, fneg),
-        accuracy: (test.len - fp - fneg) as f64 / test.len.max(1) as f64,
+        precision: counts.precision(),
+        recall: counts.recall(),
+        accuracy: counts.accuracy(),
         train_seconds,
     })
 }
