@@ -14,6 +14,10 @@
 //! * Input gradients of the mean prediction for gradient-based planning
 //!   ([`ProbabilisticEnsemble::mean_step_recorded`], [`ProbabilisticEnsemble::mean_step_backward`],
 //!   `grad.rs`): the MLP's input gradient and the normaliser's chain rule.
+//! * A learned termination rule for envs without a hand-written one
+//!   ([`TerminationClassifier`], `termination.rs`; `ModelConfig::learn_termination`), trained
+//!   with the ensemble and used by [`ProbabilisticEnsemble::rollout`] with
+//!   [`RolloutTermination::Learned`].
 //! * The rollout-length schedule ([`rollout_length`]) and model-buffer sizing
 //!   ([`ModelPoolSizing`]).
 //! * [`bench`](mod@bench): the training-epoch and rollout benchmarks (GFLOP/s against the GEMM roofline).
