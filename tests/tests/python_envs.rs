@@ -59,6 +59,14 @@ fn a_custom_python_env_trains_under_mbpo_run_with_two_actors() {
         (env["obs_dim"].as_u64(), env["restorable"].as_bool()),
         (Some(2), Some(false))
     );
+    // Only the processes that step the env start it (the others read env.json).
+    for process in ["learner", "model-trainer", "rollout-generator"] {
+        let log = std::fs::read_to_string(out.join(format!("logs/{process}.log"))).unwrap();
+        assert!(
+            !log.contains("Python env"),
+            "{process} started the env:\n{log}"
+        );
+    }
     // Evaluation rows at 100, 200, 300, and `mbpo eval` runs the env of the run's config.
     assert_eq!(metrics_without_timing(&out).len(), 4);
     let eval = eval_run(&out, 1);

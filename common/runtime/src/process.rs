@@ -55,10 +55,37 @@ pub struct Dims {
 }
 
 impl Dims {
-    /// The dimensions of the run configured by `cfg`.
+    /// The dimensions of the run configured by `cfg` (makes its environment once).
     pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
         let env = cfg.make_env()?;
-        let (obs, act) = (env.obs_dim(), env.act_dim());
+        Self::with_env_dims(cfg, env.obs_dim(), env.act_dim())
+    }
+
+    /// [`Dims::of`] for a process of the run in `run_dir`: a Python env's widths come from the
+    /// `env.json` its launcher wrote, so only the processes that step the env start it (a
+    /// user's env may be costly to make, or drive a robot).
+    pub fn of_run(cfg: &ExperimentConfig, run_dir: &std::path::Path) -> Result<Self> {
+        let path = run_dir.join(mbpo_train::run_dir::ENV_FILE);
+        let text = match cfg.is_gym_env() {
+            true => std::fs::read_to_string(&path).ok(),
+            false => None,
+        };
+        let Some(text) = text else {
+            return Self::of(cfg);
+        };
+        let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            RuntimeError::protocol(format!("{}: not an env description: {e}", path.display()))
+        })?;
+        let width = |key: &str| {
+            json[key]
+                .as_u64()
+                .map(|v| v as usize)
+                .ok_or_else(|| RuntimeError::protocol(format!("{}: no `{key}`", path.display())))
+        };
+        Self::with_env_dims(cfg, width("obs_dim")?, width("act_dim")?)
+    }
+
+    fn with_env_dims(cfg: &ExperimentConfig, obs: usize, act: usize) -> Result<Self> {
         let net = actor_net(cfg, obs, act);
         // Architecture only; the stream is never used for anything else.
         let model = ProbabilisticEnsemble::new(
@@ -111,7 +138,7 @@ impl<S: Transport> Process<S> {
     /// Load the config, open the run and create the node of `(role, args.index)`.
     pub fn open(args: &ServiceArgs, role: Role) -> Result<Self> {
         let cfg = load_config(&args.run_dir)?;
-        let dims = Dims::of(&cfg)?;
+        let dims = Dims::of_run(&cfg, &args.run_dir)?;
         let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
         configure_run(&mut run);
         let node = run.node::<S>(role, args.index)?;

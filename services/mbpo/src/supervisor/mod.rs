@@ -472,7 +472,7 @@ fn supervise(
     restarts: &Restarts,
 ) -> anyhow::Result<Attempt> {
     let node = coordinator::node::<ipc::Service>(cx.ipc)?;
-    let dims = mbpo_runtime::Dims::of(cx.cfg)?;
+    let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
     let ports = CoordinatorPorts::create(&node, cx.cfg, &dims)?;
     let plan = RunPlan {
         run_id: cx.run_id.into(),
