@@ -298,19 +298,11 @@ impl Env for PythonEnv {
 impl Drop for PythonEnv {
     fn drop(&mut self) {
         if let Some(mut host) = self.host.take() {
-            let mut quit = vec![0u8; self.request.len()];
-            quit[0] = b'q';
-            let _ = host.to.write_all(&quit);
-            drop(host.to);
-            let deadline = Instant::now() + Duration::from_secs(2);
-            while Instant::now() < deadline {
-                if let Ok(Some(_)) = host.child.try_wait() {
-                    return;
-                }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            let _ = host.child.kill();
-            let _ = host.child.wait();
+            // Ask the env to quit (it may close files or connections), then wait for it.
+            self.request.fill(0);
+            self.request[0] = b'q';
+            let _ = host.to.write_all(&self.request);
+            reap(host);
         }
     }
 }
@@ -323,7 +315,8 @@ fn exited(env: &str, call: &'static str, status: &str) -> EnvError {
     }
 }
 
-/// Wait for an exited (or exiting) host and describe how it ended.
+/// Close the host's pipe, wait up to 2 s for it to exit (killing it after that) and describe
+/// how it ended.
 fn reap(mut host: Host) -> String {
     drop(host.to);
     let deadline = Instant::now() + Duration::from_secs(2);
@@ -537,8 +530,7 @@ impl PythonTermination {
 
 impl Drop for PythonTermination {
     fn drop(&mut self) {
-        // n = 0 asks the host to quit; closing the pipe would too.
-        let _ = self.host.to.write_all(&0u64.to_le_bytes());
+        // A rule keeps no state worth a clean exit.
         let _ = self.host.child.kill();
         let _ = self.host.child.wait();
     }
