@@ -195,6 +195,11 @@ pub fn assert_no_loss(s: &serde_json::Value, steps: u64) {
         assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
     }
     assert_eq!(real["lost"], 0, "{s}");
+    // Every transition went env step -> shared memory -> D_env: none waited in a consumer
+    // longer than it may hold one in shared memory and had to be copied out.
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(real["spilled"][consumer], 0, "{consumer}: {s}");
+    }
 }
 
 /// `<dir>/summary.json`.

@@ -263,5 +263,5 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
         timeout: Duration::from_secs(30),
     };
     let err = run_in_process(&cfg, &run).unwrap_err().to_string();
-    assert!(err.contains("runs MBPO or MPC, not random-policy"), "{err}");
+    assert!(err.contains("runs mbpo or mpc, not random-policy"), "{err}");
 }

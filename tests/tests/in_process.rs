@@ -46,6 +46,12 @@ fn in_process_lockstep_mbpo_equals_sequential() {
         assert_eq!(s.real_transitions.received[consumer], 500, "{consumer}");
     }
     assert_eq!(s.real_transitions.lost, 0);
+    assert_eq!(
+        s.real_transitions.spilled.values().sum::<u64>(),
+        0,
+        "{:?}",
+        s.real_transitions.spilled
+    );
     assert_eq!(s.ratios.rollout_batches, 3, "train points 201, 301, 401");
 }
 
@@ -72,10 +78,11 @@ fn in_process_lockstep_mpc_equals_sequential() {
 fn assert_last_step_checkpointed(run: &std::path::Path, algo: Algo, actors: u16, steps: u64) {
     let (dir, manifest) = mbpo_train::checkpoint::latest(run).unwrap().unwrap();
     assert_eq!(manifest.env_steps, steps, "{}", dir.display());
-    let want: Vec<String> = mbpo_runtime::barrier::pipeline_files(algo, actors)
-        .into_iter()
-        .map(|(name, _)| name)
-        .collect();
+    let want: Vec<String> =
+        mbpo_runtime::barrier::pipeline_files(mbpo_runtime::pipeline::spec(algo).unwrap(), actors)
+            .into_iter()
+            .map(|(name, _)| name)
+            .collect();
     assert_eq!(manifest.files, want);
 }
 
@@ -92,6 +99,12 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }
     assert_eq!(s.real_transitions.lost, 0);
+    assert_eq!(
+        s.real_transitions.spilled.values().sum::<u64>(),
+        0,
+        "{:?}",
+        s.real_transitions.spilled
+    );
     assert_ratios_within_allowed(&serde_json::to_value(&s).unwrap());
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);

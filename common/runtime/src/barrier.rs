@@ -33,14 +33,14 @@
 use std::marker::PhantomData;
 use std::path::Path;
 
-use mbpo_core::Batch;
+use mbpo_core::TransitionSink;
 use mbpo_train::checkpoint;
-use mbpo_train::Algo;
 use mbpo_wire::{BarrierReport, StatsPublisher, TransitionSubscriber, Transport, Waiter};
 use serde::{de::DeserializeOwned, Serialize};
 
 use crate::error::ensure_protocol;
 use crate::inbox::{wait_for, ControlInbox, RealInbox};
+use crate::pipeline::PipelineSpec;
 use crate::{Result, RuntimeError};
 
 /// The Pause's `request_id` of a barrier the run stops after (SIGINT/SIGTERM); 0 for a
@@ -79,24 +79,24 @@ pub mod file {
 
 /// The files a checkpoint of a run of `algo` with `actors` actors holds whichever command
 /// wrote it, with their kinds: one per role ([`crate::pipeline::roles`]) and the run book.
-pub fn role_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
-    let roles = crate::pipeline::roles(algo, actors).into_iter();
+pub fn role_files(pipeline: &PipelineSpec, actors: u16) -> Vec<(String, &'static str)> {
+    let roles = pipeline.roles(actors).into_iter();
     let mut files: Vec<_> = roles.map(|r| (r.name, r.checkpoint_kind)).collect();
     files.push((file::RUN_BOOK.into(), kind::RUN_BOOK));
     files
 }
 
 /// Every file of a checkpoint written by the pipeline: [`role_files`] and the launcher's.
-pub fn pipeline_files(algo: Algo, actors: u16) -> Vec<(String, &'static str)> {
-    let mut files = role_files(algo, actors);
+pub fn pipeline_files(pipeline: &PipelineSpec, actors: u16) -> Vec<(String, &'static str)> {
+    let mut files = role_files(pipeline, actors);
     files.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
     files
 }
 
 /// The processes that pause at a barrier and report a counter: the actors, the model trainer
 /// and (MBPO) the rollout generator. The learner and evaluator only follow the cut.
-pub fn pausing_processes(algo: Algo, actors: u16) -> usize {
-    let roles = crate::pipeline::roles(algo, actors);
+pub fn pausing_processes(pipeline: &PipelineSpec, actors: u16) -> usize {
+    let roles = pipeline.roles(actors);
     roles.iter().filter(|r| r.pauses()).count()
 }
 
@@ -223,13 +223,13 @@ pub fn gate<S: Transport>(
 }
 
 /// Wait until the first `env_steps` real transitions of the run arrived and hand out those not
-/// yet taken into `rows` (a consumer at the cut holds every transition ≤ T). `Ok(false)`: stopped.
+/// yet taken to `sink` (a consumer at the cut holds every transition ≤ T). `Ok(false)`: stopped.
 pub fn take_upto<S: Transport>(
     waiter: &Waiter<'_, S>,
     control: &ControlInbox<S>,
     real: &TransitionSubscriber<S>,
-    inbox: &mut RealInbox,
-    rows: &mut Batch,
+    inbox: &mut RealInbox<S>,
+    sink: &mut dyn TransitionSink,
     env_steps: u64,
 ) -> Result<bool> {
     let arrived = wait_for(
@@ -237,7 +237,7 @@ pub fn take_upto<S: Transport>(
         control,
         &|| format!("{env_steps} real transitions for the checkpoint"),
         || {
-            inbox.pull(real)?;
+            inbox.pull(real, env_steps, sink)?;
             Ok(inbox.received() >= env_steps)
         },
     )?;
@@ -247,7 +247,7 @@ pub fn take_upto<S: Transport>(
             "checkpoint after step {env_steps}: {} real transitions arrived although the actors are paused",
             inbox.received()
         );
-        inbox.take((env_steps - inbox.taken()) as usize, rows);
+        inbox.take((env_steps - inbox.taken()) as usize, sink);
     }
     Ok(arrived)
 }
@@ -302,28 +302,30 @@ pub fn after_env_failure<S: Transport>(
 }
 
 /// How a consumer that keeps its own D_env (model trainer, rollout generator) serves a
-/// barrier: its ports, and `at_cut(role, rows, cut)`, called at the cut with every transition
-/// ≤ T not yet taken in `rows`, which adds them to the role, writes the role's file and waits
-/// for the resume (`Ok(false)`: stopped).
+/// barrier: its ports, and `at_cut(role, cut)`, called at the cut once every transition ≤ T
+/// is in the role, which writes the role's file and waits for the resume (`Ok(false)`:
+/// stopped).
 pub struct DataGate<'w, 'a, S: Transport, R, F> {
     waiter: &'w Waiter<'a, S>,
     control: &'w ControlInbox<S>,
     stats: &'w StatsPublisher<S>,
     real: &'w TransitionSubscriber<S>,
     at_cut: F,
+    pipelined: bool,
     role: PhantomData<fn(&mut R)>,
 }
 
-impl<'w, 'a, S: Transport, R, F> DataGate<'w, 'a, S, R, F>
+impl<'w, 'a, S: Transport, R: TransitionSink, F> DataGate<'w, 'a, S, R, F>
 where
-    F: Fn(&mut R, &Batch, Cut) -> Result<bool>,
+    F: Fn(&mut R, Cut) -> Result<bool>,
 {
-    /// The gate of a process with these ports.
+    /// The gate of a process with these ports, in hand-off `mode` (see [`DataGate::wait_until`]).
     pub fn new(
         waiter: &'w Waiter<'a, S>,
         control: &'w ControlInbox<S>,
         stats: &'w StatsPublisher<S>,
         real: &'w TransitionSubscriber<S>,
+        mode: crate::Mode,
         at_cut: F,
     ) -> Self {
         Self {
@@ -332,41 +334,45 @@ where
             stats,
             real,
             at_cut,
+            pipelined: mode == crate::Mode::Pipelined,
             role: PhantomData,
         }
     }
 
-    /// At the cut: take every transition ≤ T out of `inbox`, then `at_cut`. `Ok(false)`: stopped.
-    fn serve_cut(
-        &self,
-        inbox: &mut RealInbox,
-        rows: &mut Batch,
-        role: &mut R,
-        cut: Cut,
-    ) -> Result<bool> {
+    /// At the cut: take every transition ≤ T out of `inbox` into the role, then `at_cut`.
+    /// `Ok(false)`: stopped.
+    fn serve_cut(&self, inbox: &mut RealInbox<S>, role: &mut R, cut: Cut) -> Result<bool> {
         let n = cut.env_steps;
-        if !take_upto(self.waiter, self.control, self.real, inbox, rows, n)? {
+        if !take_upto(self.waiter, self.control, self.real, inbox, role, n)? {
             return Ok(false);
         }
-        (self.at_cut)(role, rows, cut)
+        (self.at_cut)(role, cut)
     }
 
     /// Sleep until `ready(role, inbox)` (evaluated after pulling the real transitions on every
     /// wake-up), serving checkpoint barriers meanwhile (`done`: trainings or branches so far).
     /// `Ok(false)`: stopped.
+    ///
+    /// The role takes real transitions as they arrive: in lockstep the first `upto` (those its
+    /// next training or branch sees), pipelined all of them (it works on whatever has arrived).
+    /// It reads its D_env only when it works, so this equals taking them then, and nothing it
+    /// may see waits in shared memory.
     pub fn wait_until(
         &self,
-        inbox: &mut RealInbox,
-        rows: &mut Batch,
+        inbox: &mut RealInbox<S>,
         role: &mut R,
         done: u64,
+        upto: u64,
         what: &dyn Fn() -> String,
-        mut ready: impl FnMut(&mut R, &RealInbox) -> Result<bool>,
+        mut ready: impl FnMut(&mut R, &RealInbox<S>) -> Result<bool>,
     ) -> Result<bool> {
         loop {
             let mut is_ready = false;
             let woke = wait_for(self.waiter, self.control, what, || {
-                inbox.pull(self.real)?;
+                let upto = if self.pipelined { u64::MAX } else { upto };
+                inbox.pull(self.real, upto, role)?;
+                let may = upto.min(inbox.received());
+                inbox.take(may.saturating_sub(inbox.taken()) as usize, role);
                 is_ready = ready(role, inbox)?;
                 Ok(is_ready || holds(self.control, done))
             })?;
@@ -378,7 +384,7 @@ where
                 Gate::Work if is_ready => return Ok(true),
                 Gate::Work => {}
                 Gate::AtCut(cut) => {
-                    if !self.serve_cut(inbox, rows, role, cut)? {
+                    if !self.serve_cut(inbox, role, cut)? {
                         return Ok(false);
                     }
                 }
@@ -389,14 +395,13 @@ where
     /// [`DataGate::wait_until`] the first `need` real transitions arrived.
     pub fn wait_for_real(
         &self,
-        inbox: &mut RealInbox,
-        rows: &mut Batch,
+        inbox: &mut RealInbox<S>,
         role: &mut R,
         need: u64,
         done: u64,
     ) -> Result<bool> {
         let what = || format!("{need} real transitions");
-        self.wait_until(inbox, rows, role, done, &what, |_, inbox| {
+        self.wait_until(inbox, role, done, need, &what, |_, inbox| {
             Ok(inbox.received() >= need)
         })
     }
@@ -404,8 +409,7 @@ where
     /// [`idle_until_stop`] for such a consumer.
     pub fn idle_until_stop(
         &self,
-        inbox: &mut RealInbox,
-        rows: &mut Batch,
+        inbox: &mut RealInbox<S>,
         role: &mut R,
         pause_counter: Option<u64>,
     ) -> Result<()> {
@@ -414,7 +418,7 @@ where
             self.control,
             self.stats,
             pause_counter,
-            |cut| self.serve_cut(inbox, rows, role, cut),
+            |cut| self.serve_cut(inbox, role, cut),
         )
     }
 }
@@ -422,11 +426,13 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::pipeline::spec;
+    use mbpo_train::Algo;
 
     #[test]
     fn checkpoint_files_and_pausing_processes_follow_the_algorithm() {
         let names = |algo, actors| -> Vec<String> {
-            pipeline_files(algo, actors)
+            pipeline_files(spec(algo).unwrap(), actors)
                 .into_iter()
                 .map(|(n, _)| n)
                 .collect()
@@ -455,13 +461,13 @@ mod tests {
             ]
         );
         // A checkpoint of `mbpo train` holds the same files but the launcher's.
-        let sequential: Vec<String> = role_files(Algo::MBPO, 1)
+        let sequential: Vec<String> = role_files(spec(Algo::MBPO).unwrap(), 1)
             .into_iter()
             .map(|(n, _)| n)
             .collect();
         assert_eq!(sequential, names(Algo::MBPO, 1)[..6]);
         let kind_of = |algo, name: &str| {
-            pipeline_files(algo, 1)
+            pipeline_files(spec(algo).unwrap(), 1)
                 .into_iter()
                 .find(|(n, _)| n == name)
                 .unwrap()
@@ -471,7 +477,7 @@ mod tests {
         assert_eq!(kind_of(Algo::MPC, "evaluator"), kind::PLANNING_EVALUATOR);
         assert_eq!(kind_of(Algo::MBPO, "actor-0"), kind::ACTOR);
         assert_eq!(kind_of(Algo::MBPO, "evaluator"), kind::EVALUATOR);
-        assert_eq!(pausing_processes(Algo::MBPO, 3), 5);
-        assert_eq!(pausing_processes(Algo::MPC, 3), 4);
+        assert_eq!(pausing_processes(spec(Algo::MBPO).unwrap(), 3), 5);
+        assert_eq!(pausing_processes(spec(Algo::MPC).unwrap(), 3), 4);
     }
 }

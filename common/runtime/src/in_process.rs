@@ -44,12 +44,7 @@ pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<Pipe
         std::process::id(),
         RUNS.fetch_add(1, Ordering::Relaxed)
     );
-    if !pipeline::runs(cfg.algo) {
-        return Err(RuntimeError::protocol(format!(
-            "the pipeline runs MBPO or MPC, not {}",
-            cfg.algo.name()
-        )));
-    }
+    pipeline::spec(cfg.algo)?;
     let mut run_dir = RunDir::create(&how.out, cfg).map_err(|source| RuntimeError::Io {
         path: how.out.clone(),
         source,
@@ -88,13 +83,14 @@ fn coordinate(
     // The coordinator's ports first: the roles wait for the stats subscriber.
     let node = coordinator::node::<local::Service>(ipc)?;
     let dims = Dims::of(cfg)?;
-    let ports = CoordinatorPorts::create(&node, cfg, &dims)?;
     let plan = RunPlan {
+        pipeline: pipeline::spec(cfg.algo)?,
         run_id: run_id.into(),
         mode: how.mode,
         actors: how.actors,
         slack: how.slack,
     };
+    let ports = CoordinatorPorts::create(&node, &plan, &dims)?;
     let mut coord = Coordinator::new(cfg, dims, plan, &how.out, None, 0);
     let args = ServiceArgs {
         run_dir: how.out.clone(),
@@ -172,7 +168,7 @@ fn start_roles(
     args: &ServiceArgs,
     threads: &mut Vec<RoleThread>,
 ) -> Result<()> {
-    for role in pipeline::roles(cfg.algo, args.actors) {
+    for role in pipeline::spec(cfg.algo)?.roles(args.actors) {
         let run = role.service_loop::<local::Service>();
         let a = ServiceArgs {
             index: role.index,

@@ -4,13 +4,13 @@
 //! ([`wait_for`]).
 
 use std::cell::{Cell, RefCell};
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
-use mbpo_core::Batch;
+use mbpo_core::TransitionSink;
 use mbpo_wire::{
     ControlCommand, ControlMsg, ControlPublisher, ControlSubscriber, ProducerId, RowLayout,
-    TransitionSubscriber, Transport, WaitOutcome, Waiter, WireNode,
+    TransitionBatch, TransitionSubscriber, Transport, WaitOutcome, Waiter, WireNode,
 };
 
 use crate::Result;
@@ -158,39 +158,84 @@ pub fn wait_for<S: Transport>(
 }
 
 /// Real transitions received but not yet handed to the role: lockstep roles must see exactly
-/// the first t − 1 transitions at a train point although transition t may already be here.
-pub struct RealInbox {
+/// the first t − 1 transitions at a train point although transition t may already be here, and
+/// the learner consumes one step at a time.
+///
+/// The rows stay in shared memory until taken: [`RealInbox::take`] pushes them from there
+/// straight into the role's D_env, so a real transition is copied twice on its way (the
+/// actor's env step into shared memory, shared memory into D_env). Only when more batches wait
+/// than the subscriber may hold at once (`max_borrowed`) is the oldest copied out (counted in
+/// [`RealInbox::spilled`]), which frees its shared-memory chunk for the actors.
+pub struct RealInbox<S: Transport> {
     layout: RowLayout,
-    rows: Vec<f32>,
-    start: usize,
+    /// Batches in shared memory, oldest first; `front_taken` rows of the first are taken.
+    held: VecDeque<TransitionBatch<S>>,
+    front_taken: usize,
+    /// Rows copied out of shared memory, all older than every held batch; `spilled_start`
+    /// floats of them are taken.
+    spilled_rows: Vec<f32>,
+    spilled_start: usize,
+    pending: usize,
     received: u64,
     taken: u64,
+    spilled: u64,
 }
 
-impl RealInbox {
+impl<S: Transport> RealInbox<S> {
     /// An empty inbox for rows of `layout`.
     pub fn new(layout: RowLayout) -> Self {
         Self {
             layout,
-            rows: Vec::new(),
-            start: 0,
+            held: VecDeque::new(),
+            front_taken: 0,
+            spilled_rows: Vec::new(),
+            spilled_start: 0,
+            pending: 0,
             received: 0,
             taken: 0,
+            spilled: 0,
         }
     }
-    /// Move every pending batch of `sub` into the inbox; returns the rows added.
-    pub fn pull<S: Transport>(&mut self, sub: &TransitionSubscriber<S>) -> Result<usize> {
+    /// Receive every pending batch of `sub`, handing `sink` each row as it arrives while
+    /// fewer than `take_upto` rows were taken in all (the rows the role may see now); returns
+    /// the rows received.
+    pub fn pull(
+        &mut self,
+        sub: &TransitionSubscriber<S>,
+        take_upto: u64,
+        sink: &mut dyn TransitionSink,
+    ) -> Result<usize> {
         let mut n = 0;
-        while let Some(b) = sub.receive()? {
-            if self.start > 0 && self.start * 2 >= self.rows.len() {
-                self.rows.drain(..self.start);
-                self.start = 0;
+        // One borrow is kept free for the receive itself.
+        let hold = sub.max_borrowed().saturating_sub(1).max(1);
+        while sub.has_pending()? {
+            if self.held.len() >= hold {
+                self.spill_front();
             }
-            self.rows.extend_from_slice(b.rows());
+            let Some(b) = sub.receive()? else { break };
             n += b.n_rows();
+            self.pending += b.n_rows();
+            self.received += b.n_rows() as u64;
+            self.held.push_back(b);
+            let may = take_upto.min(self.received);
+            self.take(may.saturating_sub(self.taken) as usize, sink);
         }
-        self.received += n as u64;
         Ok(n)
+    }
+    /// Copy the oldest held batch's untaken rows out of shared memory.
+    fn spill_front(&mut self) {
+        let Some(b) = self.held.pop_front() else {
+            return;
+        };
+        if self.spilled_start > 0 && self.spilled_start * 2 >= self.spilled_rows.len() {
+            self.spilled_rows.drain(..self.spilled_start);
+            self.spilled_start = 0;
+        }
+        let w = self.layout.width();
+        self.spilled_rows
+            .extend_from_slice(&b.rows()[self.front_taken * w..]);
+        self.spilled += (b.n_rows() - self.front_taken) as u64;
+        self.front_taken = 0;
     }
     /// A resumed consumer: the first `n` rows of the run were received and taken before the
     /// checkpoint it continues from.
@@ -208,15 +253,99 @@ impl RealInbox {
     }
     /// Rows waiting.
     pub fn pending(&self) -> usize {
-        (self.rows.len() - self.start) / self.layout.width()
+        self.pending
     }
-    /// Hand out the next `n` rows (at most [`RealInbox::pending`]) into `out`.
-    pub fn take(&mut self, n: usize, out: &mut Batch) {
-        let n = n.min(self.pending());
+    /// Rows copied out of shared memory before they were taken (a third copy).
+    pub fn spilled(&self) -> u64 {
+        self.spilled
+    }
+    /// Hand the next `n` rows (at most [`RealInbox::pending`]) to `sink`, in arrival order.
+    pub fn take(&mut self, n: usize, sink: &mut dyn TransitionSink) {
+        let mut left = n.min(self.pending);
+        self.pending -= left;
+        self.taken += left as u64;
         let w = self.layout.width();
-        self.layout
-            .unpack_into(&self.rows[self.start..self.start + n * w], out);
-        self.start += n * w;
-        self.taken += n as u64;
+        while left > 0 && self.spilled_start < self.spilled_rows.len() {
+            let row = &self.spilled_rows[self.spilled_start..self.spilled_start + w];
+            let r = self.layout.split_row(row);
+            sink.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
+            self.spilled_start += w;
+            left -= 1;
+        }
+        while left > 0 {
+            // Every pending row is spilled or held.
+            let Some(front) = self.held.front() else {
+                break;
+            };
+            let k = left.min(front.n_rows() - self.front_taken);
+            front.push_rows_from(self.front_taken, k, sink);
+            self.front_taken += k;
+            left -= k;
+            if self.front_taken == front.n_rows() {
+                // Dropping the batch gives its chunk back to the actor.
+                self.held.pop_front();
+                self.front_taken = 0;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_core::ReplayBuffer;
+    use mbpo_wire::{
+        local, Channel, ChannelQos, Role, RunIpc, TransitionMeta, TransitionPublisher,
+    };
+
+    /// Row `k`: every field holds `k` (terminated: k odd).
+    fn send_row(tx: &TransitionPublisher<local::Service>, layout: RowLayout, k: usize) {
+        let v = k as f32;
+        tx.send_with(1, TransitionMeta::default(), |row| {
+            layout.write_row(row, &[v; 3], &[v], v, &[v; 3], k % 2 == 1)
+        })
+        .unwrap();
+    }
+
+    /// Rows stay in shared memory until taken and reach the sink in arrival order, also across
+    /// a spill (more waiting than the subscriber may hold), which is counted.
+    #[test]
+    fn rows_go_from_shared_memory_to_the_sink_in_order() {
+        let id = format!("inbox-{}", std::process::id());
+        let root = std::env::temp_dir().join("mbpo-runtime-tests");
+        let mut run = RunIpc::new(&id, &root).unwrap();
+        let mut q = ChannelQos::default_for(Channel::Real);
+        (q.buffer_size, q.max_borrowed) = (64, 4);
+        run.set_qos(Channel::Real, q);
+        let layout = RowLayout::new(3, 1);
+        {
+            let a = run.node::<local::Service>(Role::Actor, 0).unwrap();
+            let l = run.node::<local::Service>(Role::Learner, 0).unwrap();
+            let rx = TransitionSubscriber::create(&l, Channel::Real, layout).unwrap();
+            let tx = TransitionPublisher::create(&a, Channel::Real, layout, 1).unwrap();
+            rx.update_connections();
+            tx.wait_for_subscribers(1, Duration::from_secs(2)).unwrap();
+            let mut inbox = RealInbox::new(layout);
+            let mut d_env = ReplayBuffer::new(3, 1, 100);
+            // Three rows: held (the subscriber may hold 4, one is kept for the receive).
+            (0..3).for_each(|k| send_row(&tx, layout, k));
+            assert_eq!(inbox.pull(&rx, 0, &mut d_env).unwrap(), 3);
+            inbox.take(2, &mut d_env);
+            assert_eq!((inbox.pending(), inbox.spilled()), (1, 0));
+            // Ten more: the oldest held ones are copied out to make room.
+            (3..13).for_each(|k| send_row(&tx, layout, k));
+            assert_eq!(inbox.pull(&rx, 0, &mut d_env).unwrap(), 10);
+            assert_eq!((inbox.pending(), inbox.received()), (11, 13));
+            assert_eq!(inbox.spilled(), 8, "11 waiting, 3 held");
+            inbox.take(100, &mut d_env);
+            assert_eq!((inbox.pending(), inbox.taken()), (0, 13));
+            let snap = d_env.snapshot();
+            let want: Vec<f32> = (0..13).map(|k| k as f32).collect();
+            assert_eq!(snap.slots.reward, want);
+            assert_eq!(snap.slots.act, want);
+            let odd: Vec<f32> = (0..13).map(|k| (k % 2) as f32).collect();
+            assert_eq!(snap.slots.terminated, odd);
+        }
+        let _ = run.remove_all::<local::Service>();
     }
 }

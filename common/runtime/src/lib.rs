@@ -30,6 +30,7 @@ pub mod services;
 pub use args::{Mode, ServiceArgs, Slack};
 pub use error::{Result, RuntimeError};
 pub use inbox::{send_ack, wait_for, ControlInbox, RealInbox};
+pub use pipeline::{PipelineSpec, RoleKind};
 pub use process::{
     actor_steps, configure_run, error_chain, exit_code, global_step, init_logging,
     init_service_process, load_config, Dims, Process,

@@ -1,14 +1,19 @@
-//! Which roles a pipeline run has: the one list the launcher spawns, the in-process pipeline
-//! starts as threads, the coordinator counts and the checkpoint barrier names files after.
-//! MBPO runs a learner, a model trainer, a rollout generator, an evaluator and the actors; MPC
-//! plans on the model trainer's ensemble, so it has no learner or rollout generator.
+//! How each algorithm runs as a pipeline: its roles (the one list the launcher spawns, the
+//! in-process pipeline starts as threads, the coordinator counts and the checkpoint barrier
+//! names files after) and the few facts the shared loops ask of it.
+//!
+//! An algorithm the pipeline runs is one [`PipelineSpec`] row in [`PIPELINES`]; the service
+//! loops and the coordinator read the row, never the algorithm's name. MBPO runs a learner, a
+//! model trainer, a rollout generator, an evaluator and the actors; MPC plans on the model
+//! trainer's ensemble, so it has no learner or rollout generator, and its actors and evaluator
+//! are planners.
 
 use mbpo_train::Algo;
-use mbpo_wire::Transport;
+use mbpo_wire::{Role, Transport, WeightsKind};
 
 use crate::barrier::{actor_file, file, kind};
-use crate::services::{actor, learner, model_trainer, rollout};
-use crate::{Result, ServiceArgs};
+use crate::services::{actor, learner, model_trainer, planning, rollout};
+use crate::{Mode, Result, RuntimeError, ServiceArgs};
 
 /// What a role does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -19,10 +24,95 @@ pub enum RoleKind {
     ModelTrainer,
     /// The synthetic-rollout generator.
     RolloutGenerator,
-    /// The evaluation actor.
+    /// The evaluation actor (deterministic policy).
     Evaluator,
-    /// An environment actor.
+    /// An environment actor acting with the learner's policy.
     Actor,
+    /// The evaluation actor of a planning run (plans on the model trainer's ensemble).
+    PlanningEvaluator,
+    /// An environment actor that plans on the model trainer's ensemble.
+    PlanningActor,
+}
+
+impl RoleKind {
+    /// The binary that runs it, as installed next to `mbpo`.
+    pub fn binary(self) -> &'static str {
+        match self {
+            RoleKind::Learner => "mbpo-sac-learner",
+            RoleKind::ModelTrainer => "mbpo-model-trainer",
+            RoleKind::RolloutGenerator => "mbpo-rollout-generator",
+            RoleKind::Evaluator
+            | RoleKind::Actor
+            | RoleKind::PlanningEvaluator
+            | RoleKind::PlanningActor => "mbpo-actor",
+        }
+    }
+    /// The role `mbpo-actor` runs with flags `--eval` and `--plan` (see [`RoleSpec::binary_args`]).
+    pub fn of_actor_binary(eval: bool, plan: bool) -> Self {
+        match (eval, plan) {
+            (false, false) => RoleKind::Actor,
+            (true, false) => RoleKind::Evaluator,
+            (false, true) => RoleKind::PlanningActor,
+            (true, true) => RoleKind::PlanningEvaluator,
+        }
+    }
+    /// Its service loop on transport `S`.
+    pub fn service_loop<S: Transport>(self) -> fn(&ServiceArgs) -> Result<()> {
+        match self {
+            RoleKind::Learner => learner::run::<S>,
+            RoleKind::ModelTrainer => model_trainer::run::<S>,
+            RoleKind::RolloutGenerator => rollout::run::<S>,
+            RoleKind::Evaluator => actor::evaluate::<S>,
+            RoleKind::Actor => actor::act::<S>,
+            RoleKind::PlanningEvaluator => planning::evaluate::<S>,
+            RoleKind::PlanningActor => planning::act::<S>,
+        }
+    }
+    /// The kind of its checkpoint file.
+    pub fn checkpoint_kind(self) -> &'static str {
+        match self {
+            RoleKind::Learner => kind::LEARNER,
+            RoleKind::ModelTrainer => kind::MODEL_TRAINER,
+            RoleKind::RolloutGenerator => kind::ROLLOUT,
+            RoleKind::Evaluator => kind::EVALUATOR,
+            RoleKind::Actor => kind::ACTOR,
+            RoleKind::PlanningEvaluator => kind::PLANNING_EVALUATOR,
+            RoleKind::PlanningActor => kind::PLANNING_ACTOR,
+        }
+    }
+    /// Its name (log file, thread, checkpoint file) as the `index`-th of its kind.
+    fn name(self, index: u16) -> String {
+        match self {
+            RoleKind::Learner => file::LEARNER.into(),
+            RoleKind::ModelTrainer => file::MODEL_TRAINER.into(),
+            RoleKind::RolloutGenerator => file::ROLLOUT.into(),
+            RoleKind::Evaluator | RoleKind::PlanningEvaluator => file::EVALUATOR.into(),
+            RoleKind::Actor | RoleKind::PlanningActor => actor_file(index),
+        }
+    }
+    /// Who it is on the wire (its node and reports).
+    pub fn wire_role(self) -> Role {
+        match self {
+            RoleKind::Learner => Role::Learner,
+            RoleKind::ModelTrainer => Role::ModelTrainer,
+            RoleKind::RolloutGenerator => Role::RolloutGenerator,
+            RoleKind::Evaluator | RoleKind::PlanningEvaluator => Role::Evaluator,
+            RoleKind::Actor | RoleKind::PlanningActor => Role::Actor,
+        }
+    }
+    /// An environment actor (not the evaluator).
+    pub fn is_actor(self) -> bool {
+        matches!(self, RoleKind::Actor | RoleKind::PlanningActor)
+    }
+    /// Steps an environment (actors and the evaluator).
+    pub fn steps_an_env(self) -> bool {
+        self.is_actor() || matches!(self, RoleKind::Evaluator | RoleKind::PlanningEvaluator)
+    }
+    /// Pauses at a checkpoint barrier and reports a counter (actors, model trainer, rollout
+    /// generator); the learner and evaluator only follow the cut.
+    pub fn pauses(self) -> bool {
+        self.is_actor() || matches!(self, RoleKind::ModelTrainer | RoleKind::RolloutGenerator)
+    }
 }
 
 /// One role of a run: a process of `mbpo run`, a thread of the in-process pipeline.
@@ -39,90 +129,123 @@ pub struct RoleSpec {
 }
 
 impl RoleSpec {
+    fn new(kind: RoleKind, index: u16) -> Self {
+        Self {
+            kind,
+            index,
+            name: kind.name(index),
+            checkpoint_kind: kind.checkpoint_kind(),
+        }
+    }
     /// The binary that runs it, as installed next to `mbpo`.
     pub fn binary(&self) -> &'static str {
-        match self.kind {
-            RoleKind::Learner => "mbpo-sac-learner",
-            RoleKind::ModelTrainer => "mbpo-model-trainer",
-            RoleKind::RolloutGenerator => "mbpo-rollout-generator",
-            RoleKind::Evaluator | RoleKind::Actor => "mbpo-actor",
-        }
+        self.kind.binary()
     }
     /// Its arguments besides the [`ServiceArgs`] every role takes.
     pub fn binary_args(&self) -> Vec<String> {
-        match self.kind {
-            RoleKind::Evaluator => vec!["--eval".into()],
-            RoleKind::Actor => vec!["--index".into(), self.index.to_string()],
-            _ => Vec::new(),
+        let mut args = Vec::new();
+        if self.kind.is_actor() {
+            args.extend(["--index".into(), self.index.to_string()]);
         }
+        if matches!(self.kind, RoleKind::Evaluator | RoleKind::PlanningEvaluator) {
+            args.push("--eval".into());
+        }
+        if matches!(
+            self.kind,
+            RoleKind::PlanningActor | RoleKind::PlanningEvaluator
+        ) {
+            args.push("--plan".into());
+        }
+        args
     }
     /// Its service loop on transport `S`.
     pub fn service_loop<S: Transport>(&self) -> fn(&ServiceArgs) -> Result<()> {
-        match self.kind {
-            RoleKind::Learner => learner::run::<S>,
-            RoleKind::ModelTrainer => model_trainer::run::<S>,
-            RoleKind::RolloutGenerator => rollout::run::<S>,
-            RoleKind::Evaluator => actor::evaluate::<S>,
-            RoleKind::Actor => actor::act::<S>,
-        }
+        self.kind.service_loop::<S>()
     }
     /// Steps an environment (actors and the evaluator).
     pub fn steps_an_env(&self) -> bool {
-        matches!(self.kind, RoleKind::Actor | RoleKind::Evaluator)
+        self.kind.steps_an_env()
     }
-    /// Pauses at a checkpoint barrier and reports a counter (actors, model trainer, rollout
-    /// generator); the learner and evaluator only follow the cut.
+    /// Pauses at a checkpoint barrier and reports a counter.
     pub fn pauses(&self) -> bool {
-        matches!(
-            self.kind,
-            RoleKind::Actor | RoleKind::ModelTrainer | RoleKind::RolloutGenerator
-        )
+        self.kind.pauses()
     }
 }
 
-/// Whether the pipeline runs `algo`: MBPO and MPC have role lists; SAC and algorithms
-/// registered at run time (`mbpo_train::algorithm::register`) run under `mbpo train` only.
-pub fn runs(algo: Algo) -> bool {
-    algo == Algo::MBPO || algo == Algo::MPC
+/// How one algorithm runs as a pipeline.
+#[derive(Debug, PartialEq, Eq)]
+pub struct PipelineSpec {
+    /// The algorithm (the config's `algo`).
+    pub algo: &'static str,
+    /// Its roles besides the training actors, in start order (the actors start last).
+    pub services: &'static [RoleKind],
+    /// What its training actors are.
+    pub actor: RoleKind,
+    /// The weights whose final version is the run's result, hashed into `policy_sha256`: the
+    /// SAC policy, or the model the planners plan on.
+    pub result: WeightsKind,
 }
 
-/// The roles of a run of `algo` (one [`runs`] runs) with `actors` actors, in start order.
-pub fn roles(algo: Algo, actors: u16) -> Vec<RoleSpec> {
-    let mpc = algo == Algo::MPC;
-    let one = |kind, name: &str, checkpoint_kind| RoleSpec {
-        kind,
-        index: 0,
-        name: name.into(),
-        checkpoint_kind,
-    };
-    let mut roles = Vec::new();
-    if !mpc {
-        roles.push(one(RoleKind::Learner, file::LEARNER, kind::LEARNER));
-    }
-    roles.push(one(
-        RoleKind::ModelTrainer,
-        file::MODEL_TRAINER,
-        kind::MODEL_TRAINER,
-    ));
-    if !mpc {
-        roles.push(one(
+/// Every algorithm the pipeline runs. SAC and algorithms registered at run time
+/// (`mbpo_train::algorithm::register`) run under `mbpo train` only.
+pub const PIPELINES: [PipelineSpec; 2] = [
+    PipelineSpec {
+        algo: "mbpo",
+        services: &[
+            RoleKind::Learner,
+            RoleKind::ModelTrainer,
             RoleKind::RolloutGenerator,
-            file::ROLLOUT,
-            kind::ROLLOUT,
-        ));
+            RoleKind::Evaluator,
+        ],
+        actor: RoleKind::Actor,
+        result: WeightsKind::Policy,
+    },
+    PipelineSpec {
+        algo: "mpc",
+        services: &[RoleKind::ModelTrainer, RoleKind::PlanningEvaluator],
+        actor: RoleKind::PlanningActor,
+        result: WeightsKind::Model,
+    },
+];
+
+/// The pipeline of `algo`, or an error that names the algorithms it runs.
+pub fn spec(algo: Algo) -> Result<&'static PipelineSpec> {
+    PIPELINES
+        .iter()
+        .find(|p| p.algo == algo.name())
+        .ok_or_else(|| {
+            let known: Vec<&str> = PIPELINES.iter().map(|p| p.algo).collect();
+            RuntimeError::protocol(format!(
+                "the pipeline runs {}, not {} (run it with `mbpo train`)",
+                known.join(" or "),
+                algo.name()
+            ))
+        })
+}
+
+impl PipelineSpec {
+    /// Its roles with `actors` training actors, in start order.
+    pub fn roles(&self, actors: u16) -> Vec<RoleSpec> {
+        let services = self.services.iter().map(|&k| RoleSpec::new(k, 0));
+        let actors = (0..actors).map(|i| RoleSpec::new(self.actor, i));
+        services.chain(actors).collect()
     }
-    let (evaluator, actor) = match mpc {
-        true => (kind::PLANNING_EVALUATOR, kind::PLANNING_ACTOR),
-        false => (kind::EVALUATOR, kind::ACTOR),
-    };
-    roles.push(one(RoleKind::Evaluator, file::EVALUATOR, evaluator));
-    roles.extend((0..actors).map(|index| RoleSpec {
-        kind: RoleKind::Actor,
-        index,
-        name: actor_file(index),
-        checkpoint_kind: actor,
-    }));
-    roles
+    /// Whether it has a role of `kind`.
+    pub fn has(&self, kind: RoleKind) -> bool {
+        self.actor == kind || self.services.contains(&kind)
+    }
+    /// Its actors plan on the model trainer's ensemble: the model versions are what they act
+    /// with (metrics rows come from model versions, there is no learner).
+    pub fn plans(&self) -> bool {
+        self.actor == RoleKind::PlanningActor
+    }
+    /// The model trainer abandons a training under way when the run stops: in a pipelined run
+    /// whose actors do not plan on it (one training can take minutes; the resumed run trains
+    /// again). A planning run's evaluator needs the model of every eval point before the cut,
+    /// and lockstep equals the sequential run, so those finish it.
+    pub fn abandons_training_on_stop(&self, mode: Mode) -> bool {
+        mode == Mode::Pipelined && !self.plans()
+    }
 }
 
 #[cfg(test)]
@@ -132,7 +255,8 @@ mod tests {
     #[test]
     fn mbpo_has_five_kinds_of_role_and_mpc_three() {
         let names = |algo, actors| -> Vec<String> {
-            roles(algo, actors).into_iter().map(|r| r.name).collect()
+            let spec = spec(algo).unwrap();
+            spec.roles(actors).into_iter().map(|r| r.name).collect()
         };
         assert_eq!(
             names(Algo::MBPO, 2),
@@ -149,15 +273,33 @@ mod tests {
             names(Algo::MPC, 1),
             ["model-trainer", "evaluator", "actor-0"]
         );
-        let actor = &roles(Algo::MBPO, 3)[6];
+        let mbpo = spec(Algo::MBPO).unwrap();
+        let mpc = spec(Algo::MPC).unwrap();
+        let actor = &mbpo.roles(3)[6];
         assert_eq!(
             (actor.binary(), actor.binary_args()),
             ("mbpo-actor", vec!["--index".to_string(), "2".to_string()])
         );
-        assert_eq!(
-            roles(Algo::MBPO, 3).iter().filter(|r| r.pauses()).count(),
-            5
-        );
-        assert_eq!(roles(Algo::MPC, 3).iter().filter(|r| r.pauses()).count(), 4);
+        assert_eq!(mbpo.roles(3).iter().filter(|r| r.pauses()).count(), 5);
+        assert_eq!(mpc.roles(3).iter().filter(|r| r.pauses()).count(), 4);
+        assert!(!mbpo.plans() && mpc.plans());
+    }
+
+    #[test]
+    fn the_actor_binary_runs_the_role_its_flags_name() {
+        for spec in &PIPELINES {
+            for role in spec.roles(2).iter().filter(|r| r.binary() == "mbpo-actor") {
+                let args = role.binary_args();
+                let flag = |f: &str| args.iter().any(|a| a == f);
+                let kind = RoleKind::of_actor_binary(flag("--eval"), flag("--plan"));
+                assert_eq!(kind, role.kind, "{} {}", spec.algo, role.name);
+            }
+        }
+    }
+
+    #[test]
+    fn an_algorithm_without_a_pipeline_is_refused_by_name() {
+        let err = spec(Algo::SAC).unwrap_err().to_string();
+        assert!(err.contains("mbpo or mpc, not sac"), "{err}");
     }
 }

@@ -7,9 +7,11 @@ use mbpo_core::rng::stream;
 use mbpo_model::ProbabilisticEnsemble;
 use mbpo_sac::TanhGaussianActor;
 use mbpo_train::{ExperimentConfig, Schedule};
-use mbpo_wire::{ModelWireLayout, Role, RowLayout, RunIpc, Transport, WireNode};
+use mbpo_wire::{ModelWireLayout, RowLayout, RunIpc, Transport, WireNode};
 
 use crate::args::{Mode, ServiceArgs, Slack};
+use crate::error::ensure_protocol;
+use crate::pipeline::{self, PipelineSpec, RoleKind};
 use crate::{Result, RuntimeError};
 
 /// Logs to stderr (the launcher redirects it to `<run-dir>/logs/<process>.log`).
@@ -132,12 +134,23 @@ pub struct Process<S: Transport> {
     pub slack: Slack,
     /// The arguments it was started with.
     pub args: ServiceArgs,
+    /// How the run's algorithm runs as a pipeline.
+    pub pipeline: &'static PipelineSpec,
 }
 
 impl<S: Transport> Process<S> {
-    /// Load the config, open the run and create the node of `(role, args.index)`.
-    pub fn open(args: &ServiceArgs, role: Role) -> Result<Self> {
+    /// Load the config, open the run and create the node of role `kind` (index `args.index`);
+    /// refused when the run's algorithm has no such role (a launcher started the wrong one).
+    pub fn open(args: &ServiceArgs, kind: RoleKind) -> Result<Self> {
         let cfg = load_config(&args.run_dir)?;
+        let pipeline = pipeline::spec(cfg.algo)?;
+        ensure_protocol!(
+            pipeline.has(kind),
+            "a {} run has no {kind:?} role: its roles are {:?}",
+            pipeline.algo,
+            pipeline.roles(1).iter().map(|r| r.kind).collect::<Vec<_>>()
+        );
+        let role = kind.wire_role();
         let dims = Dims::of_run(&cfg, &args.run_dir)?;
         let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
         configure_run(&mut run);
@@ -162,6 +175,7 @@ impl<S: Transport> Process<S> {
             mode: args.mode,
             slack: args.slack.effective(args.mode),
             args: args.clone(),
+            pipeline,
         })
     }
     /// A fresh SAC actor network of the run (architecture only).
@@ -175,6 +189,10 @@ impl<S: Transport> Process<S> {
 pub fn configure_run(run: &mut RunIpc) {
     let mut q = mbpo_wire::ChannelQos::default_for(mbpo_wire::Channel::Real);
     q.buffer_size = 1024;
+    // A consumer keeps the transitions it may not take yet in shared memory (`RealInbox`): a
+    // lockstep consumer the one or two past its next step or train point, a pipelined learner
+    // about its policy lag times the actors. More are copied out (`RealInbox::spilled`).
+    q.max_borrowed = 64;
     run.set_qos(mbpo_wire::Channel::Real, q);
 }
 

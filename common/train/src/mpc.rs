@@ -28,7 +28,7 @@ use crate::run_files::{
 };
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
+use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng, TransitionSink};
 use mbpo_envs::Env;
 use mbpo_model::{ProbabilisticEnsemble, TrainReport};
 use mbpo_plan::{build, EnsembleModel, Mpc, MpcState, PlanError, RewardSource};
@@ -205,27 +205,48 @@ impl PlanningActorRole {
     /// One real env step (uniform, or the planner's action); returns the transition. The
     /// planner's warm start is dropped at every episode end.
     pub fn act(&mut self, behaviour: Behaviour) -> Result<&Batch, TrainError> {
-        let episodes = self.actor.episodes;
-        let mut policy = MpcPolicy {
-            mpc: &mut self.mpc,
-            model: &mut self.model.model,
-            error: None,
-            seconds: 0.0,
-        };
-        self.actor.step(behaviour, &mut policy, &mut self.staged)?;
-        self.last_plan_seconds = policy.seconds;
-        if let Some(e) = policy.error {
-            return Err(plan_err(e));
-        }
-        if self.actor.episodes > episodes {
-            self.mpc.reset();
-        }
+        let (actor, mpc, model) = (&mut self.actor, &mut self.mpc, &mut self.model);
+        self.last_plan_seconds = plan_step(actor, mpc, model, behaviour, &mut self.staged)?;
         Ok(self.staged.batch())
     }
-    /// The transition of the last [`Self::act`].
-    pub fn last_transition(&self) -> &Batch {
-        self.staged.batch()
+    /// One real env step whose transition goes straight into `sink` (a pipeline actor's
+    /// loaned shared-memory sample). On an error `sink` may hold a partial row: drop it.
+    pub fn act_into(
+        &mut self,
+        behaviour: Behaviour,
+        sink: &mut dyn TransitionSink,
+    ) -> Result<(), TrainError> {
+        let (actor, mpc, model) = (&mut self.actor, &mut self.mpc, &mut self.model);
+        self.last_plan_seconds = plan_step(actor, mpc, model, behaviour, sink)?;
+        Ok(())
     }
+}
+
+/// One env step of a planning actor into `sink`; returns the plan's wall seconds (0 for a
+/// warm-up step). A new episode starts with a reset planner.
+fn plan_step(
+    actor: &mut EnvActor,
+    mpc: &mut Mpc,
+    model: &mut VersionedModel,
+    behaviour: Behaviour,
+    sink: &mut dyn TransitionSink,
+) -> Result<f64, TrainError> {
+    let episodes = actor.episodes;
+    let mut policy = MpcPolicy {
+        mpc,
+        model: &mut model.model,
+        error: None,
+        seconds: 0.0,
+    };
+    actor.step(behaviour, &mut policy, sink)?;
+    let seconds = policy.seconds;
+    if let Some(e) = policy.error {
+        return Err(plan_err(e));
+    }
+    if actor.episodes > episodes {
+        mpc.reset();
+    }
+    Ok(seconds)
 }
 
 /// A checkpointed [`PlanningEvaluator`]: its streams (each evaluation episode starts with a

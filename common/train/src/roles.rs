@@ -19,7 +19,9 @@ use crate::config::ExperimentConfig;
 use crate::env_config::RolloutRule;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
-use mbpo_core::{sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng};
+use mbpo_core::{
+    sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng, TransitionSink,
+};
 use mbpo_envs::EnvError;
 use mbpo_model::{
     rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
@@ -207,9 +209,14 @@ impl ActorRole {
             .step(behaviour, &mut self.policy, &mut self.staged)?;
         Ok(self.staged.batch())
     }
-    /// The transition of the last [`Self::act`].
-    pub fn last_transition(&self) -> &Batch {
-        self.staged.batch()
+    /// One real env step whose transition goes straight into `sink` (a pipeline actor's
+    /// loaned shared-memory sample; no allocation, no staging copy).
+    pub fn act_into(
+        &mut self,
+        behaviour: Behaviour,
+        sink: &mut dyn TransitionSink,
+    ) -> Result<(), TrainError> {
+        self.actor.step(behaviour, &mut self.policy, sink)
     }
 }
 
@@ -641,3 +648,22 @@ impl LearnerRole {
         Ok(())
     }
 }
+
+/// The pipeline hands each consumer its real transitions straight from shared memory.
+macro_rules! real_transitions_go_to_d_env {
+    ($($role:ty),*) => {$(
+        impl TransitionSink for $role {
+            fn push(
+                &mut self,
+                obs: &[f32],
+                act: &[f32],
+                reward: f32,
+                next_obs: &[f32],
+                terminated: bool,
+            ) {
+                self.d_env.push(obs, act, reward, next_obs, terminated)
+            }
+        }
+    )*};
+}
+real_transitions_go_to_d_env!(ModelTrainerRole, RolloutRole, LearnerRole);

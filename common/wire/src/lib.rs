@@ -87,7 +87,8 @@ pub use stats::{
     RolloutBranch, SlackTracker, Stats,
 };
 pub use transitions::{
-    DrainReport, TransitionBatch, TransitionMeta, TransitionPublisher, TransitionSubscriber,
+    DrainReport, RowLoan, TransitionBatch, TransitionMeta, TransitionPublisher,
+    TransitionSubscriber,
 };
 pub use waiter::{Transport, WaitOutcome, Waiter, Wakeable};
 pub use weights::{

@@ -147,6 +147,9 @@ pub struct Done {
     pub episodes_cut: u64,
     /// Episodes lost to an environment process that exited (actors of Python envs).
     pub episodes_lost: u64,
+    /// Real transitions this consumer copied out of shared memory before taking them (more
+    /// waited than it may hold): each was copied three times instead of twice.
+    pub real_spilled: u64,
 }
 
 /// A step of a checkpoint barrier (protocol: `mbpo_runtime::barrier`).
@@ -265,6 +268,7 @@ impl Stats {
                 sac_updates: d.work,
                 model_version: d.episodes_cut,
                 model_trainings: d.episodes_lost,
+                policy_version: d.real_spilled,
                 value: d.lost as f64,
                 metrics: metrics(&[
                     HEARTBEAT_DONE,
@@ -355,6 +359,7 @@ impl Stats {
                 wall_seconds: m[6],
                 episodes_cut: r.model_version,
                 episodes_lost: r.model_trainings,
+                real_spilled: r.policy_version,
             }),
             StatsKind::Heartbeat => Stats::Progress(Progress {
                 env_steps: r.env_steps,
@@ -491,6 +496,7 @@ mod tests {
                 wall_seconds: 12.0,
                 episodes_cut: 3,
                 episodes_lost: 2,
+                real_spilled: 6,
             }),
             Stats::Barrier(BarrierReport::Paused(0)),
             Stats::Barrier(BarrierReport::Paused(7)),

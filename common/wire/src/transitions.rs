@@ -22,10 +22,12 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::AllocationStrategy;
 use iceoryx2::sample::Sample;
+use iceoryx2::sample_mut::SampleMut;
+use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::Service;
-use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_core::{Batch, ReplayBuffer, TransitionSink};
 
 use crate::error::{
     HeaderMismatch, PortCreateError, PublishError, ReceiveError, SequenceGap,
@@ -238,18 +240,57 @@ impl<S: Service> TransitionPublisher<S> {
             )));
         }
         let len = n_rows * self.layout.width();
-        let mut sample = self
-            .publisher
+        let mut sample = self.loan_uninit(len)?;
+        fill(sample.payload_mut());
+        // SAFETY: `fill` initialised every element (all helpers above write the whole slice).
+        let sample = unsafe { sample.assume_init() };
+        self.send_sample(sample, n_rows, meta)
+    }
+
+    fn loan_uninit(
+        &self,
+        len: usize,
+    ) -> Result<SampleMutUninit<S, [MaybeUninit<f32>], TransitionHeader>, PublishError> {
+        self.publisher
             .loan_slice_uninit(len)
             .map_err(|e| PublishError::Loan {
                 service: self.side.service.clone(),
                 bytes: len * 4,
                 cause: format!("{e:?}"),
                 hint: crate::error::hint_for(&format!("{e:?}")),
-            })?;
-        fill(sample.payload_mut());
-        // SAFETY: `fill` initialised every element (all helpers above write the whole slice).
-        let mut sample = unsafe { sample.assume_init() };
+            })
+    }
+
+    /// Loan room for `n_rows` rows in shared memory, to be written in place through
+    /// [`TransitionSink`] and then [`RowLoan::send`]: an actor's env step writes its transition
+    /// straight into the sample it publishes (no staging copy). A loan dropped unsent sends
+    /// nothing and takes no sequence number.
+    pub fn loan_rows(&self, n_rows: usize) -> Result<RowLoan<'_, S>, PublishError> {
+        if n_rows > u32::MAX as usize {
+            return Err(PublishError::Invalid(format!(
+                "{n_rows} rows exceed u32::MAX"
+            )));
+        }
+        let mut sample = self.loan_uninit(n_rows * self.layout.width())?;
+        for d in sample.payload_mut().iter_mut() {
+            d.write(0.0);
+        }
+        // SAFETY: every element was just initialised.
+        let sample = unsafe { sample.assume_init() };
+        Ok(RowLoan {
+            publisher: self,
+            sample,
+            n_rows,
+            written: 0,
+        })
+    }
+
+    fn send_sample(
+        &self,
+        mut sample: SampleMut<S, [f32], TransitionHeader>,
+        n_rows: usize,
+        meta: TransitionMeta,
+    ) -> Result<SendReport, PublishError> {
         let seq = self.side.take_seq();
         *sample.user_header_mut() = TransitionHeader {
             run_hash: self.side.run_hash,
@@ -321,6 +362,7 @@ fn pack_uninit(layout: &RowLayout, batch: &Batch, start: usize, dst: &mut [Maybe
 /// Receives transition batches, validating every header and tracking sequence numbers.
 #[derive(Debug)]
 pub struct TransitionSubscriber<S: Service = iceoryx2::service::ipc::Service> {
+    max_borrowed: usize,
     side: SubscriberSide<S>,
     subscriber: Subscriber<S, [f32], TransitionHeader>,
     svc: Factory<S>,
@@ -329,6 +371,47 @@ pub struct TransitionSubscriber<S: Service = iceoryx2::service::ipc::Service> {
     layout_hash: u64,
     run_hash: u64,
     tracker: std::cell::RefCell<SeqTracker>,
+}
+
+/// Rows loaned from a [`TransitionPublisher`] ([`TransitionPublisher::loan_rows`]), filled
+/// in place one [`TransitionSink::push`] per row.
+pub struct RowLoan<'p, S: Service> {
+    publisher: &'p TransitionPublisher<S>,
+    sample: SampleMut<S, [f32], TransitionHeader>,
+    n_rows: usize,
+    written: usize,
+}
+
+impl<S: Service> TransitionSink for RowLoan<'_, S> {
+    /// Write the next row; rows past the loaned number are ignored ([`RowLoan::send`] then
+    /// refuses, as it does with rows missing).
+    fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
+        let layout = self.publisher.layout;
+        let w = layout.width();
+        let i = self.written;
+        self.written += 1;
+        if i < self.n_rows {
+            let row = &mut self.sample.payload_mut()[i * w..(i + 1) * w];
+            layout.write_row(row, obs, act, reward, next_obs, terminated);
+        }
+    }
+}
+
+impl<S: Service> RowLoan<'_, S> {
+    /// Rows written so far.
+    pub fn written(&self) -> usize {
+        self.written
+    }
+    /// Publish the rows, once exactly the loaned number was written.
+    pub fn send(self, meta: TransitionMeta) -> Result<SendReport, PublishError> {
+        if self.written != self.n_rows {
+            return Err(PublishError::Invalid(format!(
+                "{} rows written into a loan of {}",
+                self.written, self.n_rows
+            )));
+        }
+        self.publisher.send_sample(self.sample, self.n_rows, meta)
+    }
 }
 
 /// A received batch: a zero-copy view of the rows in shared memory. Drop it (or let it go out
@@ -366,6 +449,14 @@ impl<S: Service> TransitionBatch<S> {
     /// in [`TransitionSubscriber::stats`]).
     pub fn gap(&self) -> Option<SequenceGap> {
         self.gap
+    }
+    /// Push rows `from..` into `sink` in order (no allocation).
+    pub fn push_rows_from(&self, from: usize, n: usize, sink: &mut dyn TransitionSink) {
+        let w = self.layout.width();
+        for row in self.rows()[from * w..(from + n) * w].chunks_exact(w) {
+            let r = self.layout.split_row(row);
+            sink.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
+        }
     }
     /// Copy the rows into `out` (no allocation once `out` is large enough).
     pub fn to_batch(&self, out: &mut Batch) {
@@ -410,6 +501,7 @@ impl<S: Service> TransitionSubscriber<S> {
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the subscriber", e))?;
         let side = SubscriberSide::create(node, &name, &events)?;
         let me = Self {
+            max_borrowed: qos.max_borrowed,
             side,
             subscriber,
             svc,
@@ -510,6 +602,19 @@ impl<S: Service> TransitionSubscriber<S> {
     /// Publishers currently registered with the service.
     pub fn publishers(&self) -> usize {
         self.svc.dynamic_config().number_of_publishers()
+    }
+    /// Batches this port may hold at once (received and not yet dropped).
+    pub fn max_borrowed(&self) -> usize {
+        self.max_borrowed
+    }
+    /// Whether a batch is waiting to be received.
+    pub fn has_pending(&self) -> Result<bool, ReceiveError> {
+        self.subscriber
+            .has_samples()
+            .map_err(|e| ReceiveError::Iceoryx {
+                service: self.side.service.clone(),
+                cause: format!("{e:?}"),
+            })
     }
     /// Times this port listed the registered publishers: the only step of a receive that
     /// allocates once connected (inside iceoryx2; at most every 50 ms, none per sample).

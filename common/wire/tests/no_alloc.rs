@@ -1,7 +1,8 @@
 //! The receive path (receive a batch, push it into a replay buffer or copy it into a `Batch`;
 //! read the newest weights) allocates nothing once the ports exist except in the periodic
 //! re-list of publishers (iceoryx2 builds a two-block snapshot; at most every 50 ms, which a
-//! loaded machine reaches within the test's 200 steps), and the send path allocates
+//! loaded machine reaches within the test's 200 steps), and the send path (a batch, or rows
+//! an actor writes in place into a loaned sample) allocates
 //! nothing beyond the one small block iceoryx2 0.10 itself allocates per `send()` (measured on
 //! a bare iceoryx2 publisher; a WaitSet wake-up also allocates inside iceoryx2).
 //!
@@ -11,7 +12,7 @@
 use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use std::time::Duration;
 
-use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_core::{Batch, ReplayBuffer, TransitionSink};
 use mbpo_wire::*;
 
 #[global_allocator]
@@ -48,7 +49,20 @@ fn steady_state_receive_path_does_not_allocate() {
                 model_version: 0,
                 env_steps: v,
             };
-            tx.send_batch(&batch, meta).unwrap();
+            if v.is_multiple_of(2) {
+                tx.send_batch(&batch, meta).unwrap();
+            } else {
+                // An actor's path: rows written in place into the loaned sample.
+                let mut loan = tx.loan_rows(1000).unwrap();
+                for r in 0..1000 {
+                    let (o, a) = (
+                        &batch.obs[r * 17..(r + 1) * 17],
+                        &batch.act[r * 6..(r + 1) * 6],
+                    );
+                    loan.push(o, a, 0.5, o, false);
+                }
+                loan.send(meta).unwrap();
+            }
             wp.publish(&params, v, WeightsCounters::default()).unwrap();
             let a1 = allocations();
             let b = rx.receive().unwrap().unwrap();

@@ -4,16 +4,16 @@
 //! the sequential evaluation points.
 //!
 //! Lockstep: the actor of global step t waits for policy version exactly t − 1. Pipelined: any
-//! version ≥ t − 1 − policy_lag. With algo = "mpc" both plan on the model trainer's ensemble
+//! version ≥ t − 1 − policy_lag. With `--plan` (MPC) both plan on the model trainer's ensemble
 //! instead (`mbpo_runtime::services::planning`).
 //!
-//! The loops are `mbpo_runtime::services::actor`; this binary runs one in its own process.
+//! The loops are `mbpo_runtime::services::{actor, planning}`; this binary runs one in its own
+//! process.
 
 use std::process::ExitCode;
 
 use clap::Parser;
-use mbpo_runtime::services::actor;
-use mbpo_runtime::ServiceArgs;
+use mbpo_runtime::{RoleKind, ServiceArgs};
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
@@ -24,13 +24,14 @@ struct Args {
     /// Be the evaluation actor.
     #[arg(long)]
     eval: bool,
+    /// Plan on the model trainer's ensemble (MPC) instead of acting with the SAC policy.
+    #[arg(long)]
+    plan: bool,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    mbpo_runtime::exit_code(match args.eval {
-        true => actor::evaluate::<ipc::Service>(&args.svc),
-        false => actor::act::<ipc::Service>(&args.svc),
-    })
+    let role = RoleKind::of_actor_binary(args.eval, args.plan);
+    mbpo_runtime::exit_code(role.service_loop::<ipc::Service>()(&args.svc))
 }

@@ -7,6 +7,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use crate::barrier::{self, Cut};
+use crate::pipeline::{self, PipelineSpec};
 use crate::{Mode, Result, RuntimeError, Slack};
 use mbpo_train::checkpoint;
 use mbpo_train::Algo;
@@ -57,25 +58,25 @@ pub struct Barrier {
     files: usize,
     /// Warnings logged about a slow barrier.
     pub warnings: u32,
-    algo: Algo,
+    pipeline: &'static PipelineSpec,
 }
 
 /// A barrier is reported as slow after this long (and every as long again).
 pub const BARRIER_WARN_AFTER: std::time::Duration = std::time::Duration::from_secs(60);
 
 impl Barrier {
-    /// A barrier over a pipeline running `algo` with `actors` actors.
-    pub fn new(algo: Algo, actors: u16, stop_after: bool) -> Self {
+    /// A barrier over `pipeline` with `actors` actors.
+    pub fn new(pipeline: &'static PipelineSpec, actors: u16, stop_after: bool) -> Self {
         Self {
             started: Instant::now(),
             stop_after,
             paused: BTreeMap::new(),
             cut: None,
             written: BTreeSet::new(),
-            pausing: barrier::pausing_processes(algo, actors),
-            files: crate::pipeline::roles(algo, actors).len(),
+            pausing: barrier::pausing_processes(pipeline, actors),
+            files: pipeline.roles(actors).len(),
             warnings: 0,
-            algo,
+            pipeline,
         }
     }
 
@@ -98,11 +99,10 @@ impl Barrier {
     /// The cut, once every actor, the model trainer and the rollout generator (MBPO) paused
     /// (and not yet sent): T = the actors' steps summed; K = the trainings the model trainer or
     /// rollout generator had done, and at least those of the train points ≤ T (a training
-    /// under way for one is finished) -- except when a pipelined MBPO run stops after this
-    /// barrier: its trainer abandons a training under way (one can take minutes), the resumed
-    /// run does it again, and K is what was done. (Lockstep equals the sequential run; a run
-    /// that goes on keeps its learner within `--model-lag`; an MPC evaluator needs the model
-    /// of every eval point ≤ T.)
+    /// under way for one is finished) -- except when the run stops after this barrier and its
+    /// trainer abandons a training under way
+    /// ([`PipelineSpec::abandons_training_on_stop`]; one can take minutes): the resumed run
+    /// does it again, and K is what was done.
     pub fn take_cut(&mut self, schedule: &Schedule, mode: Mode) -> Option<Cut> {
         if self.cut.is_some() || self.paused.len() < self.pausing {
             return None;
@@ -118,7 +118,7 @@ impl Barrier {
             .chain(of(Role::RolloutGenerator))
             .max();
         let done = done.unwrap_or(0);
-        let abandons = mode == Mode::Pipelined && self.algo == Algo::MBPO && self.stop_after;
+        let abandons = self.pipeline.abandons_training_on_stop(mode) && self.stop_after;
         let model_trainings = if abandons {
             done
         } else {
@@ -157,7 +157,7 @@ impl Barrier {
 /// checkpoints.
 pub fn finish(
     run: &Path,
-    algo: Algo,
+    pipeline: &PipelineSpec,
     cut: Cut,
     state: &SupervisorCheckpoint,
     book: &RunBook,
@@ -174,7 +174,7 @@ pub fn finish(
         barrier::kind::SUPERVISOR,
         state,
     )?;
-    let files = barrier::pipeline_files(algo, state.actors);
+    let files = barrier::pipeline_files(pipeline, state.actors);
     let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
     checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
     checkpoint::prune(run, keep)?;
@@ -185,6 +185,7 @@ pub fn finish(
 /// checked (header, kind and checksum). A checkpoint of `mbpo train` has no launcher's file
 /// and one actor.
 pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
+    let pipeline = pipeline::spec(algo)?;
     let Some((dir, manifest)) = checkpoint::latest(run)? else {
         return Err(RuntimeError::Resume(format!(
             "{} has no complete checkpoint (nothing under {}); start a new run instead",
@@ -199,8 +200,8 @@ pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
     };
     let actors = supervisor.map_or(1, |s| s.actors);
     let files = match supervisor {
-        Some(_) => barrier::pipeline_files(algo, actors),
-        None => barrier::role_files(algo, actors),
+        Some(_) => barrier::pipeline_files(pipeline, actors),
+        None => barrier::role_files(pipeline, actors),
     };
     for (name, kind) in files {
         let path = dir.join(&name);
@@ -238,7 +239,7 @@ mod tests {
         cfg.mbpo.model_train_freq = 250;
         cfg.mpc.init_random_steps = 400;
         cfg.mpc.model_train_freq = 250;
-        let mut b = Barrier::new(algo, 1, stop_after);
+        let mut b = Barrier::new(pipeline::spec(algo).unwrap(), 1, stop_after);
         b.on_report(ProducerId::new(Role::Actor, 0), BarrierReport::Paused(t));
         b.on_report(
             ProducerId::new(Role::ModelTrainer, 0),

@@ -26,6 +26,10 @@ pub struct RealCounts {
     pub received: BTreeMap<String, u64>,
     /// Lost (sequence gaps), summed over consumers.
     pub lost: u64,
+    /// Copied out of shared memory before the consumer took them (it held as many as it may),
+    /// per consumer. 0: every real transition was copied twice on its way to it, by the
+    /// actor's env step into shared memory and from there into its D_env.
+    pub spilled: BTreeMap<String, u64>,
 }
 
 /// A slack value's range over the run, with the bounds the run's rate limits keep it in.
@@ -127,6 +131,7 @@ pub use mbpo_train::run_files::RunBook;
 /// What the supervisor knows about the run.
 pub struct Collector {
     cfg: ExperimentConfig,
+    pipeline: &'static crate::pipeline::PipelineSpec,
     mode: String,
     actors: u16,
     run_id: String,
@@ -146,6 +151,7 @@ impl Collector {
     pub fn new(cfg: &ExperimentConfig, plan: &RunPlan) -> Self {
         Self {
             cfg: cfg.clone(),
+            pipeline: plan.pipeline,
             mode: plan.mode.name().into(),
             actors: plan.actors,
             run_id: plan.run_id.clone(),
@@ -173,7 +179,7 @@ impl Collector {
     /// and pipelined actors can be behind the cut's step: those rows come after the resume).
     pub fn missing_at_cut(&self, t: u64) -> usize {
         let unwritten = self.rows_unwritten_upto(t);
-        if self.mpc() {
+        if self.plans() {
             unwritten.filter(|p| !self.evals.contains_key(p)).count()
         } else {
             unwritten.count()
@@ -208,8 +214,8 @@ impl Collector {
         book.step_seconds.clear();
         for &(t, ret, version) in &book.unwritten_evals {
             self.evals.insert(t, ret);
-            if self.mpc() {
-                self.learner.insert(t, mpc_row(t, version));
+            if self.plans() {
+                self.learner.insert(t, planning_row(t, version));
             }
         }
         self.book = book;
@@ -221,8 +227,8 @@ impl Collector {
             Stats::Episode(e) => self.book.episodes.push((e.env_steps, e.episode_return)),
             Stats::Eval(e) => {
                 self.evals.insert(e.env_steps, e.mean_return);
-                if self.mpc() {
-                    let row = mpc_row(e.env_steps, e.model_version);
+                if self.plans() {
+                    let row = planning_row(e.env_steps, e.model_version);
                     self.learner.insert(e.env_steps, row);
                 }
             }
@@ -245,7 +251,7 @@ impl Collector {
                 self.book.progress = (p.env_steps, p.sac_updates, p.model_version)
             }
             // MPC has no learner: the actors' progress is the run's.
-            Stats::Progress(p) if self.mpc() && from.role() == Some(Role::Actor) => {
+            Stats::Progress(p) if self.plans() && from.role() == Some(Role::Actor) => {
                 self.actor_steps.insert(from, p.env_steps);
                 if p.env_steps > self.book.progress.0 {
                     self.book.progress = (p.env_steps, 0, p.model_version)
@@ -274,13 +280,14 @@ impl Collector {
         done.count() == actors as usize
     }
 
-    /// True when every process reported done (MPC runs have no learner or rollout generator).
+    /// True when every process reported done.
     pub fn all_done(&self, actors: u16) -> bool {
-        self.done.len() == crate::pipeline::roles(self.cfg.algo, actors).len()
+        self.done.len() == self.pipeline.roles(actors).len()
     }
 
-    fn mpc(&self) -> bool {
-        self.cfg.algo == mbpo_train::Algo::MPC
+    /// The actors plan on the model: rows come from model versions, there is no learner.
+    fn plans(&self) -> bool {
+        self.pipeline.plans()
     }
 
     /// Write the rows whose records are all in.
@@ -296,15 +303,15 @@ impl Collector {
             let model = (lr.model_version > 0)
                 .then(|| self.book.models.get(&lr.model_version).copied())
                 .flatten();
-            if self.mpc() && model.is_none() && lr.model_version > 0 {
+            if self.plans() && model.is_none() && lr.model_version > 0 {
                 break; // the model record arrives before its weights; wait for it
             }
-            if self.mpc() && !self.actors_past(t) {
+            if self.plans() && !self.actors_past(t) {
                 // The evaluator may plan for t before the actors get there (the model of t
                 // is older than step t): the row waits for their episodes up to t.
                 break;
             }
-            let mpc = self.mpc();
+            let plans = self.plans();
             let now = started.elapsed().as_secs_f64();
             let dt = (now - self.book.last_row.0).max(1e-9);
             let sps = (t - self.book.last_row.1) as f64 / dt;
@@ -317,12 +324,12 @@ impl Collector {
                 sac_updates: lr.sac_updates,
                 critic_loss: some(lr.critic_loss),
                 actor_loss: some(lr.actor_loss),
-                alpha: (!mpc).then_some(lr.alpha as f64),
+                alpha: (!plans).then_some(lr.alpha as f64),
                 entropy: some(lr.entropy),
                 q_mean: some(lr.q_mean),
                 model_holdout_mse: model,
-                rollout_length: model.filter(|_| !mpc).map(|_| lr.rollout_length as f64),
-                model_buffer: model.filter(|_| !mpc).map(|_| lr.model_buffer as f64),
+                rollout_length: model.filter(|_| !plans).map(|_| lr.rollout_length as f64),
+                model_buffer: model.filter(|_| !plans).map(|_| lr.model_buffer as f64),
                 wall_seconds: now,
                 env_steps_per_sec: sps,
                 updates_per_sec: ups,
@@ -389,7 +396,7 @@ impl Collector {
                     real.produced += d.real;
                     episodes_cut += d.episodes_cut;
                     episodes_lost += d.episodes_lost;
-                    if self.mpc() && d.median_step_seconds > 0.0 {
+                    if self.plans() && d.median_step_seconds > 0.0 {
                         // Median planning time of an MPC step (the slowest actor's).
                         let m = d.median_step_seconds as f64;
                         median = Some(median.map_or(m, |x: f64| x.max(m)));
@@ -401,6 +408,7 @@ impl Collector {
                 Some(r @ (Role::ModelTrainer | Role::RolloutGenerator | Role::Learner)) => {
                     real.received.insert(r.name().to_string(), d.real);
                     real.lost += d.lost;
+                    real.spilled.insert(r.name().to_string(), d.real_spilled);
                     let range = Range {
                         min: d.slack_min,
                         max: d.slack_max,
@@ -429,7 +437,7 @@ impl Collector {
             }
         }
         if lag.min.is_finite() {
-            let highest = (!self.mpc()).then_some(self.slack.policy_lag);
+            let highest = (!self.plans()).then_some(self.slack.policy_lag);
             ratios.actor_policy_lag = lag.allowed(None, highest);
         }
         let after_warmup = self
@@ -477,7 +485,7 @@ impl Collector {
 
 /// MPC has no learner: the evaluator's model version of eval point `t` stands in for the
 /// learner's row.
-fn mpc_row(t: u64, model_version: u64) -> LearnerRow {
+fn planning_row(t: u64, model_version: u64) -> LearnerRow {
     LearnerRow {
         env_steps: t,
         sac_updates: 0,
@@ -515,11 +523,13 @@ mod tests {
         // Extended to 700 steps: eval points 200, 400, 600, 700; the next row is 600's.
         let mut cfg = ExperimentConfig {
             steps: 700,
+            algo: mbpo_train::Algo::MBPO,
             ..Default::default()
         };
         cfg.eval.every = 200;
         cfg.mbpo.init_random_steps = 100;
         let plan = RunPlan {
+            pipeline: crate::pipeline::spec(cfg.algo).unwrap(),
             run_id: "test".into(),
             mode: crate::Mode::Pipelined,
             actors: 1,

@@ -17,7 +17,7 @@ mod signal;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use mbpo_train::{policy_sha256, Algo, ExperimentConfig, RunDir, Schedule};
+use mbpo_train::{policy_sha256, ExperimentConfig, RunDir, Schedule};
 use mbpo_wire::{
     policy_wire_version, ControlCommand, ControlMsg, ControlPublisher, EnvFailed, ProducerId, Role,
     Stats, StatsSubscriber, Transport, Waiter, WeightsKind, WeightsSubscriber, WireNode,
@@ -26,6 +26,7 @@ use mbpo_wire::{
 
 use crate::args::{Mode, Slack};
 use crate::error::ensure_protocol;
+use crate::pipeline::PipelineSpec;
 use crate::process::Dims;
 use crate::{Result, RuntimeError};
 use checkpoints::{Barrier, SupervisorCheckpoint};
@@ -35,6 +36,8 @@ pub use signal::{on_signal, OnSignal, RunState};
 /// What a run is: its id and how its roles hand work to each other.
 #[derive(Debug, Clone)]
 pub struct RunPlan {
+    /// How the run's algorithm runs as a pipeline.
+    pub pipeline: &'static PipelineSpec,
     /// Run id (the run's iceoryx2 services `mbpo/<run id>/...`).
     pub run_id: String,
     /// Hand-off mode.
@@ -56,22 +59,11 @@ pub struct CoordinatorPorts<S: Transport> {
 }
 
 impl<S: Transport> CoordinatorPorts<S> {
-    /// The ports of the coordinator's `node` for a run of `cfg`.
-    pub fn create(node: &WireNode<S>, cfg: &ExperimentConfig, dims: &Dims) -> Result<Self> {
-        let policy = match cfg.algo == Algo::MPC {
-            true => WeightsSubscriber::create(
-                node,
-                WeightsKind::Model,
-                dims.model.layout_hash,
-                dims.model.len(),
-            )?,
-            false => WeightsSubscriber::create(
-                node,
-                WeightsKind::Policy,
-                dims.policy_hash,
-                dims.policy_len,
-            )?,
-        };
+    /// The ports of the coordinator's `node` for a run of `plan`.
+    pub fn create(node: &WireNode<S>, plan: &RunPlan, dims: &Dims) -> Result<Self> {
+        let result = plan.pipeline.result;
+        let (hash, len) = result_layout(result, dims);
+        let policy = WeightsSubscriber::create(node, result, hash, len)?;
         Ok(Self {
             stats: StatsSubscriber::create(node)?,
             policy,
@@ -81,6 +73,14 @@ impl<S: Transport> CoordinatorPorts<S> {
     /// Wake `waiter` on the reports and the final policy.
     pub fn attach<'a>(&'a self, waiter: &mut Waiter<'a, S>) {
         waiter.attach(&self.stats).attach(&self.policy);
+    }
+}
+
+/// The layout hash and length of the weights a run's result is made of.
+fn result_layout(result: WeightsKind, dims: &Dims) -> (u64, usize) {
+    match result {
+        WeightsKind::Model => (dims.model.layout_hash, dims.model.len()),
+        WeightsKind::Policy => (dims.policy_hash, dims.policy_len),
     }
 }
 
@@ -139,9 +139,9 @@ impl Coordinator {
             last_checkpoint = env_steps;
         }
         collector.book.restarts = restarts;
-        let final_wire = match cfg.algo == Algo::MPC {
-            true => schedule.train_points_upto(cfg.steps),
-            false => policy_wire_version(cfg.steps),
+        let final_wire = match plan.pipeline.result {
+            WeightsKind::Model => schedule.train_points_upto(cfg.steps),
+            WeightsKind::Policy => policy_wire_version(cfg.steps),
         };
         Self {
             dims,
@@ -275,7 +275,7 @@ impl Coordinator {
             .book_at(cut.env_steps, started.elapsed().as_secs_f64());
         checkpoints::finish(
             &self.out,
-            self.cfg.algo,
+            self.plan.pipeline,
             cut,
             &state,
             &book,
@@ -386,7 +386,11 @@ impl Coordinator {
         stop_after: bool,
     ) -> Result<()> {
         send_pause(ports, stop_after)?;
-        self.barrier = Some(Barrier::new(self.cfg.algo, self.plan.actors, stop_after));
+        self.barrier = Some(Barrier::new(
+            self.plan.pipeline,
+            self.plan.actors,
+            stop_after,
+        ));
         Ok(())
     }
 
@@ -414,11 +418,11 @@ impl Coordinator {
         run: &mut RunDir,
         started: Instant,
     ) -> Result<PipelineSummary> {
-        let mpc = self.cfg.algo == Algo::MPC;
-        // MPC: the model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
-        let hashed = match mpc {
-            true => self.dims.model.n_params,
-            false => self.dims.policy_len,
+        let result = self.plan.pipeline.result;
+        // A model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
+        let hashed = match result {
+            WeightsKind::Model => self.dims.model.n_params,
+            WeightsKind::Policy => self.dims.policy_len,
         };
         let params = self
             .final_params
@@ -426,7 +430,7 @@ impl Coordinator {
             .map(|p| &p[..hashed.min(p.len())]);
         let sha = params.map(policy_sha256).unwrap_or_default();
         // The policy the run ended with: periodic checkpoints rarely fall on the last step.
-        if let (Some(actor), "completed", false) = (params, status, mpc) {
+        if let (Some(actor), "completed", WeightsKind::Policy) = (params, status, result) {
             mbpo_train::policy_file::write_final_policy(&self.out, self.env_steps(), actor)?;
         }
         let to_target = run
@@ -441,7 +445,7 @@ impl Coordinator {
     /// Roles of the run: learner, model trainer, rollout generator, evaluator and the actors
     /// (MPC: no learner or rollout generator).
     pub fn roles(&self) -> usize {
-        crate::pipeline::roles(self.cfg.algo, self.plan.actors).len()
+        self.plan.pipeline.roles(self.plan.actors).len()
     }
 }
 

@@ -4,8 +4,7 @@
 //! the sequential evaluation points.
 //!
 //! Lockstep: the actor of global step t waits for policy version exactly t − 1. Pipelined: any
-//! version ≥ t − 1 − policy_lag. With algo = "mpc" both plan on the model trainer's ensemble
-//! instead (`planning.rs`).
+//! version ≥ t − 1 − policy_lag. (MPC's planning actors: `planning.rs`.)
 
 use std::time::{Duration, Instant};
 
@@ -17,15 +16,11 @@ use mbpo_wire::*;
 
 use crate::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
 use crate::error::ensure_protocol;
-use crate::services::planning;
 use crate::{Result, *};
 
-/// An actor's service loop (a planning actor's in MPC runs).
+/// An actor's service loop.
 pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, Role::Actor)?;
-    if s.cfg.algo == mbpo_train::Algo::MPC {
-        return planning::act(s);
-    }
+    let s = Process::<S>::open(args, RoleKind::Actor)?;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::<S>::create(&s.node)?;
@@ -119,7 +114,12 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        if let Err(e) = role.act(behaviour) {
+        // The env step writes its transition straight into the sample it is sent in.
+        let t0 = Instant::now();
+        let mut loan = real.loan_rows(1)?;
+        ipc += t0.elapsed();
+        if let Err(e) = role.act_into(behaviour, &mut loan) {
+            drop(loan);
             let (w, c, p) = (&waiter, &control, &stats_pub);
             return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
                 write_at(&role, t - 1, cut)
@@ -141,7 +141,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             env_steps: g,
         };
         let t0 = Instant::now();
-        real.send_batch(role.last_transition(), meta)?;
+        loan.send(meta)?;
         ipc += t0.elapsed();
         if last_progress.elapsed() >= Duration::from_millis(500) {
             last_progress = Instant::now();
@@ -172,12 +172,9 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
     })
 }
 
-/// The evaluator's service loop (the planning evaluator's in MPC runs).
+/// The evaluator's service loop.
 pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, Role::Evaluator)?;
-    if s.cfg.algo == mbpo_train::Algo::MPC {
-        return planning::evaluate(s);
-    }
+    let s = Process::<S>::open(args, RoleKind::Evaluator)?;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::<S>::create(&s.node)?;

@@ -22,7 +22,7 @@ use crate::{Result, RuntimeError, *};
 
 /// The learner's service loop.
 pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, Role::Learner)?;
+    let s = Process::<S>::open(args, RoleKind::Learner)?;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::<S>::create(&s.node)?;
@@ -50,7 +50,6 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         Mode::Pipelined => RateLimiter::pipelined(g, warm, s.slack.update_buffer as f64),
     };
     let mut inbox = RealInbox::new(d.rows());
-    let mut rows = Batch::default();
     let mut batch = ImaginedBatch {
         model_version: 0,
         policy_version: 0,
@@ -126,7 +125,9 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 continue;
             }
         }
-        inbox.pull(&real)?;
+        // The warm-up's transitions go into D_env as they arrive (nothing samples it before
+        // they are all consumed); later ones when the step is consumed.
+        inbox.pull(&real, warm, &mut role)?;
         while let Some(b) = imagined.receive()? {
             b.to_batch(&mut batch.rows);
             let tp = b.header().env_steps + 1;
@@ -198,13 +199,12 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 .cut()
                 .is_some_and(|c| next <= c.env_steps && model_batches >= c.model_trainings);
         if consumed < cfg.steps
-            && inbox.pending() > 0
+            && inbox.received() > consumed
             && imagined_ready
             && limiter.can_insert(consumed, updates)
             && published == consumed
         {
-            inbox.take(1, &mut rows);
-            role.add_real(&rows);
+            inbox.take(next.saturating_sub(inbox.taken()) as usize, &mut role);
             if !schedule.is_warm_up(next) {
                 owed.see(schedule.updates_owed(next) as f64 - updates as f64);
             }
@@ -228,6 +228,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let done = Done {
         real: inbox.received(),
         lost,
+        real_spilled: inbox.spilled(),
         work: updates,
         median_step_seconds: median as f32,
         slack_min: lo,

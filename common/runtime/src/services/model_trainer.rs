@@ -9,7 +9,6 @@
 
 use std::time::{Duration, Instant};
 
-use mbpo_core::Batch;
 use mbpo_model::TrainReport;
 use mbpo_train::roles::{ModelSnapshot, ModelTrainerRole};
 use mbpo_train::Schedule;
@@ -20,7 +19,7 @@ use crate::{Result, *};
 
 /// The model trainer's service loop.
 pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, Role::ModelTrainer)?;
+    let s = Process::<S>::open(args, RoleKind::ModelTrainer)?;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::<S>::create(&s.node)?;
@@ -38,20 +37,21 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let mut role = ModelTrainerRole::new(cfg, d.obs, d.act)?;
     let schedule = s.schedule;
     let mut inbox = RealInbox::new(d.rows());
-    let mut rows = Batch::default();
     let mut flat = Vec::with_capacity(d.model.len());
     let file = barrier::FileTarget::new(
         &args.run_dir,
         barrier::file::MODEL_TRAINER,
         barrier::kind::MODEL_TRAINER,
     );
-    let mpc = cfg.algo == mbpo_train::Algo::MPC;
+    // Planners act on the models: they are republished on resume, and (lockstep) each waits
+    // for the evaluations of the model before it.
+    let plans = s.pipeline.plans();
     let mut prev_train_point = 0;
     if let Some(dir) = &args.resume_from {
         let state: ModelTrainerCheckpoint = file.read(dir)?;
         role.restore(state.role)?;
         inbox.resume_at(role.real_received());
-        if mpc && role.version() > 0 {
+        if plans && role.version() > 0 {
             // The planners' checkpoints hold no model: they plan on this version again. (MBPO:
             // no republish, the rollout generator's checkpoint holds this model version.)
             d.model.encode(&role.snapshot().weights, &mut flat)?;
@@ -68,35 +68,33 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         }
     }
     let mut version = role.version();
-    let at_cut = |role: &mut ModelTrainerRole, rows: &Batch, cut: barrier::Cut| {
-        role.add_real(rows);
+    let at_cut = |role: &mut ModelTrainerRole, cut: barrier::Cut| {
         let state = ModelTrainerCheckpoint {
             role: role.checkpoint(),
         };
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
-    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, at_cut);
+    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, s.mode, at_cut);
     let mut train_points = (1..=cfg.steps)
         .filter(|&t| schedule.train_point(t).is_some())
         .skip(version as usize)
         .peekable();
     while let Some(&t) = train_points.peek() {
-        if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, t - 1, version)? {
+        if !gate.wait_for_real(&mut inbox, &mut role, t - 1, version)? {
             return Ok(());
         }
         let n = match s.mode {
             Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
             Mode::Pipelined => inbox.pending(),
         };
-        inbox.take(n, &mut rows);
-        role.add_real(&rows);
+        inbox.take(n, &mut role);
         tracing::info!(
             "training model v{} for step {t} on {} transitions",
             version + 1,
             role.real_received()
         );
         let started = Instant::now();
-        let abandon = s.mode == Mode::Pipelined && !mpc;
+        let abandon = s.pipeline.abandons_training_on_stop(s.mode);
         let Some((snapshot, report)) = train(&mut role, abandon, &control, version)? else {
             // Back to the gate, which serves the barrier (a resumed run trains again) or stops.
             tracing::info!(
@@ -118,7 +116,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
             epochs: report.epochs as u32,
             seconds: seconds as f32,
         })?;
-        if mpc && s.mode == Mode::Lockstep {
+        if plans && s.mode == Mode::Lockstep {
             if !wait_for_mpc_eval_acks(&schedule, &waiter, &control, prev_train_point, t, version)?
             {
                 return Ok(());
@@ -141,13 +139,14 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     }
     // Take the rest so that no actor blocks and the counts are complete.
     let total = cfg.steps;
-    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, version)? {
+    if !gate.wait_for_real(&mut inbox, &mut role, total, version)? {
         return Ok(());
     }
     let lost = real.stats().missing;
     stats_pub.report(Done {
         real: inbox.received(),
         lost,
+        real_spilled: inbox.spilled(),
         work: version,
         ..Default::default()
     })?;
@@ -155,7 +154,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         "done: {} real transitions received, {lost} lost, {version} trainings",
         inbox.received()
     );
-    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(version))
+    gate.idle_until_stop(&mut inbox, &mut role, Some(version))
 }
 
 /// Train on the role's data, abandoning the training after the epoch under way (`None`; the

@@ -53,7 +53,8 @@ fn pull_model<S: Transport>(
 }
 
 /// A planning actor's service loop (`s`: its opened process).
-pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
+pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
+    let s = Process::<S>::open(args, RoleKind::PlanningActor)?;
     let args = &s.args;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
@@ -153,7 +154,12 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
             break Behaviour::Policy;
         };
         let episodes = role.env_actor().episodes;
-        if let Err(e) = role.act(behaviour) {
+        // The env step writes its transition straight into the sample it is sent in.
+        let t0 = Instant::now();
+        let mut loan = real.loan_rows(1)?;
+        ipc += t0.elapsed();
+        if let Err(e) = role.act_into(behaviour, &mut loan) {
+            drop(loan);
             let (w, c, p) = (&waiter, &control, &stats_pub);
             return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
                 write_at(&role, t - 1, cut)
@@ -177,7 +183,7 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
             env_steps: g,
         };
         let t0 = Instant::now();
-        real.send_batch(role.last_transition(), meta)?;
+        loan.send(meta)?;
         ipc += t0.elapsed();
         // After every planned step (planning takes far longer than a record): the supervisor
         // writes the metrics row of eval point t only once every actor is past t.
@@ -218,7 +224,8 @@ pub fn act<S: Transport>(s: Process<S>) -> Result<()> {
 }
 
 /// The planning evaluator's service loop (`s`: its opened process).
-pub fn evaluate<S: Transport>(s: Process<S>) -> Result<()> {
+pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
+    let s = Process::<S>::open(args, RoleKind::PlanningEvaluator)?;
     let args = &s.args;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;

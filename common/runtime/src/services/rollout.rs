@@ -8,7 +8,6 @@
 
 use std::time::{Duration, Instant};
 
-use mbpo_core::Batch;
 use mbpo_train::roles::RolloutRole;
 use mbpo_wire::*;
 
@@ -18,7 +17,7 @@ use crate::{Result, *};
 
 /// The rollout generator's service loop.
 pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, Role::RolloutGenerator)?;
+    let s = Process::<S>::open(args, RoleKind::RolloutGenerator)?;
     let (cfg, d) = (&s.cfg, s.dims);
     let control = ControlInbox::create(&s.node)?;
     let stats_pub = StatsPublisher::<S>::create(&s.node)?;
@@ -45,7 +44,6 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let mut role = RolloutRole::new(cfg, d.obs, d.act)?;
     let schedule = s.schedule;
     let mut inbox = RealInbox::new(d.rows());
-    let mut rows = Batch::default();
     let mut model_version = 0;
     let mut staleness = SlackTracker::default();
     let mut branches = 0;
@@ -62,15 +60,14 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         inbox.resume_at(role.real_received());
     }
     // At the cut the branches done are the cut's K.
-    let at_cut = |role: &mut RolloutRole, rows: &Batch, cut: barrier::Cut| {
-        role.add_real(rows);
+    let at_cut = |role: &mut RolloutRole, cut: barrier::Cut| {
         let state = RolloutCheckpoint {
             role: role.checkpoint(),
             branches: cut.model_trainings,
         };
         barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
     };
-    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, at_cut);
+    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, s.mode, at_cut);
     let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
     for t in train_points.skip(branches as usize) {
         let epoch = schedule.train_point(t).expect("train point");
@@ -82,7 +79,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 t - 1
             )
         };
-        let ready = |role: &mut RolloutRole, inbox: &RealInbox| {
+        let ready = |role: &mut RolloutRole, inbox: &RealInbox<S>| {
             if let Some(w) = model.receive_latest()? {
                 role.load_model(w.version(), |m| d.model.load_into(w.params(), m))?;
                 model_version = w.version();
@@ -94,7 +91,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
                 && role.policy_version() >= need_policy
                 && inbox.received() >= t - 1)
         };
-        if !gate.wait_until(&mut inbox, &mut rows, &mut role, branches, &what, ready)? {
+        if !gate.wait_until(&mut inbox, &mut role, branches, t - 1, &what, ready)? {
             return Ok(());
         }
         if s.mode == Mode::Lockstep {
@@ -110,8 +107,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
             Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
             Mode::Pipelined => inbox.pending(),
         };
-        inbox.take(n, &mut rows);
-        role.add_real(&rows);
+        inbox.take(n, &mut role);
         let started = Instant::now();
         let batch = role.branch(epoch)?;
         let seconds = started.elapsed().as_secs_f64();
@@ -140,7 +136,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         );
     }
     let total = cfg.steps;
-    if !gate.wait_for_real(&mut inbox, &mut rows, &mut role, total, branches)? {
+    if !gate.wait_for_real(&mut inbox, &mut role, total, branches)? {
         return Ok(());
     }
     let (lo, hi, mean) = staleness.get();
@@ -148,6 +144,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let done = Done {
         real: inbox.received(),
         lost,
+        real_spilled: inbox.spilled(),
         work: branches,
         slack_min: lo,
         slack_max: hi,
@@ -159,5 +156,5 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         "done: {} real transitions received, {lost} lost, {branches} branches",
         inbox.received()
     );
-    gate.idle_until_stop(&mut inbox, &mut rows, &mut role, Some(branches))
+    gate.idle_until_stop(&mut inbox, &mut role, Some(branches))
 }

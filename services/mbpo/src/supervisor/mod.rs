@@ -167,6 +167,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         .unwrap_or(now);
     let cx = AttemptCtx {
         args,
+        pipeline: pipeline::spec(cfg.algo)?,
         cfg: &cfg,
         ipc: &ipc,
         run_id: &run_id,
@@ -397,6 +398,7 @@ fn roll_back(
 /// Everything one attempt of the pipeline needs.
 struct AttemptCtx<'a> {
     args: &'a RunArgs,
+    pipeline: &'static pipeline::PipelineSpec,
     cfg: &'a mbpo_train::ExperimentConfig,
     ipc: &'a RunIpc,
     run_id: &'a str,
@@ -430,7 +432,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
     if let Some(dir) = resume {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
-    let roles = pipeline::roles(cx.cfg.algo, args.actors);
+    let roles = cx.pipeline.roles(args.actors);
     roles
         .into_iter()
         .enumerate()
@@ -473,13 +475,14 @@ fn supervise(
 ) -> anyhow::Result<Attempt> {
     let node = coordinator::node::<ipc::Service>(cx.ipc)?;
     let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
-    let ports = CoordinatorPorts::create(&node, cx.cfg, &dims)?;
     let plan = RunPlan {
+        pipeline: cx.pipeline,
         run_id: cx.run_id.into(),
         mode: cx.args.mode,
         actors: cx.args.actors,
         slack: cx.args.slack,
     };
+    let ports = CoordinatorPorts::create(&node, &plan, &dims)?;
     if let Some(p) = &resume {
         tracing::info!(
             "resuming from {} (after step {})",
@@ -666,9 +669,9 @@ fn stop_processes(procs: &mut [Proc], interrupted: bool) -> anyhow::Result<()> {
 
 /// What `mbpo run` cannot run: SAC, lockstep with several actors, no actors.
 fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow::Result<()> {
-    if !pipeline::runs(cfg.algo) {
+    if let Err(e) = pipeline::spec(cfg.algo) {
         bail!(
-            "mbpo run runs MBPO or MPC; the config says algo = \"{}\" (run it with `mbpo train`)",
+            "mbpo run: {e}; the config says algo = \"{}\"",
             cfg.algo.name()
         );
     }
