@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use mbpo_integration_tests::*;
-use mbpo_train::{checkpoint, train_mbpo, ExperimentConfig};
+use mbpo_train::{checkpoint, train_mbpo, train_mpc, ExperimentConfig};
 
 const TIMEOUT: Duration = Duration::from_secs(180);
 
@@ -264,5 +264,57 @@ fn a_python_env_dies_with_its_actor() {
         std::thread::sleep(Duration::from_millis(50));
     }
     assert!(python().is_empty(), "orphaned: {:?}", python());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// MPC plans with the rule of a Python env too: the learned one (the default for a gym: env)
+/// reaches the planning actor with each model snapshot, so lockstep still equals the
+/// sequential run; a Python rule is started by the planner; and the rule changes what MPC
+/// does.
+#[test]
+fn mpc_plans_with_a_learned_or_a_python_termination_rule() {
+    let mut cfg = tiny_mpc_config(300);
+    cfg.env = "gym:mbpo_test_envs:Drift".into();
+    cfg.gym.path = vec![test_envs_dir()];
+    cfg.gym.max_episode_steps = Some(50);
+    cfg.gym.kwargs.insert("terminate_beyond".into(), 1.2.into());
+    cfg.mpc.reward = mbpo_train::PlanReward::Model;
+    assert_eq!(
+        cfg.termination(),
+        Ok(mbpo_train::env_config::Termination::Learned)
+    );
+    let dir = scratch("gym-mpc-rules");
+    let input = write_config(&cfg, &dir);
+    bin_dir();
+    let root = ipc_root("gymmpc");
+    let out = dir.join("run");
+    let child = spawn_run(&run_args(&input, &out, &root, &["--mode", "lockstep"]));
+    let learned = train_mpc(&cfg, &dir.join("sequential")).unwrap();
+    let o = wait_output(child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        summary(&out)["policy_sha256"],
+        learned.policy_sha256.as_str()
+    );
+    assert_eq!(
+        metrics_without_timing(&out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    let log = std::fs::read_to_string(out.join("logs/model-trainer.log")).unwrap();
+    let line = log.lines().rfind(|l| l.contains("learned termination"));
+    assert!(
+        line.is_some_and(|l| !l.contains("from 0 terminal rows")),
+        "{log}"
+    );
+
+    cfg.termination = Some("python:mbpo_test_envs:beyond_1_2".into());
+    let python = train_mpc(&cfg, &dir.join("python")).unwrap();
+    cfg.termination = Some("never".into());
+    let never = train_mpc(&cfg, &dir.join("never")).unwrap();
+    assert_eq!(python.status, "completed");
+    assert_ne!(
+        python.policy_sha256, never.policy_sha256,
+        "the rule is in effect"
+    );
     let _ = std::fs::remove_dir_all(dir);
 }

@@ -63,8 +63,8 @@ pub use grad::MeanTape;
 pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
 pub use rollout::{
-    rollout_length, BatchTermination, ModelPoolSizing, RolloutStats, RolloutTermination,
-    Termination,
+    rollout_length, BatchTermination, ModelPoolSizing, RolloutRule, RolloutStats,
+    RolloutTermination, Termination,
 };
 pub use termination::{TerminationClassifier, TerminationReport, TerminationWeights};
 pub use train::{

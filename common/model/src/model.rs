@@ -245,6 +245,24 @@ impl ProbabilisticEnsemble {
         }
     }
 
+    /// `done` of `n` transitions (row-major `obs`, `act`, `next_obs`) by the learned rule,
+    /// into `out`; an error when the model learns none.
+    pub fn predict_terminated(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), crate::RolloutError> {
+        let c = self
+            .termination
+            .as_mut()
+            .ok_or(crate::RolloutError::NoTerminationRule)?;
+        c.predict(obs, act, next_obs, n, out);
+        Ok(())
+    }
+
     /// The learned termination rule (`None` unless `config.learn_termination`).
     pub fn termination(&self) -> Option<&TerminationClassifier> {
         self.termination.as_ref()

@@ -31,6 +31,61 @@ pub enum RolloutTermination<'a> {
     Learned,
 }
 
+/// A termination rule as a rollout generator or a planner holds it (a config's `termination`,
+/// built by `ExperimentConfig::rollout_termination`).
+pub enum RolloutRule {
+    /// A Rust function of one transition.
+    Rule(mbpo_envs::TerminationFn),
+    /// The model's learned rule.
+    Learned,
+    /// A Python function over each step's batch, in its own process.
+    Python(mbpo_envs::PythonTermination),
+}
+
+impl RolloutRule {
+    /// Run `f` with the rule as a rollout takes it (a Python rule as a closure that lives as
+    /// long as the call).
+    pub fn with<R>(&mut self, f: impl FnOnce(RolloutTermination) -> R) -> R {
+        match self {
+            RolloutRule::Rule(rule) => f(RolloutTermination::Rule(rule)),
+            RolloutRule::Learned => f(RolloutTermination::Learned),
+            RolloutRule::Python(p) => {
+                let mut batch = |o: &[f32], a: &[f32], n: &[f32], k: usize, out: &mut [bool]| {
+                    p.done_batch(o, a, n, k, out).map_err(|e| e.to_string())
+                };
+                f(RolloutTermination::Batch(&mut batch))
+            }
+        }
+    }
+
+    /// `done` of `n` transitions (row-major `obs`, `act`, `next_obs`) into `out`; the learned
+    /// rule is `model`'s.
+    pub fn done_batch(
+        &mut self,
+        model: &mut ProbabilisticEnsemble,
+        obs: &[f32],
+        act: &[f32],
+        next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), RolloutError> {
+        let (o, a) = (model.obs_dim(), model.act_dim());
+        match self {
+            RolloutRule::Rule(rule) => {
+                for (r, done) in out[..n].iter_mut().enumerate() {
+                    let (s, s_next) = (&obs[r * o..(r + 1) * o], &next_obs[r * o..(r + 1) * o]);
+                    *done = rule(s, &act[r * a..(r + 1) * a], s_next);
+                }
+                Ok(())
+            }
+            RolloutRule::Learned => model.predict_terminated(obs, act, next_obs, n, out),
+            RolloutRule::Python(p) => p
+                .done_batch(obs, act, next_obs, n, out)
+                .map_err(|e| RolloutError::Termination(e.to_string())),
+        }
+    }
+}
+
 /// What one call of [`ProbabilisticEnsemble::rollout`] produced.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RolloutStats {

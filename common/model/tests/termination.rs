@@ -4,7 +4,9 @@
 
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{Batch, ReplayBuffer, UniformPolicy};
-use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination, TerminationClassifier};
+use mbpo_model::{
+    ModelConfig, ProbabilisticEnsemble, RolloutRule, RolloutTermination, TerminationClassifier,
+};
 
 const OBS: usize = 3;
 const ACT: usize = 1;
@@ -192,4 +194,56 @@ fn the_learned_rule_travels_with_the_weights_and_the_checkpoint() {
     let rb = b.train(&d, &mut stream(0, "again", 0)).unwrap();
     assert_eq!(ra.termination, rb.termination);
     assert_eq!(a.weights(), b.weights());
+}
+
+/// The exact rule of [`data`], as a task's Rust rule.
+fn beyond_1_8(_obs: &[f32], _act: &[f32], next_obs: &[f32]) -> bool {
+    next_obs[0].abs() > 1.8
+}
+
+/// A planner asks a [`RolloutRule`] for a whole batch: the learned rule agrees with the exact
+/// one on fresh transitions, a Rust rule is applied row by row, and a model without a learned
+/// rule is refused by name.
+#[test]
+fn a_rollout_rule_answers_for_a_batch() {
+    let mut m = learned_model();
+    let fresh = data(2000, 5);
+    let want: Vec<bool> = fresh.terminated.iter().map(|&t| t > 0.5).collect();
+    let mut done = vec![false; fresh.len];
+    let (o, a, s) = (&fresh.obs, &fresh.act, &fresh.next_obs);
+    RolloutRule::Rule(beyond_1_8)
+        .done_batch(&mut m, o, a, s, fresh.len, &mut done)
+        .unwrap();
+    assert_eq!(done, want);
+    RolloutRule::Learned
+        .done_batch(&mut m, o, a, s, fresh.len, &mut done)
+        .unwrap();
+    let agree = done.iter().zip(&want).filter(|(p, t)| p == t).count();
+    assert!(
+        agree as f64 / fresh.len as f64 > 0.95,
+        "{agree} of {}",
+        fresh.len
+    );
+    assert!(
+        done.iter().any(|&d| d),
+        "some fresh transitions are terminal"
+    );
+
+    let mut plain = ProbabilisticEnsemble::new(
+        OBS,
+        ACT,
+        ModelConfig {
+            learn_termination: false,
+            ..m.config().clone()
+        },
+        &mut stream(0, "term.plain", 0),
+    )
+    .unwrap();
+    let err = RolloutRule::Learned
+        .done_batch(&mut plain, o, a, s, fresh.len, &mut done)
+        .unwrap_err();
+    assert!(
+        matches!(err, mbpo_model::RolloutError::NoTerminationRule),
+        "{err}"
+    );
 }

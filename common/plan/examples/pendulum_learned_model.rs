@@ -94,7 +94,7 @@ fn main() {
     let mut em = EnsembleModel::new(
         model,
         RewardSource::Known(reward_fn("Pendulum-v1").unwrap()),
-        termination_fn("Pendulum-v1"),
+        termination_fn("Pendulum-v1").map(mbpo_model::RolloutRule::Rule),
         &[-2.0],
         &[2.0],
     )

@@ -107,7 +107,7 @@ pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanEr
     let mut model = EnsembleModel::new(
         ensemble,
         reward,
-        mbpo_envs::termination_fn(&cfg.env),
+        mbpo_envs::termination_fn(&cfg.env).map(mbpo_model::RolloutRule::Rule),
         &space.low,
         &space.high,
     )?;

@@ -1,6 +1,6 @@
 //! Errors of planning.
 
-use mbpo_model::PredictError;
+use mbpo_model::{PredictError, RolloutError};
 
 /// Why a plan could not be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -9,6 +9,9 @@ pub enum PlanError {
     /// The model rejected a prediction (lengths, member index).
     #[error("model prediction: {0}")]
     Predict(#[from] PredictError),
+    /// The termination rule failed (a Python rule's exception, a model without a learned rule).
+    #[error("termination rule: {0}")]
+    Termination(#[from] RolloutError),
     /// A member slot outside the model's members.
     #[error("member slot {member} out of range: the model has {members} members to plan with")]
     Member {

@@ -69,6 +69,8 @@ struct Tape {
     reward: Vec<f32>,
     /// alive_t of every row (`H x R`): 1 until the row's episode has terminated.
     alive: Vec<f32>,
+    /// Scratch: done of the previous step's transitions.
+    done: Vec<bool>,
     d_reward: Vec<f32>,
     lambda: Vec<f32>,
     d_obs: Vec<f32>,
@@ -157,6 +159,7 @@ impl GradientPlanner {
         t.act.resize(h * rows * a, 0.0);
         t.reward.resize(rows, 0.0);
         t.alive.resize(h * rows, 0.0);
+        t.done.resize(rows, false);
         t.total.clear();
         t.total.resize(rows, 0.0);
         for r in 0..rows {
@@ -173,15 +176,17 @@ impl GradientPlanner {
             let s_next = &mut next[..rows * o];
             let a_t = &t.act[step * rows * a..(step + 1) * rows * a];
             model.mean_step_recorded(step, s_t, a_t, &self.row_member, &mut t.reward, s_next)?;
+            if step > 0 {
+                model.terminated(
+                    &t.obs[(step - 1) * rows * o..step * rows * o],
+                    &t.act[(step - 1) * rows * a..step * rows * a],
+                    &t.obs[step * rows * o..(step + 1) * rows * o],
+                    rows,
+                    &mut t.done[..rows],
+                )?;
+            }
             for r in 0..rows {
-                let was_alive = step == 0
-                    || (t.alive[(step - 1) * rows + r] > 0.0
-                        && !model.terminated(
-                            &t.obs[(step - 1) * rows * o + r * o
-                                ..(step - 1) * rows * o + (r + 1) * o],
-                            &t.act[((step - 1) * rows + r) * a..((step - 1) * rows + r + 1) * a],
-                            &t.obs[step * rows * o + r * o..step * rows * o + (r + 1) * o],
-                        ));
+                let was_alive = step == 0 || (t.alive[(step - 1) * rows + r] > 0.0 && !t.done[r]);
                 t.alive[step * rows + r] = if was_alive { 1.0 } else { 0.0 };
                 if was_alive {
                     t.total[r] += t.reward[r] as f64;

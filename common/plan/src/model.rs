@@ -7,8 +7,8 @@
 
 use crate::error::PlanError;
 use mbpo_core::Rng;
-use mbpo_envs::{RewardFn, TerminationFn};
-use mbpo_model::{MeanTape, ProbabilisticEnsemble};
+use mbpo_envs::RewardFn;
+use mbpo_model::{MeanTape, ProbabilisticEnsemble, RolloutRule};
 
 /// A one-step model of the environment, queried in batches of rows.
 ///
@@ -36,10 +36,18 @@ pub trait PlanningModel {
         next_obs: &mut [f32],
     ) -> Result<(), PlanError>;
 
-    /// Whether the transition ends the episode (the task's termination rule); rewards after it
-    /// do not count. Default: never.
-    fn terminated(&self, _obs: &[f32], _act: &[f32], _next_obs: &[f32]) -> bool {
-        false
+    /// Whether each of `n` transitions (row-major `obs`, `act`, `next_obs`) ends the episode,
+    /// into `out`: rewards after it do not count. Default: never.
+    fn terminated(
+        &mut self,
+        _obs: &[f32],
+        _act: &[f32],
+        _next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), PlanError> {
+        out[..n].fill(false);
+        Ok(())
     }
 
     /// Mean (noise-free) one-step predictions like [`PlanningModel::step`], recorded in slot `t`
@@ -90,7 +98,7 @@ pub enum RewardSource {
 pub struct EnsembleModel {
     ensemble: ProbabilisticEnsemble,
     reward: RewardSource,
-    termination: Option<TerminationFn>,
+    termination: Option<RolloutRule>,
     /// Environment action box (for the known reward).
     low: Vec<f32>,
     high: Vec<f32>,
@@ -113,11 +121,11 @@ pub struct EnsembleModel {
 
 impl EnsembleModel {
     /// Plan with `ensemble`; `low`/`high` is the environment's action box, `termination` the
-    /// task's rule (None: never terminates).
+    /// task's rule, the ensemble's learned one or a Python one (None: never terminates).
     pub fn new(
         ensemble: ProbabilisticEnsemble,
         reward: RewardSource,
-        termination: Option<TerminationFn>,
+        termination: Option<RolloutRule>,
         low: &[f32],
         high: &[f32],
     ) -> Result<Self, PlanError> {
@@ -234,8 +242,21 @@ impl PlanningModel for EnsembleModel {
         Ok(())
     }
 
-    fn terminated(&self, obs: &[f32], act: &[f32], next_obs: &[f32]) -> bool {
-        self.termination.is_some_and(|f| f(obs, act, next_obs))
+    fn terminated(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), PlanError> {
+        match &mut self.termination {
+            Some(rule) => Ok(rule.done_batch(&mut self.ensemble, obs, act, next_obs, n, out)?),
+            None => {
+                out[..n].fill(false);
+                Ok(())
+            }
+        }
     }
 
     fn mean_step_recorded(

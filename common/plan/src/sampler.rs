@@ -34,6 +34,7 @@ pub struct TrajectorySampler {
     act: Vec<f32>,
     reward: Vec<f32>,
     alive: Vec<bool>,
+    done: Vec<bool>,
     total: Vec<f64>,
 }
 
@@ -111,7 +112,7 @@ impl TrajectorySampler {
                 &mut self.reward[..rows],
                 &mut self.next_obs[..rows * o],
             )?;
-            self.accumulate(model, rows, o, a);
+            self.accumulate(model, rows, o, a)?;
             std::mem::swap(&mut self.obs, &mut self.next_obs);
         }
         for (c, ret) in returns.iter_mut().enumerate() {
@@ -128,20 +129,30 @@ impl TrajectorySampler {
 
     /// Add step rewards of live rows; a row that terminates keeps the reward of its last
     /// transition and nothing after it (mbrl-lib's `evaluate_action_sequences`).
-    fn accumulate(&mut self, model: &dyn PlanningModel, rows: usize, o: usize, a: usize) {
+    fn accumulate(
+        &mut self,
+        model: &mut dyn PlanningModel,
+        rows: usize,
+        o: usize,
+        a: usize,
+    ) -> Result<(), PlanError> {
+        model.terminated(
+            &self.obs[..rows * o],
+            &self.act[..rows * a],
+            &self.next_obs[..rows * o],
+            rows,
+            &mut self.done[..rows],
+        )?;
         for r in 0..rows {
             if !self.alive[r] {
                 continue;
             }
             self.total[r] += self.reward[r] as f64;
-            if model.terminated(
-                &self.obs[r * o..(r + 1) * o],
-                &self.act[r * a..(r + 1) * a],
-                &self.next_obs[r * o..(r + 1) * o],
-            ) {
+            if self.done[r] {
                 self.alive[r] = false;
             }
         }
+        Ok(())
     }
 
     fn resize(&mut self, rows: usize, o: usize, a: usize) {
@@ -158,6 +169,7 @@ impl TrajectorySampler {
         if self.row_member.len() < rows {
             self.row_member.resize(rows, 0);
             self.alive.resize(rows, true);
+            self.done.resize(rows, false);
             self.total.resize(rows, 0.0);
         }
     }

@@ -590,27 +590,13 @@ impl ExperimentConfig {
             ));
         }
         if matches!(self.algo, Algo::MBPO | Algo::MPC) || self.termination.is_some() {
-            let rule = self.termination().map_err(|expected| {
+            self.termination().map_err(|expected| {
                 let found = self
                     .termination
                     .as_ref()
                     .map_or("nothing".into(), |t| format!("{t:?}"));
                 bad("termination", &expected, found)
             })?;
-            use crate::env_config::Termination;
-            if self.algo == Algo::MPC
-                && matches!(rule, Termination::Learned | Termination::Python(_))
-            {
-                return Err(bad(
-                    "termination",
-                    "\"never\" or a built-in task's rule for MPC (learned and Python rules are \
-                     for MBPO's model rollouts; planning does not use them yet)",
-                    match rule {
-                        Termination::Python(t) => format!("\"python:{t}\""),
-                        _ => "\"learned\" (the default for a gym: env)".into(),
-                    },
-                ));
-            }
         }
         if let Some(p) = self.gym.path.iter().find(|p| !p.is_dir()) {
             return Err(bad(

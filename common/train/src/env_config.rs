@@ -13,6 +13,7 @@
 //! ```
 
 use mbpo_envs::{termination, Env, EnvError, GymSpec, TerminationFn, GYM_PREFIX};
+pub use mbpo_model::RolloutRule;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
@@ -47,35 +48,6 @@ pub enum Termination {
     /// A Python function `module:function` of `obs, act, next_obs` (NumPy arrays, n rows)
     /// returning n booleans ([`mbpo_envs::PythonTermination`]).
     Python(String),
-}
-
-/// The termination rule a rollout generator holds (built by
-/// [`ExperimentConfig::rollout_termination`]).
-pub enum RolloutRule {
-    /// A Rust function of one transition.
-    Rule(TerminationFn),
-    /// The model's learned rule.
-    Learned,
-    /// A Python function over each step's batch, in its own process.
-    Python(mbpo_envs::PythonTermination),
-}
-
-impl RolloutRule {
-    /// Run `f` with the rule as a rollout takes it (a Python rule as a closure that lives as
-    /// long as the call).
-    pub fn with<R>(&mut self, f: impl FnOnce(mbpo_model::RolloutTermination) -> R) -> R {
-        use mbpo_model::RolloutTermination as T;
-        match self {
-            RolloutRule::Rule(rule) => f(T::Rule(rule)),
-            RolloutRule::Learned => f(T::Learned),
-            RolloutRule::Python(p) => {
-                let mut batch = |o: &[f32], a: &[f32], n: &[f32], k: usize, out: &mut [bool]| {
-                    p.done_batch(o, a, n, k, out).map_err(|e| e.to_string())
-                };
-                f(T::Batch(&mut batch))
-            }
-        }
-    }
 }
 
 impl ExperimentConfig {

@@ -64,7 +64,7 @@ pub fn planning_model(cfg: &ExperimentConfig, env: &dyn Env) -> Result<EnsembleM
     EnsembleModel::new(
         ensemble,
         reward,
-        cfg.termination_fn().map_err(TrainError::Config)?,
+        Some(cfg.rollout_termination(o, a)?),
         &space.low,
         &space.high,
     )

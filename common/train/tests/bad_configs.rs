@@ -100,20 +100,12 @@ const CASES: &[(&str, &[&str])] = &[
         ],
     ),
     (
-        "algo = \"mpc\"\nenv = \"gym:Pendulum-v1\"\n[mpc]\nreward = \"model\"",
-        &["`termination`", "for MPC", "\"learned\""],
-    ),
-    (
         "algo = \"mbpo\"\ntermination = \"python:my_rules\"",
         &[
             "`termination`",
             "python:<module>:<function>",
             "\"python:my_rules\"",
         ],
-    ),
-    (
-        "algo = \"mpc\"\n termination = \"python:rules:done\"\n[mpc]\nreward = \"model\"",
-        &["`termination`", "for MPC", "\"python:rules:done\""],
     ),
     (
         "[gym]\nmax_episode_steps = 50",
