@@ -111,6 +111,15 @@ fn learned_model() -> ProbabilisticEnsemble {
     m
 }
 
+/// `m`'s architecture without a learned termination rule.
+fn without_learned_rule(m: &ProbabilisticEnsemble) -> ProbabilisticEnsemble {
+    let cfg = ModelConfig {
+        learn_termination: false,
+        ..m.config().clone()
+    };
+    ProbabilisticEnsemble::new(OBS, ACT, cfg, &mut stream(0, "term.plain", 0)).unwrap()
+}
+
 #[test]
 fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
     let mut m = learned_model();
@@ -150,16 +159,7 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
     assert_eq!(flags.iter().filter(|&&f| f).count(), stats.terminated);
 
     // A model without a learned rule needs the task's.
-    let mut plain = ProbabilisticEnsemble::new(
-        OBS,
-        ACT,
-        ModelConfig {
-            learn_termination: false,
-            ..m.config().clone()
-        },
-        &mut stream(0, "term.plain", 0),
-    )
-    .unwrap();
+    let mut plain = without_learned_rule(&m);
     let e = plain
         .rollout(
             &start,
@@ -229,16 +229,7 @@ fn a_rollout_rule_answers_for_a_batch() {
         "some fresh transitions are terminal"
     );
 
-    let mut plain = ProbabilisticEnsemble::new(
-        OBS,
-        ACT,
-        ModelConfig {
-            learn_termination: false,
-            ..m.config().clone()
-        },
-        &mut stream(0, "term.plain", 0),
-    )
-    .unwrap();
+    let mut plain = without_learned_rule(&m);
     let err = RolloutRule::Learned
         .done_batch(&mut plain, o, a, s, fresh.len, &mut done)
         .unwrap_err();
