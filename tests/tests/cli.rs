@@ -402,3 +402,50 @@ fn learning_bench_logs_each_seed_into_its_run() {
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `mbpo chaos` runs the pipeline with kills and reports each run: one run, one kill, which
+/// restarts the pipeline; the run completes with every transition received by every consumer
+/// and nothing left behind, and the report says so.
+#[test]
+fn chaos_kills_a_process_and_reports_the_run() {
+    let dir = scratch("cli-chaos");
+    let out = mbpo()
+        .args(["chaos", "--config"])
+        .arg(config_file())
+        .args(["--steps", "1200", "--set", "checkpoint.every=100"])
+        .args(["--runs", "1", "--kills", "1", "--actors", "2", "--out"])
+        .arg(dir.join("chaos"))
+        .stderr(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2, "{text}");
+    let (run, totals) = (&lines[0], &lines[1]);
+    assert_eq!(run["killed"].as_array().map(Vec::len), Some(1), "{run}");
+    assert_eq!(run["restarts"], 1, "{run}");
+    assert_eq!(run["completed"], true, "{run}");
+    assert_eq!(
+        run["every_consumer_received_every_transition"], true,
+        "{run}"
+    );
+    assert_eq!(
+        (run["lost"].as_u64(), run["produced"].as_u64()),
+        (Some(0), Some(1200))
+    );
+    assert_eq!(
+        (&run["shm_left"], &run["orphans"]),
+        (&0.into(), &0.into()),
+        "{run}"
+    );
+    assert_eq!(
+        (&totals["runs"], &totals["completed"]),
+        (&1.into(), &1.into())
+    );
+    assert!(dir.join("chaos/chaos.json").is_file());
+    let _ = std::fs::remove_dir_all(dir);
+}

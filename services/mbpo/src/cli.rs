@@ -32,6 +32,47 @@ pub enum Command {
     /// Micro-benchmarks that print one JSON object per line.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Chaos: run the pipeline several times with `--restart on-failure`, SIGKILL random
+    /// processes at random times, and report per run whether it completed with nothing lost
+    /// and nothing left behind (lockstep: on the sequential run's policy). One JSON line per
+    /// run and one for all; `<out>/chaos.json`.
+    Chaos(ChaosArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ChaosArgs {
+    #[command(flatten)]
+    pub source: ConfigSource,
+    /// Total real env steps of each run (overrides the config's `steps`). Set
+    /// `checkpoint.every` well below it (`--set checkpoint.every=100`): a kill waits for a
+    /// checkpoint, and a restart resumes from the newest one.
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Runs.
+    #[arg(long, default_value_t = 5)]
+    pub runs: u64,
+    /// SIGKILLs per run (each once the previous restart is up).
+    #[arg(long, default_value_t = 2)]
+    pub kills: u32,
+    /// Hand-off mode.
+    #[arg(long, value_enum, default_value = "pipelined")]
+    pub mode: mbpo_runtime::Mode,
+    /// Training actors.
+    #[arg(long, default_value_t = 1)]
+    pub actors: u16,
+    /// Kill points are uniform over the run's first 90 % of env steps (as the newest checkpoint
+    /// shows them); a kill then comes a uniform random 0..this many seconds later.
+    #[arg(long, default_value_t = 0.5)]
+    pub max_delay_seconds: f64,
+    /// Seed of the kill schedule (which process, when).
+    #[arg(long, default_value_t = 0)]
+    pub kill_seed: u64,
+    /// Output directory: the runs and `chaos.json`.
+    #[arg(long, default_value = "runs/chaos")]
+    pub out: std::path::PathBuf,
+    /// Base directory of the runs' iceoryx2 files (as `mbpo run --ipc-root`; keep it short).
+    #[arg(long, default_value = "/tmp/mbpo-ipc")]
+    pub ipc_root: std::path::PathBuf,
 }
 
 #[derive(Debug, Subcommand)]

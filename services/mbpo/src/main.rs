@@ -2,6 +2,7 @@
 //! the command's `run`; everything testable lives in the `common/` crates.
 
 mod bench;
+mod chaos;
 mod cli;
 mod env_cmd;
 mod logging;
@@ -57,5 +58,6 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Bench(cmd) => bench::run(cmd),
+        cli::Command::Chaos(args) => chaos::run(&args),
     }
 }
