@@ -463,6 +463,8 @@ struct LoopEnd {
     crashed: Option<String>,
     interrupted: bool,
     stopped: bool,
+    /// Every role is done, the final policy is in and the last step is checkpointed.
+    finished: bool,
 }
 
 /// One attempt: start every role process, coordinate the run until it ends, fails, is
@@ -510,17 +512,8 @@ fn supervise(
             tail.map(|p| format!("; last lines of {}:\n{}", p.log.display(), p.log_tail(12)));
         failure = Some(anyhow::anyhow!("{why}{}", tail.unwrap_or_default()));
     }
-    for p in &procs {
-        match p.exit {
-            Some(s) if !s.success() && failure.is_none() && !end.interrupted => {
-                failure = Some(anyhow::anyhow!(
-                    "{} exited with {s}; see {}",
-                    p.name,
-                    p.log.display()
-                ))
-            }
-            _ => {}
-        }
+    if failure.is_none() && !end.interrupted {
+        failure = exit_failure(&procs, end.finished);
     }
     if end.interrupted && failure.is_none() {
         failure = Some(anyhow::anyhow!(
@@ -536,6 +529,22 @@ fn supervise(
     };
     let report = coord.finish(status, run_dir, cx.started)?;
     Ok(Attempt::Finished(Box::new(report), failure))
+}
+
+/// The first process that exited abnormally after the Stop, as the run's failure -- unless the
+/// run had `finished` (every role done, the final policy in, the last step checkpointed): then
+/// nothing of it is lost, and a process killed while stopping (the OOM killer, a stray
+/// SIGKILL) is only a warning.
+fn exit_failure(procs: &[Proc], finished: bool) -> Option<anyhow::Error> {
+    let (p, s) = procs
+        .iter()
+        .find_map(|p| p.exit.filter(|s| !s.success()).map(|s| (p, s)))?;
+    let what = format!("{} exited with {s}; see {}", p.name, p.log.display());
+    if finished {
+        tracing::warn!("{what} (while stopping: the run had finished and is complete)");
+        return None;
+    }
+    Some(anyhow::anyhow!(what))
 }
 
 /// The attempt's loop: sleep on the coordinator's ports, answer signals, let the coordinator
@@ -576,7 +585,10 @@ fn coordinate(
         }
         match coord.advance(ports, run_dir, cx.started)? {
             Phase::Running => {}
-            Phase::Finished => break,
+            Phase::Finished => {
+                end.finished = true;
+                break;
+            }
             Phase::Stopped => {
                 end.stopped = true;
                 break;
