@@ -281,17 +281,7 @@ pub fn logged_pid(log: &Path, timeout: Duration) -> Option<i32> {
 pub fn logged_pids(log: &Path, n: usize, timeout: Duration) -> Option<Vec<i32>> {
     let t = Instant::now();
     while t.elapsed() < timeout {
-        let text = std::fs::read_to_string(log).unwrap_or_default();
-        let pids: Vec<i32> = text
-            .match_indices(", pid ")
-            .filter_map(|(i, _)| {
-                let rest = &text[i + 6..];
-                rest[..rest.find(')').unwrap_or(rest.len())]
-                    .trim()
-                    .parse()
-                    .ok()
-            })
-            .collect();
+        let pids = mbpo_runtime::pids_in_log(&std::fs::read_to_string(log).unwrap_or_default());
         if pids.len() >= n {
             return Some(pids);
         }

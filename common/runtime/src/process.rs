@@ -184,6 +184,21 @@ impl<S: Transport> Process<S> {
     }
 }
 
+/// The pids a service's log names, oldest first: every start of a service logs a line ending
+/// `pid N)` ([`Process::open`]); a restarted service appends to the same log. Tools that watch
+/// a run (`mbpo chaos`, the tests) read them here, next to the line that writes them.
+pub fn pids_in_log(text: &str) -> Vec<i32> {
+    text.match_indices(", pid ")
+        .filter_map(|(i, _)| {
+            let rest = &text[i + 6..];
+            rest[..rest.find(')').unwrap_or(rest.len())]
+                .trim()
+                .parse()
+                .ok()
+        })
+        .collect()
+}
+
 /// Make the per-run channel limits every process of a run uses (they must agree): a deep real
 /// transition queue, so a consumer busy training does not stall the actors at once.
 pub fn configure_run(run: &mut RunIpc) {
@@ -244,6 +259,15 @@ pub fn error_chain(err: &(dyn std::error::Error + 'static)) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_pids_of_every_start_are_read_back_in_order() {
+        let log = "x INFO learner-0 of run r (Pendulum-v1 mbpo, seed 0, 500 steps, mode lockstep, pid 41)\n\
+                   y WARN something else, pid unknown)\n\
+                   z INFO learner-0 of run r (Pendulum-v1 mbpo, seed 0, 500 steps, mode lockstep, pid 977)\n";
+        assert_eq!(pids_in_log(log), [41, 977]);
+        assert!(pids_in_log("").is_empty());
+    }
 
     #[derive(Debug, thiserror::Error)]
     #[error("{what}")]

@@ -186,18 +186,9 @@ fn kill_when_up(child: &mut Child, run: &Path, victim: &str, at: KillAt) -> anyh
     Ok(killed)
 }
 
-/// The pids a service logged at each start (`..., pid N)`), oldest first.
+/// The pids a service logged at each start, oldest first.
 fn logged_pids(log: &Path) -> Vec<i32> {
-    let text = std::fs::read_to_string(log).unwrap_or_default();
-    text.match_indices(", pid ")
-        .filter_map(|(i, _)| {
-            let rest = &text[i + 6..];
-            rest[..rest.find(')').unwrap_or(rest.len())]
-                .trim()
-                .parse()
-                .ok()
-        })
-        .collect()
+    mbpo_runtime::pids_in_log(&std::fs::read_to_string(log).unwrap_or_default())
 }
 
 /// One run's line: completed, kills, restarts, lost, received per consumer, final return,
