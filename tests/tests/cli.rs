@@ -412,8 +412,20 @@ fn chaos_kills_a_process_and_reports_the_run() {
     let out = mbpo()
         .args(["chaos", "--config"])
         .arg(config_file())
-        .args(["--steps", "1200", "--set", "checkpoint.every=100"])
-        .args(["--runs", "1", "--kills", "1", "--actors", "2", "--out"])
+        .args(["--steps", "2000", "--set", "checkpoint.every=100"])
+        // The kill comes as soon as a checkpoint passes its point (at most 1600): hundreds of
+        // steps before the end, so it always lands.
+        .args([
+            "--max-delay-seconds",
+            "0",
+            "--runs",
+            "1",
+            "--kills",
+            "1",
+            "--actors",
+            "2",
+        ])
+        .arg("--out")
         .arg(dir.join("chaos"))
         .stderr(Stdio::null())
         .output()
@@ -435,7 +447,7 @@ fn chaos_kills_a_process_and_reports_the_run() {
     );
     assert_eq!(
         (run["lost"].as_u64(), run["produced"].as_u64()),
-        (Some(0), Some(1200))
+        (Some(0), Some(2000))
     );
     assert_eq!(
         (&run["shm_left"], &run["orphans"]),

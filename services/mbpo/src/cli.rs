@@ -60,7 +60,7 @@ pub struct ChaosArgs {
     /// Training actors.
     #[arg(long, default_value_t = 1)]
     pub actors: u16,
-    /// Kill points are uniform over the run's first 90 % of env steps (as the newest checkpoint
+    /// Kill points are uniform over the run's first 80 % of env steps (as the newest checkpoint
     /// shows them); a kill then comes a uniform random 0..this many seconds later.
     #[arg(long, default_value_t = 0.5)]
     pub max_delay_seconds: f64,
