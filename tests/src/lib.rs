@@ -257,19 +257,7 @@ pub fn base_dir_leftovers(root: &Path) -> Vec<PathBuf> {
     left
 }
 
-/// Live processes whose command line mentions `needle`.
-pub fn processes_mentioning(needle: &str) -> Vec<String> {
-    let mut out = Vec::new();
-    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
-        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
-            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
-            if cmd.contains(needle) && !cmd.contains("cargo") {
-                out.push(format!("{}: {cmd}", e.file_name().to_string_lossy()));
-            }
-        }
-    }
-    out
-}
+pub use mbpo_runtime::processes_mentioning;
 
 /// The pid a service logged at start (`... pid N)`).
 pub fn logged_pid(log: &Path, timeout: Duration) -> Option<i32> {

@@ -371,8 +371,6 @@ where
             let woke = wait_for(self.waiter, self.control, what, || {
                 let upto = if self.pipelined { u64::MAX } else { upto };
                 inbox.pull(self.real, upto, role)?;
-                let may = upto.min(inbox.received());
-                inbox.take(may.saturating_sub(inbox.taken()) as usize, role);
                 is_ready = ready(role, inbox)?;
                 Ok(is_ready || holds(self.control, done))
             })?;

@@ -205,6 +205,8 @@ impl<S: Transport> RealInbox<S> {
         take_upto: u64,
         sink: &mut dyn TransitionSink,
     ) -> Result<usize> {
+        // Rows received earlier that the role may see by now.
+        self.take_upto(take_upto, sink);
         let mut n = 0;
         // One borrow is kept free for the receive itself.
         let hold = sub.max_borrowed().saturating_sub(1).max(1);
@@ -217,10 +219,14 @@ impl<S: Transport> RealInbox<S> {
             self.pending += b.n_rows();
             self.received += b.n_rows() as u64;
             self.held.push_back(b);
-            let may = take_upto.min(self.received);
-            self.take(may.saturating_sub(self.taken) as usize, sink);
+            self.take_upto(take_upto, sink);
         }
         Ok(n)
+    }
+    /// Take rows until `upto` rows were taken in all (or none is pending).
+    fn take_upto(&mut self, upto: u64, sink: &mut dyn TransitionSink) {
+        let may = upto.min(self.received);
+        self.take(may.saturating_sub(self.taken) as usize, sink);
     }
     /// Copy the oldest held batch's untaken rows out of shared memory.
     fn spill_front(&mut self) {
@@ -265,13 +271,12 @@ impl<S: Transport> RealInbox<S> {
         self.pending -= left;
         self.taken += left as u64;
         let w = self.layout.width();
-        while left > 0 && self.spilled_start < self.spilled_rows.len() {
-            let row = &self.spilled_rows[self.spilled_start..self.spilled_start + w];
-            let r = self.layout.split_row(row);
-            sink.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
-            self.spilled_start += w;
-            left -= 1;
-        }
+        let spilled = (self.spilled_rows.len() - self.spilled_start) / w;
+        let k = left.min(spilled);
+        let rows = &self.spilled_rows[self.spilled_start..self.spilled_start + k * w];
+        self.layout.push_rows(rows, sink);
+        self.spilled_start += k * w;
+        left -= k;
         while left > 0 {
             // Every pending row is spilled or held.
             let Some(front) = self.held.front() else {

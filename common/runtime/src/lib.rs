@@ -33,5 +33,5 @@ pub use inbox::{send_ack, wait_for, ControlInbox, RealInbox};
 pub use pipeline::{PipelineSpec, RoleKind};
 pub use process::{
     actor_steps, configure_run, error_chain, exit_code, global_step, init_logging,
-    init_service_process, load_config, pids_in_log, Dims, Process,
+    init_service_process, load_config, pids_in_log, processes_mentioning, Dims, Process,
 };

@@ -199,6 +199,21 @@ pub fn pids_in_log(text: &str) -> Vec<i32> {
         .collect()
 }
 
+/// Live processes whose command line mentions `needle` (a run id: what a run left running),
+/// as `pid: command line`; cargo's own processes are left out.
+pub fn processes_mentioning(needle: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").into_iter().flatten().flatten() {
+        if let Ok(cmd) = std::fs::read(e.path().join("cmdline")) {
+            let cmd = String::from_utf8_lossy(&cmd).replace('\0', " ");
+            if cmd.contains(needle) && !cmd.contains("cargo") {
+                out.push(format!("{}: {cmd}", e.file_name().to_string_lossy()));
+            }
+        }
+    }
+    out
+}
+
 /// Make the per-run channel limits every process of a run uses (they must agree): a deep real
 /// transition queue, so a consumer busy training does not stall the actors at once.
 pub fn configure_run(run: &mut RunIpc) {

@@ -12,7 +12,7 @@
 //! ```
 
 use iceoryx2::prelude::ZeroCopySend;
-use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_core::{Batch, ReplayBuffer, TransitionSink};
 
 #[allow(unused_imports)] // for docs
 use crate::names::SCHEMA_VERSION;
@@ -456,9 +456,14 @@ impl RowLayout {
             (self.obs_dim, self.act_dim),
             "replay buffer dimensions differ from the row layout"
         );
+        self.push_rows(src, buf);
+    }
+
+    /// Hand every row in `src` to `sink`, in order (no allocation).
+    pub fn push_rows(&self, src: &[f32], sink: &mut dyn TransitionSink) {
         for row in src.chunks_exact(self.width()) {
             let r = self.split_row(row);
-            buf.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
+            sink.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
         }
     }
 }

@@ -218,14 +218,9 @@ impl<S: Service> TransitionPublisher<S> {
         meta: TransitionMeta,
         fill: impl FnOnce(&mut [f32]),
     ) -> Result<SendReport, PublishError> {
-        self.send_with_uninit(n_rows, meta, |dst| {
-            for d in dst.iter_mut() {
-                d.write(0.0);
-            }
-            // SAFETY: every element was just initialised.
-            let init = unsafe { &mut *(dst as *mut [MaybeUninit<f32>] as *mut [f32]) };
-            fill(init)
-        })
+        let mut sample = self.loan_zeroed(n_rows)?;
+        fill(sample.payload_mut());
+        self.send_sample(sample, n_rows, meta)
     }
 
     fn send_with_uninit(
@@ -234,23 +229,24 @@ impl<S: Service> TransitionPublisher<S> {
         meta: TransitionMeta,
         fill: impl FnOnce(&mut [MaybeUninit<f32>]),
     ) -> Result<SendReport, PublishError> {
-        if n_rows > u32::MAX as usize {
-            return Err(PublishError::Invalid(format!(
-                "{n_rows} rows exceed u32::MAX"
-            )));
-        }
-        let len = n_rows * self.layout.width();
-        let mut sample = self.loan_uninit(len)?;
+        let mut sample = self.loan_uninit(n_rows)?;
         fill(sample.payload_mut());
         // SAFETY: `fill` initialised every element (all helpers above write the whole slice).
         let sample = unsafe { sample.assume_init() };
         self.send_sample(sample, n_rows, meta)
     }
 
+    /// Room for `n_rows` rows in shared memory, uninitialised.
     fn loan_uninit(
         &self,
-        len: usize,
+        n_rows: usize,
     ) -> Result<SampleMutUninit<S, [MaybeUninit<f32>], TransitionHeader>, PublishError> {
+        if n_rows > u32::MAX as usize {
+            return Err(PublishError::Invalid(format!(
+                "{n_rows} rows exceed u32::MAX"
+            )));
+        }
+        let len = n_rows * self.layout.width();
         self.publisher
             .loan_slice_uninit(len)
             .map_err(|e| PublishError::Loan {
@@ -266,23 +262,25 @@ impl<S: Service> TransitionPublisher<S> {
     /// straight into the sample it publishes (no staging copy). A loan dropped unsent sends
     /// nothing and takes no sequence number.
     pub fn loan_rows(&self, n_rows: usize) -> Result<RowLoan<'_, S>, PublishError> {
-        if n_rows > u32::MAX as usize {
-            return Err(PublishError::Invalid(format!(
-                "{n_rows} rows exceed u32::MAX"
-            )));
-        }
-        let mut sample = self.loan_uninit(n_rows * self.layout.width())?;
+        Ok(RowLoan {
+            publisher: self,
+            sample: self.loan_zeroed(n_rows)?,
+            n_rows,
+            written: 0,
+        })
+    }
+
+    /// Room for `n_rows` rows in shared memory, zeroed.
+    fn loan_zeroed(
+        &self,
+        n_rows: usize,
+    ) -> Result<SampleMut<S, [f32], TransitionHeader>, PublishError> {
+        let mut sample = self.loan_uninit(n_rows)?;
         for d in sample.payload_mut().iter_mut() {
             d.write(0.0);
         }
         // SAFETY: every element was just initialised.
-        let sample = unsafe { sample.assume_init() };
-        Ok(RowLoan {
-            publisher: self,
-            sample,
-            n_rows,
-            written: 0,
-        })
+        Ok(unsafe { sample.assume_init() })
     }
 
     fn send_sample(
@@ -398,10 +396,6 @@ impl<S: Service> TransitionSink for RowLoan<'_, S> {
 }
 
 impl<S: Service> RowLoan<'_, S> {
-    /// Rows written so far.
-    pub fn written(&self) -> usize {
-        self.written
-    }
     /// Publish the rows, once exactly the loaned number was written.
     pub fn send(self, meta: TransitionMeta) -> Result<SendReport, PublishError> {
         if self.written != self.n_rows {
@@ -453,10 +447,8 @@ impl<S: Service> TransitionBatch<S> {
     /// Push rows `from..` into `sink` in order (no allocation).
     pub fn push_rows_from(&self, from: usize, n: usize, sink: &mut dyn TransitionSink) {
         let w = self.layout.width();
-        for row in self.rows()[from * w..(from + n) * w].chunks_exact(w) {
-            let r = self.layout.split_row(row);
-            sink.push(r.obs, r.act, r.reward, r.next_obs, r.terminated);
-        }
+        self.layout
+            .push_rows(&self.rows()[from * w..(from + n) * w], sink)
     }
     /// Copy the rows into `out` (no allocation once `out` is large enough).
     pub fn to_batch(&self, out: &mut Batch) {

@@ -217,10 +217,9 @@ fn report(
             left
         }
     };
-    let orphans = if run_id.is_empty() {
-        0
-    } else {
-        processes_mentioning(run_id)
+    let orphans = match run_id.is_empty() {
+        true => 0,
+        false => mbpo_runtime::processes_mentioning(run_id).len(),
     };
     Ok(json!({
         "run": r,
@@ -238,17 +237,6 @@ fn report(
         "wall_seconds": (started.elapsed().as_secs_f64() * 10.0).round() / 10.0,
         "run_dir": run,
     }))
-}
-
-/// Live processes whose command line mentions `needle`.
-fn processes_mentioning(needle: &str) -> usize {
-    let entries = std::fs::read_dir("/proc").into_iter().flatten().flatten();
-    entries
-        .filter(|e| {
-            std::fs::read(e.path().join("cmdline"))
-                .is_ok_and(|c| String::from_utf8_lossy(&c).contains(needle))
-        })
-        .count()
 }
 
 /// A run completed with every transition received, nothing left behind and (lockstep) the
