@@ -84,4 +84,8 @@ pub struct ServiceArgs {
     /// Continue from this checkpoint directory (`<run-dir>/checkpoints/<T>`; `mbpo run --resume`).
     #[arg(long)]
     pub resume_from: Option<PathBuf>,
+    /// An actor on a worker host: its one consumer is the host's gateway (`mbpo join`), which
+    /// carries its transitions to the head's consumers.
+    #[arg(long)]
+    pub behind_gateway: bool,
 }

@@ -101,6 +101,7 @@ fn coordinate(
         actors: how.actors,
         slack: how.slack,
         resume_from: None,
+        behind_gateway: false,
     };
     let mut threads = Vec::new();
     let started = Instant::now();

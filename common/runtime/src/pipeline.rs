@@ -35,6 +35,13 @@ pub enum RoleKind {
 }
 
 impl RoleKind {
+    /// It receives every real transition.
+    pub fn consumes_real(self) -> bool {
+        matches!(
+            self,
+            RoleKind::Learner | RoleKind::ModelTrainer | RoleKind::RolloutGenerator
+        )
+    }
     /// The binary that runs it, as installed next to `mbpo`.
     pub fn binary(self) -> &'static str {
         match self {
@@ -129,7 +136,8 @@ pub struct RoleSpec {
 }
 
 impl RoleSpec {
-    fn new(kind: RoleKind, index: u16) -> Self {
+    /// Role `index` of `kind`.
+    pub fn new(kind: RoleKind, index: u16) -> Self {
         Self {
             kind,
             index,
@@ -238,6 +246,19 @@ impl PipelineSpec {
     /// with (metrics rows come from model versions, there is no learner).
     pub fn plans(&self) -> bool {
         self.actor == RoleKind::PlanningActor
+    }
+    /// The weights its actors act with: the learner's policy, or the model they plan on.
+    pub fn actor_weights(&self) -> WeightsKind {
+        if self.plans() {
+            WeightsKind::Model
+        } else {
+            WeightsKind::Policy
+        }
+    }
+    /// How many of its roles receive every real transition (an actor's first send waits for
+    /// them all, so nothing it sends is lost).
+    pub fn real_consumers(&self) -> usize {
+        self.services.iter().filter(|k| k.consumes_real()).count()
     }
     /// The model trainer abandons a training under way when the run stops: in a pipelined run
     /// whose actors do not plan on it (one training can take minutes; the resumed run trains

@@ -178,6 +178,14 @@ impl<S: Transport> Process<S> {
             pipeline,
         })
     }
+    /// How many subscribers an actor's transitions need before its first send: the run's
+    /// consumers, or on a worker host the one gateway.
+    pub fn real_consumers(&self) -> usize {
+        match self.args.behind_gateway {
+            true => 1,
+            false => self.pipeline.real_consumers(),
+        }
+    }
     /// A fresh SAC actor network of the run (architecture only).
     pub fn actor_net(&self) -> TanhGaussianActor {
         actor_net(&self.cfg, self.dims.obs, self.dims.act)

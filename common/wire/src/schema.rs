@@ -188,7 +188,9 @@ impl StatsKind {
 }
 
 /// One statistics event, everyone -> supervisor. 112 bytes, fixed size.
-#[derive(Debug, Default, Clone, Copy, PartialEq, ZeroCopySend)]
+#[derive(
+    Debug, Default, Clone, Copy, PartialEq, ZeroCopySend, serde::Serialize, serde::Deserialize,
+)]
 #[repr(C)]
 #[type_name("mbpo::StatsRecord")]
 pub struct StatsRecord {
@@ -256,7 +258,9 @@ impl ControlCommand {
 pub const CONTROL_TARGET_ALL: u32 = u32::MAX;
 
 /// A control command or acknowledgement (supervisor <-> everyone). 32 bytes, fixed size.
-#[derive(Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend)]
+#[derive(
+    Debug, Default, Clone, Copy, PartialEq, Eq, ZeroCopySend, serde::Serialize, serde::Deserialize,
+)]
 #[repr(C)]
 #[type_name("mbpo::ControlMsg")]
 pub struct ControlMsg {

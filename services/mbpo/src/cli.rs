@@ -17,6 +17,15 @@ pub enum Command {
     /// Run MBPO as a multi-process pipeline (actors, model trainer, rollout generator, SAC
     /// learner over iceoryx2 shared memory), supervised by this process.
     Run(RunArgs),
+    /// Run actors for a head on another host (`mbpo run --listen E --remote-actors M` there):
+    /// `mbpo join tcp/<head>:7447 [--actors N | --actors-per-core K] [--credentials DIR]`.
+    /// Runs `mbpo-gateway join`; `mbpo join --help` lists its options.
+    #[command(disable_help_flag = true)]
+    Join {
+        /// The head's endpoint, then the options of `mbpo-gateway join`.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<String>,
+    },
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),
@@ -354,6 +363,27 @@ pub struct RunArgs {
     /// No live progress bar: log a plain progress line every 10 s instead.
     #[arg(long)]
     pub quiet: bool,
+    #[command(flatten)]
+    pub remote: RemoteArgs,
+}
+
+/// Actors on other hosts: `mbpo run --listen E --remote-actors M` here, `mbpo join E` there.
+#[derive(Debug, Clone, Args)]
+pub struct RemoteArgs {
+    /// Admit actors of worker hosts (`mbpo join ENDPOINT`) on this Zenoh endpoint, e.g.
+    /// tcp/127.0.0.1:7447; an address beyond this host needs --credentials.
+    #[arg(long, value_name = "ENDPOINT", requires = "remote_actors")]
+    pub listen: Option<String>,
+    /// Actor slots for worker hosts, besides the --actors on this host (the run has both).
+    #[arg(long, default_value_t = 0, requires = "listen")]
+    pub remote_actors: u16,
+    /// Credentials directory made by `mbpo certs` (its `head` part).
+    #[arg(long, value_name = "DIR", requires = "listen")]
+    pub credentials: Option<std::path::PathBuf>,
+    /// Seconds a worker may be silent before its actors' state is taken for lost (the run then
+    /// restarts from its newest checkpoint with --restart on-failure, or fails).
+    #[arg(long, default_value_t = 30.0, requires = "listen")]
+    pub worker_timeout: f64,
 }
 
 #[derive(Debug, Args)]

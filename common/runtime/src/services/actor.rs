@@ -28,8 +28,9 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
         WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
     let real = TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?;
     stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Model trainer, rollout generator and learner: nothing sent afterwards can be lost.
-    real.wait_for_subscribers(3, Duration::from_secs(120))?;
+    // Model trainer, rollout generator and learner (or this host's gateway): nothing sent
+    // afterwards can be lost.
+    real.wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
     let mut waiter = Waiter::new()?;
     waiter.attach(&control.sub).attach(&policy);
 

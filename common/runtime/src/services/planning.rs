@@ -68,7 +68,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let real = TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?;
     stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
     // The model trainer is the only consumer of real data in an MPC run.
-    real.wait_for_subscribers(1, Duration::from_secs(120))?;
+    real.wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
     let mut waiter = Waiter::new()?;
     waiter.attach(&control.sub).attach(&model);
 

@@ -143,6 +143,20 @@ fn make_run_id(env: &str, seed: u64) -> String {
     )
 }
 
+/// `mbpo join ARGS`: this host's gateway, `mbpo-gateway join ARGS`, in place of this process.
+pub fn join(args: &[String]) -> anyhow::Result<()> {
+    use std::os::unix::process::CommandExt;
+    let bin = std::env::current_exe()?
+        .parent()
+        .map(|d| d.join("mbpo-gateway"))
+        .context("locating mbpo-gateway")?;
+    let err = std::process::Command::new(&bin)
+        .arg("join")
+        .args(args)
+        .exec();
+    Err(anyhow::anyhow!("starting {}: {err}", bin.display()))
+}
+
 /// Run the pipeline per `args`.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let (args, cfg, out, resume) = plan_run(args)?;
@@ -219,6 +233,11 @@ fn plan_run(
     let mut args = args.clone();
     if let Some(k) = args.actors_per_core {
         args.actors = k.saturating_mul(ncpu() as u16);
+    }
+    // From here on `actors` counts every actor of the run, local and remote (slots
+    // actors - remote_actors .. actors are remote); a resumed run has its own count.
+    if args.resume.is_none() {
+        args.actors = args.actors.saturating_add(args.remote.remote_actors);
     }
     let (cfg, out, resume) = match args.resume.clone() {
         Some(dir) => {
@@ -432,9 +451,11 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
     if let Some(dir) = resume {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
+    let local = args.actors - args.remote.remote_actors;
     let roles = cx.pipeline.roles(args.actors);
-    roles
+    let mut procs: Vec<Proc> = roles
         .into_iter()
+        .filter(|role| !(role.kind.is_actor() && role.index >= local))
         .enumerate()
         .map(|(i, role)| {
             // A Python env's process inherits its actor's CPU: each env step's two wake-ups are
@@ -453,7 +474,33 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
                 cpu: pin.then(|| i % ncpu()),
             }
         })
-        .collect()
+        .collect();
+    if let Some(listen) = &args.remote.listen {
+        // The remote actors' stand-in on this host (`mbpo_net::head`).
+        let mut a = vec!["head".to_string()];
+        a.extend(common);
+        a.extend([
+            "--listen".into(),
+            listen.clone(),
+            "--local-actors".into(),
+            local.to_string(),
+            "--worker-timeout".into(),
+            args.remote.worker_timeout.to_string(),
+        ]);
+        if let Some(dir) = &args.remote.credentials {
+            a.extend(["--credentials".into(), dir.display().to_string()]);
+        }
+        procs.push(Proc {
+            log: cx.logs.join("gateway.log"),
+            bin: cx.bin_dir.join("mbpo-gateway"),
+            name: "gateway".into(),
+            args: a,
+            child: None,
+            exit: None,
+            cpu: None,
+        });
+    }
+    procs
 }
 
 /// How the loop of one attempt ended.
@@ -690,8 +737,15 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
     }
+    if args.remote.remote_actors > args.actors {
+        bail!(
+            "--remote-actors {} is more than the run's {} actor(s)",
+            args.remote.remote_actors,
+            args.actors
+        );
+    }
     if args.actors == 0 {
-        bail!("--actors must be at least 1");
+        bail!("--actors must be at least 1 (or give --listen E --remote-actors M for actors on other hosts)");
     }
     Ok(())
 }

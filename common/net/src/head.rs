@@ -1,0 +1,806 @@
+//! The head's gateway (`mbpo-gateway head`, started by `mbpo run --listen`): it stands in for
+//! the run's remote actors on the head's iceoryx2, so the coordinator, learner, model trainer
+//! and rollout generator cannot tell a remote actor from a local one.
+//!
+//! For every remote slot k (actor indices `--local-actors`..`--actors`) it owns a node
+//! `actor-k` with the ports an actor has: a transition publisher and a stats publisher (fed by
+//! the worker's stream), a control subscriber and a weights subscriber (forwarded to the
+//! worker). Three threads:
+//! * **main** receives from workers: admits them ([`Body::Hello`] -> [`Body::Welcome`]),
+//!   publishes their transitions and reports under the slot's producer id, writes their
+//!   checkpoint files into the run directory and their logs under `logs/<worker>/`, and
+//!   acknowledges. It blocks when the consumers' queues are full, and then acknowledges
+//!   nothing, so the worker's window fills and its actors wait: the rate limits hold across
+//!   hosts.
+//! * **to-workers** sleeps on the slots' control and weights subscribers and forwards; control
+//!   for a slot no worker holds yet waits in that slot's queue.
+//! * **heartbeat** sends heartbeats, resends stalled streams and newer weights, and fails the
+//!   gateway when a worker is silent for `--worker-timeout`.
+//!
+//! Any loss of a remote actor's state (its worker restarted, went silent, or reported a failed
+//! actor) ends the gateway with an error: the supervisor then restarts the whole pipeline from
+//! its newest checkpoint (`--restart on-failure`), exactly as for a local process, and the
+//! worker rejoins the new attempt, its actors resuming from their checkpoint files.
+
+use std::collections::{HashMap, VecDeque};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
+use std::time::{Duration, Instant};
+
+use mbpo_runtime::{configure_run, Dims, PipelineSpec, RuntimeError, ServiceArgs};
+use mbpo_train::checkpoint;
+use mbpo_train::run_files::actor_file;
+use mbpo_wire::*;
+use zenoh::Wait;
+
+use crate::link::Accept;
+use crate::peer::{lock, publisher, wait_until, Peer, HEARTBEAT_PERIOD};
+use crate::protocol::{
+    decode, encode, Assignment, Body, Envelope, Item, ResumeFiles, WeightsMsg, PROTOCOL_VERSION,
+};
+use crate::session::{self, NetOptions, Side};
+use crate::{actor_weights, GatewayError};
+
+/// What `mbpo-gateway head` is given.
+#[derive(Debug, Clone)]
+pub struct HeadOptions {
+    /// The arguments every service of the run gets (`--actors` counts remote ones too).
+    pub service: ServiceArgs,
+    /// Where to listen, with which credentials.
+    pub net: NetOptions,
+    /// Actors running on the head (slots 0..local_actors); the rest are remote.
+    pub local_actors: u16,
+    /// A worker silent this long has lost its actors' state.
+    pub worker_timeout: Duration,
+}
+
+/// What the three threads share.
+struct Shared {
+    me: u64,
+    first_slot: u16,
+    workers: HashMap<u64, Peer>,
+    /// Worker session holding each remote slot.
+    owner: Vec<Option<u64>>,
+    /// Control commands for slots no worker holds yet.
+    pending: Vec<VecDeque<ControlMsg>>,
+    /// Remote slots told to stop.
+    stopped: Vec<bool>,
+    /// The newest weights: version and encoded envelope.
+    weights: Option<(u64, Arc<Vec<u8>>)>,
+    /// Per worker: newest weight version it has, and when we last sent it one.
+    weights_seen: HashMap<u64, (u64, Option<Instant>)>,
+    /// Why the gateway must end (a remote actor's state is lost).
+    failure: Option<String>,
+    finished_sent: bool,
+    /// Workers whose [`Item::Bye`] arrived.
+    said_bye: std::collections::HashSet<u64>,
+}
+
+impl Shared {
+    fn slot_index(&self, slot: u16) -> Option<usize> {
+        slot.checked_sub(self.first_slot)
+            .map(usize::from)
+            .filter(|&i| i < self.owner.len())
+    }
+    fn fail(&mut self, why: String) {
+        if self.failure.is_none() {
+            tracing::error!("{why}");
+            self.failure = Some(why);
+        }
+    }
+}
+
+struct Gate {
+    state: Mutex<Shared>,
+    space: Condvar,
+    quit: AtomicBool,
+}
+
+impl Gate {
+    fn stopping(&self) -> bool {
+        self.quit.load(Ordering::Relaxed) || lock(&self.state).failure.is_some()
+    }
+}
+
+/// Run the head's gateway until the run stops it, or a remote actor's state is lost (error).
+pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
+    let args = &opts.service;
+    let cfg = mbpo_runtime::process::load_config(&args.run_dir)?;
+    let pipeline = mbpo_runtime::pipeline::spec(cfg.algo)?;
+    let dims = Dims::of_run(&cfg, &args.run_dir)?;
+    if opts.local_actors >= args.actors {
+        return Err(GatewayError::Failed(format!(
+            "--local-actors {} leaves no remote slot of --actors {}",
+            opts.local_actors, args.actors
+        )));
+    }
+    let remote = usize::from(args.actors - opts.local_actors);
+    let session = session::open(Side::Head, &opts.net)?;
+    let me = session::new_session_id();
+    let gate = Arc::new(Gate {
+        state: Mutex::new(Shared {
+            me,
+            first_slot: opts.local_actors,
+            workers: HashMap::new(),
+            owner: vec![None; remote],
+            pending: vec![VecDeque::new(); remote],
+            stopped: vec![false; remote],
+            weights: None,
+            weights_seen: HashMap::new(),
+            failure: None,
+            finished_sent: false,
+            said_bye: Default::default(),
+        }),
+        space: Condvar::new(),
+        quit: AtomicBool::new(false),
+    });
+    tracing::info!(
+        "gateway of run {}: listening on {} for actors {}..{} (pid {})",
+        args.run_id,
+        opts.net.endpoint,
+        opts.local_actors,
+        args.actors,
+        std::process::id()
+    );
+    let to_workers = {
+        let (gate, args) = (gate.clone(), args.clone());
+        let first = opts.local_actors;
+        std::thread::Builder::new()
+            .name("to-workers".into())
+            .spawn(move || {
+                let r = to_workers(&gate, &args, pipeline, dims, first);
+                if let Err(e) = &r {
+                    lock(&gate.state).fail(format!("forwarding to workers: {e}"));
+                }
+                r
+            })
+            .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
+    };
+    let heart = {
+        let gate = gate.clone();
+        let timeout = opts.worker_timeout;
+        std::thread::Builder::new()
+            .name("heartbeat".into())
+            .spawn(move || heartbeat(&gate, timeout))
+            .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
+    };
+    let result = from_workers(&gate, &session, opts, pipeline, dims);
+    gate.quit.store(true, Ordering::Relaxed);
+    gate.space.notify_all();
+    let _ = heart.join();
+    let _ = to_workers.join();
+    let _ = session.close().wait();
+    result?;
+    let failure = lock(&gate.state).failure.take();
+    match failure {
+        Some(why) => Err(GatewayError::Failed(why)),
+        None => Ok(()),
+    }
+}
+
+/// The ports of one remote slot that carry its worker's data to the head's consumers.
+struct SlotOut {
+    real: TransitionPublisher<ipc::Service>,
+    stats: StatsPublisher<ipc::Service>,
+    /// The actor's next batch number (checked end to end).
+    next_actor_seq: u64,
+    consumers_ready: bool,
+    transitions: u64,
+}
+
+/// The main thread: everything that arrives from workers.
+fn from_workers(
+    gate: &Gate,
+    session: &zenoh::Session,
+    opts: &HeadOptions,
+    pipeline: &'static PipelineSpec,
+    dims: Dims,
+) -> Result<(), GatewayError> {
+    let args = &opts.service;
+    let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
+    configure_run(&mut run);
+    let mut slots = Vec::new();
+    let mut nodes = Vec::new(); // alive as long as their ports
+    for slot in opts.local_actors..args.actors {
+        let node = run.node::<ipc::Service>(Role::Actor, slot)?;
+        slots.push(SlotOut {
+            real: TransitionPublisher::create(&node, Channel::Real, dims.rows(), 1)?,
+            stats: StatsPublisher::create(&node)?,
+            next_actor_seq: 0,
+            consumers_ready: false,
+            transitions: 0,
+        });
+        nodes.push(node);
+    }
+    let sub = session
+        .declare_subscriber(session::FROM_ANY_WORKER)
+        .wait()
+        .map_err(|e| GatewayError::Zenoh(format!("subscribing to workers: {e}")))?;
+    let consumers = pipeline.real_consumers();
+    let mut finished_at: Option<Instant> = None;
+    loop {
+        if termination_requested() {
+            tracing::info!("stopped by a signal");
+            return Ok(());
+        }
+        if gate.stopping() {
+            return Ok(());
+        }
+        // The run is over once every remote slot was told to stop: tell the workers, and end
+        // when each said Bye (its actors exited, its last data and logs are in; or after 10 s).
+        {
+            let mut st = lock(&gate.state);
+            let all_stopped = st.stopped.iter().all(|&s| s);
+            if all_stopped && !st.finished_sent {
+                for w in st.workers.values_mut() {
+                    w.send_item(Item::Finished)?;
+                }
+                st.finished_sent = true;
+                finished_at = Some(Instant::now());
+            }
+            if let Some(t) = finished_at {
+                let all_bye = st.workers.keys().all(|w| st.said_bye.contains(w));
+                if all_bye || t.elapsed() > Duration::from_secs(10) {
+                    if !all_bye {
+                        tracing::warn!("a worker did not say goodbye within 10 s");
+                    }
+                    tracing::info!("every remote actor stopped: the gateway ends");
+                    return Ok(());
+                }
+            }
+        }
+        let sample = match sub.recv_timeout(Duration::from_millis(100)) {
+            Ok(Some(s)) => s,
+            Ok(None) => continue,
+            Err(e) => return Err(GatewayError::Zenoh(format!("receiving: {e}"))),
+        };
+        let bytes = sample.payload().to_bytes();
+        let env = match decode(&bytes) {
+            Ok(e) => e,
+            Err(e) => {
+                tracing::warn!("dropped a message from {}: {e}", sample.key_expr());
+                continue;
+            }
+        };
+        handle(gate, session, opts, &mut slots, consumers, env)?;
+    }
+}
+
+fn handle(
+    gate: &Gate,
+    session: &zenoh::Session,
+    opts: &HeadOptions,
+    slots: &mut [SlotOut],
+    consumers: usize,
+    env: Envelope,
+) -> Result<(), GatewayError> {
+    let from = env.session;
+    match env.body {
+        Body::Hello { worker, actors } => admit(gate, session, opts, from, worker, actors),
+        Body::Data { seq, item } => {
+            let accept = {
+                let mut st = lock(&gate.state);
+                let Some(w) = st.workers.get_mut(&from) else {
+                    return Ok(()); // a worker of an earlier attempt: its heartbeat tells it
+                };
+                w.last_heard = Instant::now();
+                w.accept(seq)
+            };
+            if accept == Accept::Deliver {
+                deliver(gate, opts, slots, consumers, from, item)?;
+            }
+            let mut st = lock(&gate.state);
+            if let Some(w) = st.workers.get_mut(&from) {
+                w.send_now(Body::Ack {
+                    next: w.next_expected(),
+                })?;
+            }
+            Ok(())
+        }
+        Body::Ack { next } => {
+            let mut st = lock(&gate.state);
+            if let Some(w) = st.workers.get_mut(&from) {
+                w.last_heard = Instant::now();
+                if w.acked(next) > 0 {
+                    gate.space.notify_all();
+                }
+            }
+            Ok(())
+        }
+        Body::Heartbeat { next, weights } => {
+            let mut st = lock(&gate.state);
+            if let Some(w) = st.workers.get_mut(&from) {
+                w.last_heard = Instant::now();
+                if w.acked(next) > 0 {
+                    gate.space.notify_all();
+                }
+                if let Some(seen) = st.weights_seen.get_mut(&from) {
+                    seen.0 = seen.0.max(weights);
+                }
+            } else {
+                // Not (or no longer) a member: say so, so it joins again.
+                drop(st);
+                refuse(
+                    session,
+                    gate,
+                    from,
+                    "this worker is not a member of the run's current attempt: join again",
+                )?;
+            }
+            Ok(())
+        }
+        other => {
+            tracing::warn!("a worker sent a head's message: {other:?}");
+            Ok(())
+        }
+    }
+}
+
+fn refuse(
+    session: &zenoh::Session,
+    gate: &Gate,
+    to: u64,
+    reason: &str,
+) -> Result<(), GatewayError> {
+    let me = lock(&gate.state).me;
+    let bytes = encode(&Envelope {
+        version: PROTOCOL_VERSION,
+        session: me,
+        body: Body::Refused {
+            reason: reason.to_string(),
+        },
+    });
+    session
+        .put(session::head_to_worker(to), bytes)
+        .wait()
+        .map_err(|e| GatewayError::Zenoh(format!("answering a worker: {e}")))
+}
+
+/// A worker's Hello: give it free slots, or say why not.
+fn admit(
+    gate: &Gate,
+    session: &zenoh::Session,
+    opts: &HeadOptions,
+    from: u64,
+    worker: String,
+    actors: u16,
+) -> Result<(), GatewayError> {
+    let mut st = lock(&gate.state);
+    if let Some(w) = st.workers.get_mut(&from) {
+        // Our Welcome was lost: it comes again below from the stored assignment.
+        w.last_heard = Instant::now();
+    } else {
+        if let Some(old) = st.workers.values().find(|w| w.name == worker) {
+            let why = format!(
+                "worker {worker} restarted (session {:016x} -> {from:016x}): its actors' state since the last checkpoint is gone",
+                old.session
+            );
+            st.fail(why);
+            return Ok(());
+        }
+        let free: Vec<usize> = (0..st.owner.len())
+            .filter(|&i| st.owner[i].is_none())
+            .collect();
+        if free.is_empty() || actors == 0 {
+            drop(st);
+            let reason = format!(
+                "the run's {} remote actor slot(s) are all taken",
+                opts.service.actors - opts.local_actors
+            );
+            tracing::warn!("refused worker {worker}: {reason}");
+            return refuse(session, gate, from, &reason);
+        }
+        let take: Vec<usize> = free.into_iter().take(usize::from(actors)).collect();
+        let pubr = publisher(session, session::head_to_worker(from))?;
+        let mut peer = Peer::new(st.me, from, worker.clone(), pubr);
+        peer.last_heard = Instant::now();
+        let first = st.first_slot;
+        let slots: Vec<u16> = take.iter().map(|&i| first + i as u16).collect();
+        tracing::info!("worker {worker} ({from:016x}) joined: actors {slots:?}");
+        for &i in &take {
+            st.owner[i] = Some(from);
+        }
+        st.workers.insert(from, peer);
+        st.weights_seen.insert(from, (0, None));
+    }
+    let w = &st.workers[&from];
+    let slots: Vec<u16> = (0..st.owner.len())
+        .filter(|&i| st.owner[i] == Some(from))
+        .map(|i| st.first_slot + i as u16)
+        .collect();
+    let assignment = assignment(opts, slots.clone())?;
+    w.send_now(Body::Welcome(Box::new(assignment)))?;
+    // Control that waited for these slots, in order.
+    for slot in slots {
+        let i = st.slot_index(slot).expect("an owned slot");
+        while let Some(msg) = st.pending[i].pop_front() {
+            st.workers
+                .get_mut(&from)
+                .expect("just admitted")
+                .send_item(Item::Control { slot, msg })?;
+        }
+    }
+    if let Some((_, bytes)) = st.weights.clone() {
+        st.workers[&from].put(bytes.to_vec())?;
+        if let Some(seen) = st.weights_seen.get_mut(&from) {
+            seen.1 = Some(Instant::now());
+        }
+    }
+    Ok(())
+}
+
+/// What worker needs to run `slots`: the run's config and, when resuming, their files.
+fn assignment(opts: &HeadOptions, slots: Vec<u16>) -> Result<Assignment, GatewayError> {
+    let args = &opts.service;
+    let read = |p: &Path| {
+        std::fs::read(p).map_err(|source| GatewayError::Io {
+            path: p.to_path_buf(),
+            source,
+        })
+    };
+    let config_toml =
+        String::from_utf8_lossy(&read(&args.run_dir.join("config.toml"))?).into_owned();
+    let env_path = args.run_dir.join(mbpo_train::run_dir::ENV_FILE);
+    let env_json = env_path
+        .is_file()
+        .then(|| read(&env_path).map(|b| String::from_utf8_lossy(&b).into_owned()))
+        .transpose()?;
+    let resume = match &args.resume_from {
+        Some(dir) => {
+            let env_steps = checkpoint_step(dir)?;
+            let mut files = Vec::new();
+            for &slot in &slots {
+                files.push((slot, read(&dir.join(actor_file(slot)))?));
+            }
+            Some(ResumeFiles { env_steps, files })
+        }
+        None => None,
+    };
+    Ok(Assignment {
+        run_id: args.run_id.clone(),
+        attempt: 0,
+        slots,
+        config_toml,
+        env_json,
+        mode: args.mode,
+        actors: args.actors,
+        slack: args.slack,
+        resume,
+    })
+}
+
+/// The step T of checkpoint directory `dir` (`checkpoints/<T>`).
+pub(crate) fn checkpoint_step(dir: &Path) -> Result<u64, GatewayError> {
+    dir.file_name()
+        .and_then(|n| n.to_str())
+        .and_then(|n| n.parse().ok())
+        .ok_or_else(|| {
+            GatewayError::Failed(format!(
+                "{}: not a checkpoint directory (checkpoints/<step>)",
+                dir.display()
+            ))
+        })
+}
+
+/// One message of a worker's stream, in order.
+fn deliver(
+    gate: &Gate,
+    opts: &HeadOptions,
+    slots: &mut [SlotOut],
+    consumers: usize,
+    from: u64,
+    item: Item,
+) -> Result<(), GatewayError> {
+    let (name, slot) = {
+        let st = lock(&gate.state);
+        let name = st
+            .workers
+            .get(&from)
+            .map(|w| w.name.clone())
+            .unwrap_or_default();
+        let slot = match &item {
+            Item::Transitions { slot, .. }
+            | Item::Stats { slot, .. }
+            | Item::CheckpointFile { slot, .. }
+            | Item::SlotFailed { slot, .. }
+            | Item::Log { slot, .. } => *slot,
+            Item::Bye => {
+                drop(st);
+                let mut st = lock(&gate.state);
+                st.said_bye.insert(from);
+                tracing::info!("worker {name}: every actor exited, goodbye");
+                return Ok(());
+            }
+            Item::Control { .. } | Item::Finished => {
+                tracing::warn!("worker {name} sent a head's item");
+                return Ok(());
+            }
+        };
+        match st.slot_index(slot) {
+            Some(i) if st.owner[i] == Some(from) => (name, slot),
+            _ => {
+                drop(st);
+                lock(&gate.state).fail(format!(
+                    "worker {name} sent data of actor {slot}, which it does not hold"
+                ));
+                return Ok(());
+            }
+        }
+    };
+    let i = usize::from(slot - opts.local_actors);
+    let out = &mut slots[i];
+    match item {
+        Item::Transitions {
+            actor_seq,
+            meta,
+            rows,
+            ..
+        } => {
+            if actor_seq != out.next_actor_seq {
+                lock(&gate.state).fail(format!(
+                    "actor {slot} on {name}: batch {actor_seq} arrived, {} expected (a transition was lost or doubled)",
+                    out.next_actor_seq
+                ));
+                return Ok(());
+            }
+            if !out.consumers_ready {
+                out.real
+                    .wait_for_subscribers(consumers, Duration::from_secs(120))
+                    .map_err(RuntimeError::from)?;
+                out.consumers_ready = true;
+            }
+            out.real
+                .send_rows(&rows, meta)
+                .map_err(RuntimeError::from)?;
+            out.next_actor_seq += 1;
+            out.transitions += 1;
+        }
+        Item::Stats { record, .. } => {
+            if out.stats.subscribers() == 0 {
+                out.stats
+                    .wait_for_subscribers(1, Duration::from_secs(60))
+                    .map_err(RuntimeError::from)?;
+            }
+            out.stats.send(&record).map_err(RuntimeError::from)?;
+        }
+        Item::CheckpointFile {
+            env_steps, bytes, ..
+        } => {
+            let dir = checkpoint::dir_for(&opts.service.run_dir, env_steps);
+            write_atomically(&dir.join(actor_file(slot)), &bytes)?;
+            tracing::info!(
+                "checkpoint after step {env_steps}: wrote actor {slot}'s file from {name}"
+            );
+        }
+        Item::SlotFailed { reason, .. } => {
+            lock(&gate.state).fail(format!("actor {slot} on {name} failed: {reason}"));
+        }
+        Item::Log { text, .. } => {
+            let dir = opts.service.run_dir.join("logs").join(sanitize(&name));
+            append(&dir, &format!("actor-{slot}.log"), &text)?;
+        }
+        Item::Control { .. } | Item::Finished | Item::Bye => unreachable!("handled above"),
+    }
+    Ok(())
+}
+
+/// `name` usable as a directory name.
+fn sanitize(name: &str) -> String {
+    let s: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .take(64)
+        .collect();
+    if s.is_empty() || s.starts_with('.') {
+        format!("worker{s}")
+    } else {
+        s
+    }
+}
+
+fn append(dir: &Path, file: &str, text: &str) -> Result<(), GatewayError> {
+    use std::io::Write;
+    let io = |path: PathBuf| move |source| GatewayError::Io { path, source };
+    std::fs::create_dir_all(dir).map_err(io(dir.to_path_buf()))?;
+    let path = dir.join(file);
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(io(path.clone()))?;
+    f.write_all(text.as_bytes()).map_err(io(path))
+}
+
+/// Write `bytes` to `path` through a temp file, fsync and rename (a crash leaves the old file
+/// or the new one, never half of one).
+pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), GatewayError> {
+    use std::io::Write;
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |source| GatewayError::Io { path: p, source }
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
+    f.write_all(bytes).map_err(io(&tmp))?;
+    f.sync_all().map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))?;
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// The to-workers thread: control commands and weights of the remote slots.
+fn to_workers(
+    gate: &Gate,
+    args: &ServiceArgs,
+    pipeline: &'static PipelineSpec,
+    dims: Dims,
+    first: u16,
+) -> Result<(), GatewayError> {
+    let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
+    configure_run(&mut run);
+    let (kind, hash, len) = actor_weights(pipeline, &dims);
+    let mut control = Vec::new();
+    let mut weights = Vec::new();
+    let mut nodes = Vec::new();
+    for slot in first..args.actors {
+        let node = run.node::<ipc::Service>(Role::Actor, slot)?;
+        control.push(ControlSubscriber::create(&node)?);
+        weights.push(WeightsSubscriber::create(&node, kind, hash, len)?);
+        nodes.push(node);
+    }
+    let mut waiter = Waiter::new().map_err(RuntimeError::from)?;
+    for (c, w) in control.iter().zip(&weights) {
+        waiter.attach(c).attach(w);
+    }
+    while !gate.stopping() {
+        if waiter
+            .wait(Duration::from_millis(200))
+            .map_err(RuntimeError::from)?
+            == WaitOutcome::Terminate
+        {
+            break;
+        }
+        for (i, sub) in control.iter().enumerate() {
+            let slot = first + i as u16;
+            let me = ProducerId::new(Role::Actor, slot);
+            while let Some(m) = sub.receive().map_err(RuntimeError::from)? {
+                if m.msg.is_for(me) {
+                    forward_control(gate, slot, m.msg)?;
+                }
+            }
+        }
+        let mut newest = None;
+        for w in &weights {
+            if let Some(s) = w.receive_latest().map_err(RuntimeError::from)? {
+                if newest.as_ref().is_none_or(|(v, _)| s.version() > *v) {
+                    let h = s.header();
+                    let msg = WeightsMsg {
+                        kind,
+                        version: s.version(),
+                        counters: WeightsCounters {
+                            env_steps: h.env_steps,
+                            sac_updates: h.sac_updates,
+                            model_trainings: h.model_trainings,
+                        },
+                        params: s.params().to_vec(),
+                    };
+                    newest = Some((s.version(), msg));
+                }
+            }
+        }
+        if let Some((version, msg)) = newest {
+            publish_weights(gate, version, msg)?;
+        }
+    }
+    Ok(())
+}
+
+fn publish_weights(gate: &Gate, version: u64, msg: WeightsMsg) -> Result<(), GatewayError> {
+    let mut st = lock(&gate.state);
+    if st.weights.as_ref().is_some_and(|(v, _)| *v >= version) {
+        return Ok(());
+    }
+    let bytes = Arc::new(encode(&Envelope {
+        version: PROTOCOL_VERSION,
+        session: st.me,
+        body: Body::Weights(Box::new(msg)),
+    }));
+    st.weights = Some((version, bytes.clone()));
+    let now = Instant::now();
+    let sessions: Vec<u64> = st.workers.keys().copied().collect();
+    for s in sessions {
+        st.workers[&s].put(bytes.to_vec())?;
+        if let Some(seen) = st.weights_seen.get_mut(&s) {
+            seen.1 = Some(now);
+        }
+    }
+    Ok(())
+}
+
+/// Send `msg` to the worker holding `slot`, or keep it until one does.
+fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), GatewayError> {
+    let st = lock(&gate.state);
+    let i = st.slot_index(slot).expect("a remote slot");
+    let is_stop = msg.control_command() == Some(ControlCommand::Stop);
+    let (mut st, ok) = wait_until(
+        &gate.space,
+        st,
+        |st| match st.owner[i] {
+            Some(w) => st.workers.get(&w).is_none_or(|p| !p.window_full(64)),
+            None => true,
+        },
+        |st| st.failure.is_some() || gate.quit.load(Ordering::Relaxed),
+    );
+    if !ok {
+        return Ok(());
+    }
+    if is_stop {
+        st.stopped[i] = true;
+    }
+    match st.owner[i].and_then(|w| st.workers.contains_key(&w).then_some(w)) {
+        Some(w) => {
+            st.workers
+                .get_mut(&w)
+                .expect("checked")
+                .send_item(Item::Control { slot, msg })?;
+        }
+        None => st.pending[i].push_back(msg),
+    }
+    Ok(())
+}
+
+/// The heartbeat thread.
+fn heartbeat(gate: &Gate, timeout: Duration) {
+    while !gate.stopping() {
+        std::thread::sleep(HEARTBEAT_PERIOD);
+        let mut st = lock(&gate.state);
+        let now = Instant::now();
+        let latest = st.weights.clone();
+        let sessions: Vec<u64> = st.workers.keys().copied().collect();
+        for s in sessions {
+            let seen = st.weights_seen.get(&s).copied().unwrap_or((0, None));
+            let w = st.workers.get_mut(&s).expect("listed");
+            let silent = now.duration_since(w.last_heard);
+            if silent > timeout {
+                let why = format!(
+                    "worker {} silent for {:.0} s (--worker-timeout): its actors' state is taken for lost",
+                    w.name,
+                    silent.as_secs_f64()
+                );
+                st.fail(why);
+                break;
+            }
+            let mut r = w.heartbeat(latest.as_ref().map_or(0, |(v, _)| *v));
+            if r.is_ok() {
+                r = w.resend_due(now);
+            }
+            // A newer snapshot it missed (sent at most once a second).
+            if let Some((v, bytes)) = &latest {
+                let stale = seen.0 < *v
+                    && seen
+                        .1
+                        .is_none_or(|t| now.duration_since(t) > Duration::from_secs(1));
+                if r.is_ok() && stale {
+                    r = w.put(bytes.to_vec());
+                    if let Some(x) = st.weights_seen.get_mut(&s) {
+                        x.1 = Some(now);
+                    }
+                }
+            }
+            if let Err(e) = r {
+                tracing::warn!("heartbeat: {e}");
+            }
+        }
+    }
+}

@@ -1,0 +1,86 @@
+//! Between hosts: actors on worker hosts join a run on the head host over Zenoh.
+//!
+//! Within a host everything stays on iceoryx2 shared memory. Between hosts, one gateway process
+//! per host carries the remote actors' channels over one Zenoh session: on the head it stands in
+//! for the remote actors ([`head`]), on a worker it stands in for the head's consumers and
+//! supervisor ([`worker`]). The actors themselves are the ordinary `mbpo-actor` processes, and
+//! the coordinator and the other roles cannot tell a remote actor from a local one.
+//!
+//! * [`protocol`]: the messages, their encoding and its limits;
+//! * [`link`]: sequence numbers, cumulative acknowledgements and resending (go-back-N), so
+//!   nothing accepted is lost or doubled when a link drops;
+//! * [`session`]: Zenoh configuration: endpoints, TLS with mutual authentication,
+//!   user/password, and the rule that a head beyond loopback needs credentials;
+//! * [`peer`]: one side's view of the other end (publisher, outbox, inbox, liveness).
+#![warn(missing_docs)]
+
+pub mod head;
+pub mod link;
+pub mod peer;
+pub mod protocol;
+pub mod session;
+pub mod worker;
+
+pub use head::{run_head, HeadOptions};
+pub use session::{NetOptions, SessionError, DEFAULT_PORT};
+pub use worker::{run_worker, WorkerOptions, WorkerReport};
+
+use mbpo_runtime::{Dims, PipelineSpec, RuntimeError};
+use mbpo_wire::WeightsKind;
+
+/// Why a gateway stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum GatewayError {
+    /// The Zenoh session could not be opened (endpoint, credentials).
+    #[error(transparent)]
+    Session(#[from] SessionError),
+    /// Zenoh failed while running.
+    #[error("zenoh: {0}")]
+    Zenoh(String),
+    /// The local side: config, iceoryx2 ports.
+    #[error(transparent)]
+    Runtime(#[from] RuntimeError),
+    /// A file of the run.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: std::path::PathBuf,
+        /// The error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A remote actor's state is lost, or the peers disagree.
+    #[error("{0}")]
+    Failed(String),
+}
+
+macro_rules! via_runtime {
+    ($($t:ty),*) => {$(
+        impl From<$t> for GatewayError {
+            fn from(e: $t) -> Self {
+                GatewayError::Runtime(RuntimeError::from(e))
+            }
+        }
+    )*};
+}
+via_runtime!(
+    mbpo_wire::RunIpcError,
+    mbpo_wire::NodeCreateError,
+    mbpo_wire::PortCreateError,
+    mbpo_wire::PublishError,
+    mbpo_wire::ReceiveError,
+    mbpo_wire::WeightsReceiveError,
+    mbpo_wire::WaitError,
+    mbpo_wire::WaiterCreateError,
+    mbpo_wire::WaitForSubscribersError,
+    mbpo_wire::CleanupError
+);
+
+/// The weights a run's actors act with (policy for MBPO, model for MPC): kind, layout hash
+/// and length.
+pub fn actor_weights(pipeline: &PipelineSpec, dims: &Dims) -> (WeightsKind, u64, usize) {
+    match pipeline.actor_weights() {
+        WeightsKind::Policy => (WeightsKind::Policy, dims.policy_hash, dims.policy_len),
+        WeightsKind::Model => (WeightsKind::Model, dims.model.layout_hash, dims.model.len()),
+    }
+}

@@ -1,0 +1,150 @@
+//! `mbpo-gateway`: a host's gateway of a multi-host run (`mbpo_net`).
+//!
+//! * `mbpo-gateway head <service args> --listen E --local-actors L`: started by `mbpo run
+//!   --listen E --remote-actors M`; stands in for actors L..L+M on the head.
+//! * `mbpo-gateway join E --actors N`: what `mbpo join` runs on a worker host.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Parser, Subcommand};
+use mbpo_net::{NetOptions, DEFAULT_PORT};
+use mbpo_runtime::ServiceArgs;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "mbpo-gateway",
+    about = "A host's gateway of a multi-host MBPO run"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// The head's gateway (started by `mbpo run --listen`).
+    Head {
+        #[command(flatten)]
+        svc: ServiceArgs,
+        /// Zenoh endpoint to listen on.
+        #[arg(long)]
+        listen: String,
+        /// Credentials directory (`mbpo certs`).
+        #[arg(long)]
+        credentials: Option<PathBuf>,
+        /// Actors running on the head; the rest of --actors are remote.
+        #[arg(long)]
+        local_actors: u16,
+        /// Seconds a worker may be silent before its actors' state is taken for lost.
+        #[arg(long, default_value_t = 30.0)]
+        worker_timeout: f64,
+    },
+    /// A worker host's gateway (`mbpo join`).
+    Join(JoinArgs),
+}
+
+/// `mbpo join`'s arguments.
+#[derive(Debug, clap::Args)]
+struct JoinArgs {
+    /// The head's endpoint, e.g. tcp/10.0.0.1:7447 (tls/... with credentials).
+    head: String,
+    /// Actors to offer.
+    #[arg(long, default_value_t = 1)]
+    actors: u16,
+    /// Actors per core of this host (instead of --actors).
+    #[arg(long)]
+    actors_per_core: Option<u16>,
+    /// Credentials directory (`mbpo certs`, the worker's part).
+    #[arg(long)]
+    credentials: Option<PathBuf>,
+    /// This worker's name in the head's logs and summary (default: host name).
+    #[arg(long)]
+    name: Option<String>,
+    /// Directory for the actors' local files.
+    #[arg(long)]
+    dir: Option<PathBuf>,
+    /// Base directory of this host's iceoryx2 root.
+    #[arg(long, default_value = "/tmp/mbpo-ipc")]
+    ipc_root: PathBuf,
+    /// Seconds the head may be silent before this worker gives up (exit code 3; a service
+    /// manager starts it again).
+    #[arg(long, default_value_t = 60.0)]
+    head_timeout: f64,
+}
+
+fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_string())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "worker".into())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    mbpo_runtime::init_service_process();
+    match cli.command {
+        Cmd::Head {
+            svc,
+            listen,
+            credentials,
+            local_actors,
+            worker_timeout,
+        } => {
+            let opts = mbpo_net::HeadOptions {
+                service: svc,
+                net: NetOptions {
+                    endpoint: listen,
+                    credentials,
+                },
+                local_actors,
+                worker_timeout: Duration::from_secs_f64(worker_timeout),
+            };
+            match mbpo_net::run_head(&opts) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    tracing::error!("gateway failed: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Cmd::Join(j) => {
+            let cores = std::thread::available_parallelism().map_or(1, |n| n.get() as u16);
+            let name = j.name.unwrap_or_else(host_name);
+            let opts = mbpo_net::WorkerOptions {
+                net: NetOptions {
+                    endpoint: j.head,
+                    credentials: j.credentials,
+                },
+                actors: j
+                    .actors_per_core
+                    .map_or(j.actors, |k| k.saturating_mul(cores)),
+                dir: j
+                    .dir
+                    .unwrap_or_else(|| std::env::temp_dir().join(format!("mbpo-worker-{name}"))),
+                name,
+                ipc_root: j.ipc_root,
+                bin_dir: std::env::current_exe()
+                    .ok()
+                    .and_then(|p| p.parent().map(PathBuf::from))
+                    .unwrap_or_default(),
+                head_timeout: Duration::from_secs_f64(j.head_timeout),
+            };
+            match mbpo_net::run_worker(&opts) {
+                Ok(report) => {
+                    println!("{}", serde_json::to_string(&report).unwrap_or_default());
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    tracing::error!("worker failed: {e}");
+                    ExitCode::from(3)
+                }
+            }
+        }
+    }
+}
+
+#[allow(dead_code)]
+const _: u16 = DEFAULT_PORT;
