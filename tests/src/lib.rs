@@ -12,9 +12,12 @@ use std::time::{Duration, Instant};
 use mbpo_plan::PlannerKind;
 use mbpo_train::{Algo, ExperimentConfig, PlanReward};
 
+pub mod netns;
+
 /// The packages whose binaries a pipeline run needs.
-pub const PACKAGES: [&str; 5] = [
+pub const PACKAGES: [&str; 6] = [
     "mbpo",
+    "mbpo-gateway",
     "mbpo-actor",
     "mbpo-model-trainer",
     "mbpo-rollout-generator",

@@ -77,10 +77,20 @@ impl TwoHosts {
         let (h, w) = (&self.head, &self.worker);
         ip(&["netns", "add", &h.ns])?;
         ip(&["netns", "add", &w.ns])?;
-        ip(&["link", "add", &h.veth, "type", "veth", "peer", "name", &w.veth])?;
+        ip(&[
+            "link", "add", &h.veth, "type", "veth", "peer", "name", &w.veth,
+        ])?;
         for host in [h, w] {
             ip(&["link", "set", &host.veth, "netns", &host.ns])?;
-            ip(&["-n", &host.ns, "addr", "add", &format!("{}/24", host.addr), "dev", &host.veth])?;
+            ip(&[
+                "-n",
+                &host.ns,
+                "addr",
+                "add",
+                &format!("{}/24", host.addr),
+                "dev",
+                &host.veth,
+            ])?;
             ip(&["-n", &host.ns, "link", "set", &host.veth, "up"])?;
             ip(&["-n", &host.ns, "link", "set", "lo", "up"])?;
         }
@@ -101,8 +111,15 @@ impl TwoHosts {
     /// Take the link down (`false`) or up again: the worker's end.
     pub fn set_link(&self, up: bool) {
         let state = if up { "up" } else { "down" };
-        ip(&["-n", &self.worker.ns, "link", "set", &self.worker.veth, state])
-            .expect("setting the link");
+        ip(&[
+            "-n",
+            &self.worker.ns,
+            "link",
+            "set",
+            &self.worker.veth,
+            state,
+        ])
+        .expect("setting the link");
     }
 }
 

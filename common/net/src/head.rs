@@ -42,6 +42,9 @@ use crate::protocol::{
 use crate::session::{self, NetOptions, Side};
 use crate::{actor_weights, GatewayError};
 
+/// A worker silent this long is logged (the run waits for it meanwhile).
+const SILENCE_WARNING: Duration = Duration::from_secs(2);
+
 /// What `mbpo-gateway head` is given.
 #[derive(Debug, Clone)]
 pub struct HeadOptions {
@@ -762,6 +765,7 @@ fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), Gatewa
 
 /// The heartbeat thread.
 fn heartbeat(gate: &Gate, timeout: Duration) {
+    let mut silenced = std::collections::HashSet::new();
     while !gate.stopping() {
         std::thread::sleep(HEARTBEAT_PERIOD);
         let mut st = lock(&gate.state);
@@ -772,15 +776,25 @@ fn heartbeat(gate: &Gate, timeout: Duration) {
             let seen = st.weights_seen.get(&s).copied().unwrap_or((0, None));
             let w = st.workers.get_mut(&s).expect("listed");
             let silent = now.duration_since(w.last_heard);
+            let name = w.name.clone();
             if silent > timeout {
                 let why = format!(
-                    "worker {} silent for {:.0} s (--worker-timeout): its actors' state is taken for lost",
-                    w.name,
+                    "worker {name} silent for {:.0} s (--worker-timeout): its actors' state is taken for lost",
                     silent.as_secs_f64()
                 );
                 st.fail(why);
                 break;
             }
+            // The link is the only way between the hosts: while it is down the run waits.
+            if silent > SILENCE_WARNING && silenced.insert(s) {
+                tracing::warn!(
+                    "worker {name}: nothing heard for {:.1} s",
+                    silent.as_secs_f64()
+                );
+            } else if silent < HEARTBEAT_PERIOD * 2 && silenced.remove(&s) {
+                tracing::info!("worker {name}: heard again");
+            }
+            let w = st.workers.get_mut(&s).expect("listed");
             let mut r = w.heartbeat(latest.as_ref().map_or(0, |(v, _)| *v));
             if r.is_ok() {
                 r = w.resend_due(now);

@@ -187,6 +187,8 @@ fn receive(
     let mut last_hello: Option<Instant> = None;
     let mut local: Option<LocalOut> = None;
     let mut refused_logged: Option<String> = None;
+    let started = Instant::now();
+    let mut next_complaint = Duration::from_secs(5);
     loop {
         if termination_requested() {
             tracing::info!("stopped by a signal");
@@ -205,7 +207,18 @@ fn receive(
                     return Ok(());
                 }
             }
-            // Not a member: say hello once a second.
+            // Not a member: say hello once a second, and say it when nobody answers.
+            if st.attempt.is_none() && st.head.is_none() {
+                let waited = started.elapsed();
+                if waited > next_complaint {
+                    tracing::warn!(
+                        "no answer from the head at {} after {:.0} s: is `mbpo run --listen` running there, is the address reachable, and are this worker's credentials (--credentials) the run's?",
+                        opts.net.endpoint,
+                        waited.as_secs_f64()
+                    );
+                    next_complaint = waited * 2;
+                }
+            }
             if st.attempt.is_none()
                 && last_hello.is_none_or(|t| t.elapsed() > Duration::from_secs(1))
             {

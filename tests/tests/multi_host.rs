@@ -1,0 +1,435 @@
+//! Several machines (issue 21): the head in one network namespace, a worker in another, joined
+//! by a veth pair of the test's own addresses, each with its own /dev/shm, so the two share
+//! nothing but the link (`mbpo_integration_tests::netns`). Real TCP, real Zenoh, the real
+//! binaries. Needs root; elsewhere each test says so and passes without running.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use mbpo_integration_tests::netns::TwoHosts;
+use mbpo_integration_tests::*;
+use mbpo_train::train_mbpo;
+
+const TIMEOUT: Duration = Duration::from_secs(600);
+
+/// The two hosts, or `None` after saying plainly why they cannot be made here.
+fn hosts(test: &str) -> Option<TwoHosts> {
+    match TwoHosts::create() {
+        Ok(h) => Some(h),
+        Err(why) => {
+            eprintln!("SKIPPED {test}: cannot make network namespaces here: {why}");
+            None
+        }
+    }
+}
+
+/// A credentials directory with the run's user/password (the head's and the worker's alike).
+fn credentials(dir: &Path, password: &str) -> PathBuf {
+    let d = dir.join(format!("credentials-{password}"));
+    std::fs::create_dir_all(&d).unwrap();
+    std::fs::write(d.join("password"), format!("mbpo:{password}\n")).unwrap();
+    d
+}
+
+struct Run {
+    child: Child,
+    out: PathBuf,
+}
+
+/// `mbpo run` in the head namespace, listening on the head's link address.
+fn start_head(hosts: &TwoHosts, dir: &Path, input: &Path, creds: &Path, extra: &[&str]) -> Run {
+    let out = dir.join("run");
+    let root = short_root(dir, "h");
+    let listen = format!("tcp/{}:7447", hosts.head.addr);
+    let mut args = vec![
+        "run",
+        "--config",
+        input.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--ipc-root",
+        root.to_str().unwrap(),
+        "--listen",
+        &listen,
+        "--credentials",
+        creds.to_str().unwrap(),
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    let child = hosts
+        .command(&hosts.head, &bin_dir().join("mbpo"), &args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawning mbpo run");
+    Run { child, out }
+}
+
+/// `mbpo join` in the worker namespace; its stderr goes to `<dir>/<name>.log`.
+fn start_worker(
+    hosts: &TwoHosts,
+    dir: &Path,
+    name: &str,
+    creds: Option<&Path>,
+    actors: u16,
+) -> Child {
+    let head = format!("tcp/{}:7447", hosts.head.addr);
+    let root = short_root(dir, name);
+    let work = dir.join(format!("work-{name}"));
+    let actors = actors.to_string();
+    let mut args = vec![
+        "join",
+        &head,
+        "--actors",
+        &actors,
+        "--name",
+        name,
+        "--ipc-root",
+        root.to_str().unwrap(),
+        "--dir",
+        work.to_str().unwrap(),
+    ];
+    if let Some(c) = creds {
+        args.extend(["--credentials", c.to_str().unwrap()]);
+    }
+    let log = std::fs::File::create(dir.join(format!("{name}.log"))).unwrap();
+    hosts
+        .command(&hosts.worker, &bin_dir().join("mbpo"), &args)
+        .stdout(Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .expect("spawning mbpo join")
+}
+
+/// An iceoryx2 base directory short enough for its sockets (the scratch dir's is too long).
+fn short_root(dir: &Path, who: &str) -> PathBuf {
+    let test = dir.file_name().unwrap().to_str().unwrap();
+    let tag: String = test
+        .split('-')
+        .nth(3)
+        .unwrap_or("x")
+        .chars()
+        .take(4)
+        .collect();
+    ipc_root(&format!("{tag}{}", &who[..who.len().min(3)]))
+}
+
+fn wait_child(child: Child, what: &str) -> Output {
+    let t = Instant::now();
+    let mut child = child;
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if t.elapsed() > TIMEOUT {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!(
+                "{what} did not finish within {TIMEOUT:?}: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn text(p: &Path) -> String {
+    std::fs::read_to_string(p).unwrap_or_default()
+}
+
+/// Wait until `path` contains `needle` (at most `timeout`).
+fn wait_for_text(path: &Path, needle: &str, timeout: Duration) -> bool {
+    let t = Instant::now();
+    while t.elapsed() < timeout {
+        if text(path).contains(needle) {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    false
+}
+
+/// One local and two remote actors, pipelined: the run completes and every transition of the
+/// remote actors reached every consumer on the head exactly once.
+#[test]
+fn pipelined_run_with_remote_actors_loses_nothing() {
+    let Some(hosts) = hosts("pipelined_run_with_remote_actors_loses_nothing") else {
+        return;
+    };
+    let dir = scratch("net-pipelined");
+    let input = write_config(&tiny_config(600), &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        &[
+            "--mode",
+            "pipelined",
+            "--actors",
+            "1",
+            "--remote-actors",
+            "2",
+        ],
+    );
+    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 2);
+    let o = wait_child(head.child, "mbpo run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, 600);
+    let w = wait_child(worker, "mbpo join");
+    assert!(w.status.success(), "{}", text(&dir.join("w1.log")));
+    let report: serde_json::Value = serde_json::from_slice(&w.stdout).unwrap();
+    assert_eq!(report["slots"], serde_json::json!([1, 2]), "{report}");
+    // The remote actors' logs reached the head (no shared filesystem).
+    for slot in [1, 2] {
+        let log = head
+            .out
+            .join("logs")
+            .join("w1")
+            .join(format!("actor-{slot}.log"));
+        assert!(text(&log).contains("done: "), "{}", log.display());
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Lockstep with its one actor on the worker equals `mbpo train --mode sequential`.
+#[test]
+fn lockstep_with_a_remote_actor_equals_sequential() {
+    let Some(hosts) = hosts("lockstep_with_a_remote_actor_equals_sequential") else {
+        return;
+    };
+    let dir = scratch("net-lockstep");
+    let cfg = tiny_config(400);
+    let input = write_config(&cfg, &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        &[
+            "--mode",
+            "lockstep",
+            "--actors",
+            "0",
+            "--remote-actors",
+            "1",
+        ],
+    );
+    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let o = wait_child(head.child, "mbpo run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "remote lockstep != sequential"
+    );
+    assert_eq!(s["final_eval_return"], seq.final_eval_return);
+    assert!(wait_child(worker, "mbpo join").status.success());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// The link goes down for 5 s in the middle of a run: the run waits (the hosts share nothing
+/// else), then completes with every transition once.
+#[test]
+fn a_link_down_for_5_s_stalls_the_run_and_loses_nothing() {
+    let Some(hosts) = hosts("a_link_down_for_5_s_stalls_the_run_and_loses_nothing") else {
+        return;
+    };
+    let dir = scratch("net-linkdown");
+    // Long enough that the link goes down well before the end (1000 steps take ~3 s here).
+    let steps = 4000;
+    let input = write_config(&tiny_config(steps), &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        &[
+            "--mode",
+            "pipelined",
+            "--actors",
+            "0",
+            "--remote-actors",
+            "1",
+        ],
+    );
+    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
+    let gateway_log = head.out.join("logs").join("gateway.log");
+    assert!(
+        wait_for_text(&gateway_log, "joined: actors", Duration::from_secs(120)),
+        "the worker never joined: {}",
+        text(&gateway_log)
+    );
+    std::thread::sleep(Duration::from_secs(1));
+    hosts.set_link(false);
+    std::thread::sleep(Duration::from_secs(5));
+    hosts.set_link(true);
+    let o = wait_child(head.child, "mbpo run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, steps);
+    assert_eq!(s["restarts"], 0, "the link's outage cost a restart: {s}");
+    let log = text(&gateway_log);
+    assert!(
+        log.contains("worker w1: nothing heard"),
+        "the head never missed the worker: {log}"
+    );
+    assert!(log.contains("worker w1: heard again"), "{log}");
+    assert!(wait_child(worker, "mbpo join").status.success());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// The worker host's processes are SIGKILLed mid-run and `mbpo join` starts again: the head
+/// restarts the pipeline from its newest checkpoint, the worker rejoins, nothing is lost.
+#[test]
+fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
+    let Some(hosts) = hosts("a_worker_killed_and_started_again_rejoins_and_nothing_is_lost") else {
+        return;
+    };
+    let dir = scratch("net-kill");
+    let mut cfg = tiny_config(1000);
+    cfg.checkpoint.every = 200;
+    let input = write_config(&cfg, &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        &[
+            "--mode",
+            "pipelined",
+            "--actors",
+            "1",
+            "--remote-actors",
+            "1",
+            "--restart",
+            "on-failure",
+        ],
+    );
+    let mut worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
+    // Mid-run: after the first checkpoint, which holds the remote actor's file.
+    let first = head.out.join("checkpoints");
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(300) {
+        let complete = std::fs::read_dir(&first)
+            .map(|d| d.flatten().any(|e| e.path().join("COMPLETE").is_file()))
+            .unwrap_or(false);
+        if complete {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    // SIGKILL every process of the worker host: `ip netns exec`'s tree.
+    let victims = mbpo_runtime::processes_mentioning(dir.join("work-w1").to_str().unwrap());
+    assert!(!victims.is_empty(), "no worker processes found");
+    let killed = kill_tree(worker.id() as i32);
+    let _ = worker.wait();
+    assert!(
+        killed >= 2,
+        "killed {killed} process(es): the gateway and its actor at least"
+    );
+    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
+    let o = wait_child(head.child, "mbpo run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, 1000);
+    assert!(s["restarts"].as_u64().unwrap_or(0) >= 1, "{s}");
+    assert!(
+        wait_child(worker, "mbpo join").status.success(),
+        "{}",
+        text(&dir.join("w1.log"))
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// SIGKILL `pid` and every descendant; returns how many.
+fn kill_tree(pid: i32) -> usize {
+    let mut all = vec![pid];
+    let mut i = 0;
+    while i < all.len() {
+        let children =
+            std::fs::read_to_string(format!("/proc/{}/task/{}/children", all[i], all[i]))
+                .unwrap_or_default();
+        all.extend(
+            children
+                .split_whitespace()
+                .filter_map(|c| c.parse::<i32>().ok()),
+        );
+        i += 1;
+    }
+    for p in &all {
+        // SAFETY: kill(2) with a pid of a process this test started (or its descendant).
+        unsafe { libc::kill(*p, libc::SIGKILL) };
+    }
+    all.len()
+}
+
+/// Peers with a wrong password or none are refused (they never join, nothing of theirs
+/// reaches the run) and the run completes with the right one.
+#[test]
+fn a_peer_without_the_credentials_is_refused_and_the_run_goes_on() {
+    let Some(hosts) = hosts("a_peer_without_the_credentials_is_refused_and_the_run_goes_on") else {
+        return;
+    };
+    let dir = scratch("net-creds");
+    let input = write_config(&tiny_config(400), &dir);
+    let creds = credentials(&dir, "right");
+    let wrong = credentials(&dir, "wrong");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        &[
+            "--mode",
+            "pipelined",
+            "--actors",
+            "0",
+            "--remote-actors",
+            "1",
+        ],
+    );
+    let intruder = start_worker(&hosts, &dir, "intruder", Some(&wrong), 1);
+    let anonymous = start_worker(&hosts, &dir, "anonymous", None, 1);
+    std::thread::sleep(Duration::from_secs(5));
+    let good = start_worker(&hosts, &dir, "good", Some(&creds), 1);
+    let o = wait_child(head.child, "mbpo run");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, 400);
+    let gateway = text(&head.out.join("logs").join("gateway.log"));
+    assert!(gateway.contains("worker good"), "{gateway}");
+    assert!(
+        !gateway.contains("intruder") && !gateway.contains("anonymous"),
+        "{gateway}"
+    );
+    assert!(wait_child(good, "mbpo join").status.success());
+    for (child, name) in [(intruder, "intruder"), (anonymous, "anonymous")] {
+        let log = text(&dir.join(format!("{name}.log")));
+        assert!(!log.contains("joined run"), "{name} joined: {log}");
+        assert!(
+            log.contains("no answer from the head"),
+            "{name} did not say why: {log}"
+        );
+        kill_tree(child.id() as i32);
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
