@@ -39,9 +39,21 @@ struct Run {
 
 /// `mbpo run` in the head namespace, listening on the head's link address.
 fn start_head(hosts: &TwoHosts, dir: &Path, input: &Path, creds: &Path, extra: &[&str]) -> Run {
+    start_head_on(hosts, "tcp", dir, input, creds, extra)
+}
+
+/// [`start_head`] on a `proto` (tcp or tls) endpoint.
+fn start_head_on(
+    hosts: &TwoHosts,
+    proto: &str,
+    dir: &Path,
+    input: &Path,
+    creds: &Path,
+    extra: &[&str],
+) -> Run {
     let out = dir.join("run");
     let root = short_root(dir, "h");
-    let listen = format!("tcp/{}:7447", hosts.head.addr);
+    let listen = format!("{proto}/{}:7447", hosts.head.addr);
     let mut args = vec![
         "run",
         "--config",
@@ -74,7 +86,19 @@ fn start_worker(
     creds: Option<&Path>,
     actors: u16,
 ) -> Child {
-    let head = format!("tcp/{}:7447", hosts.head.addr);
+    start_worker_on(hosts, "tcp", dir, name, creds, actors)
+}
+
+/// [`start_worker`] joining a `proto` (tcp or tls) endpoint.
+fn start_worker_on(
+    hosts: &TwoHosts,
+    proto: &str,
+    dir: &Path,
+    name: &str,
+    creds: Option<&Path>,
+    actors: u16,
+) -> Child {
+    let head = format!("{proto}/{}:7447", hosts.head.addr);
     let root = short_root(dir, name);
     let work = dir.join(format!("work-{name}"));
     let actors = actors.to_string();
@@ -150,8 +174,9 @@ fn wait_for_text(path: &Path, needle: &str, timeout: Duration) -> bool {
     false
 }
 
-/// One local and two remote actors, pipelined: the run completes and every transition of the
-/// remote actors reached every consumer on the head exactly once.
+/// One local and two remote actors, pipelined, over mutual TLS with `mbpo certs`'
+/// credentials: the run completes and every transition of the remote actors reached every
+/// consumer on the head exactly once.
 #[test]
 fn pipelined_run_with_remote_actors_loses_nothing() {
     let Some(hosts) = hosts("pipelined_run_with_remote_actors_loses_nothing") else {
@@ -159,13 +184,22 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
     };
     let dir = scratch("net-pipelined");
     let input = write_config(&tiny_config(600), &dir);
-    let creds = credentials(&dir, "right");
-    bin_dir();
-    let head = start_head(
+    let certs = dir.join("certs");
+    let made = std::process::Command::new(bin_dir().join("mbpo"))
+        .args(["certs", "--out", certs.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(
+        made.status.success(),
+        "{}",
+        String::from_utf8_lossy(&made.stderr)
+    );
+    let head = start_head_on(
         &hosts,
+        "tls",
         &dir,
         &input,
-        &creds,
+        &certs.join("head"),
         &[
             "--mode",
             "pipelined",
@@ -175,7 +209,7 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
             "2",
         ],
     );
-    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 2);
+    let worker = start_worker_on(&hosts, "tls", &dir, "w1", Some(&certs.join("worker")), 2);
     let o = wait_child(head.child, "mbpo run");
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
@@ -185,6 +219,9 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
     assert!(w.status.success(), "{}", text(&dir.join("w1.log")));
     let report: serde_json::Value = serde_json::from_slice(&w.stdout).unwrap();
     assert_eq!(report["slots"], serde_json::json!([1, 2]), "{report}");
+    // The summary counts the worker host.
+    assert_eq!(s["hosts"]["w1"]["actors"], serde_json::json!([1, 2]), "{s}");
+    assert_eq!(s["hosts"]["w1"]["restarts"], 0, "{s}");
     // The remote actors' logs reached the head (no shared filesystem).
     for slot in [1, 2] {
         let log = head
@@ -350,6 +387,10 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
     assert_eq!(s["status"], "completed");
     assert_no_loss(&s, 1000);
     assert!(s["restarts"].as_u64().unwrap_or(0) >= 1, "{s}");
+    assert!(
+        s["hosts"]["w1"]["restarts"].as_u64().unwrap_or(0) >= 1,
+        "{s}"
+    );
     assert!(
         wait_child(worker, "mbpo join").status.success(),
         "{}",

@@ -61,7 +61,8 @@ pub fn make_credentials(out: &Path) -> Result<(), GatewayError> {
         }
     }
     let ca_key = KeyPair::generate().map_err(|e| failed("CA key", e))?;
-    let mut ca_params = CertificateParams::new(Vec::<String>::new()).map_err(|e| failed("CA", e))?;
+    let mut ca_params =
+        CertificateParams::new(Vec::<String>::new()).map_err(|e| failed("CA", e))?;
     ca_params
         .distinguished_name
         .push(DnType::CommonName, "mbpo run CA");
@@ -152,15 +153,26 @@ mod tests {
         make_credentials(&b).unwrap();
         assert!(make_credentials(&a).is_err(), "overwrote credentials");
         use std::os::unix::fs::PermissionsExt;
-        let mode = std::fs::metadata(a.join("worker/key.pem")).unwrap().permissions().mode();
+        let mode = std::fs::metadata(a.join("worker/key.pem"))
+            .unwrap()
+            .permissions()
+            .mode();
         assert_eq!(mode & 0o077, 0, "key readable by others: {mode:o}");
-        assert!(talks("tls/127.0.0.1:17461", &a.join("head"), &a.join("worker")));
+        assert!(talks(
+            "tls/127.0.0.1:17461",
+            &a.join("head"),
+            &a.join("worker")
+        ));
         assert!(
             !talks("tls/127.0.0.1:17462", &a.join("head"), &b.join("worker")),
             "a worker of another CA got through"
         );
         // tcp with the password only: the right one passes, a wrong one does not.
-        assert!(talks("tcp/127.0.0.1:17463", &a.join("head"), &a.join("worker")));
+        assert!(talks(
+            "tcp/127.0.0.1:17463",
+            &a.join("head"),
+            &a.join("worker")
+        ));
         let pw_only = scratch("pw");
         std::fs::create_dir_all(&pw_only).unwrap();
         std::fs::write(pw_only.join("password"), "mbpo:wrong\n").unwrap();

@@ -168,12 +168,19 @@ pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
             .spawn(move || heartbeat(&gate, timeout))
             .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
     };
-    let result = from_workers(&gate, &session, opts, pipeline, dims);
+    let mut counts = HashMap::new();
+    let result = from_workers(&gate, &session, opts, pipeline, dims, &mut counts);
     gate.quit.store(true, Ordering::Relaxed);
     gate.space.notify_all();
     let _ = heart.join();
     let _ = to_workers.join();
     let _ = session.close().wait();
+    {
+        let st = lock(&gate.state);
+        if let Err(e) = write_hosts(&opts.service.run_dir, &st, &counts) {
+            tracing::warn!("writing {}: {e}", mbpo_runtime::HOSTS_FILE);
+        }
+    }
     result?;
     let failure = lock(&gate.state).failure.take();
     match failure {
@@ -199,6 +206,7 @@ fn from_workers(
     opts: &HeadOptions,
     pipeline: &'static PipelineSpec,
     dims: Dims,
+    counts: &mut HashMap<u16, u64>,
 ) -> Result<(), GatewayError> {
     let args = &opts.service;
     let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
@@ -266,8 +274,51 @@ fn from_workers(
                 continue;
             }
         };
-        handle(gate, session, opts, &mut slots, consumers, env)?;
+        let r = handle(gate, session, opts, &mut slots, consumers, env);
+        for (i, slot) in slots.iter().enumerate() {
+            counts.insert(opts.local_actors + i as u16, slot.transitions);
+        }
+        r?;
     }
+}
+
+/// Add this attempt to `<run>/hosts.json`: per worker name its actors, transition batches,
+/// attempts joined and restarts (attempts it ended by losing its actors' state).
+fn write_hosts(
+    run_dir: &Path,
+    st: &Shared,
+    counts: &HashMap<u16, u64>,
+) -> Result<(), GatewayError> {
+    let path = run_dir.join(mbpo_runtime::HOSTS_FILE);
+    let mut hosts: serde_json::Map<String, serde_json::Value> = std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or_default();
+    for (session, w) in &st.workers {
+        let slots: Vec<u16> = (0..st.owner.len())
+            .filter(|&i| st.owner[i] == Some(*session))
+            .map(|i| st.first_slot + i as u16)
+            .collect();
+        let batches: u64 = slots.iter().filter_map(|s| counts.get(s)).sum();
+        let e = hosts.entry(w.name.clone()).or_insert_with(
+            || serde_json::json!({"attempts": 0, "restarts": 0, "transition_batches": 0}),
+        );
+        let failed = st
+            .failure
+            .as_deref()
+            .is_some_and(|f| f.contains(&format!("worker {} ", w.name)));
+        let n = |k: &str| e[k].as_u64().unwrap_or(0);
+        *e = serde_json::json!({
+            "actors": slots,
+            "attempts": n("attempts") + 1,
+            "restarts": n("restarts") + u64::from(failed),
+            "transition_batches": n("transition_batches") + batches,
+            "resent": w.resent(),
+            "duplicates_dropped": w.duplicates(),
+        });
+    }
+    let text = serde_json::to_string_pretty(&hosts).unwrap_or_default() + "\n";
+    write_atomically(&path, text.as_bytes())
 }
 
 fn handle(
@@ -697,6 +748,7 @@ fn to_workers(
                             model_trainings: h.model_trainings,
                         },
                         params: s.params().to_vec(),
+                        sent_ns: h.send_time_ns,
                     };
                     newest = Some((s.version(), msg));
                 }
@@ -719,6 +771,9 @@ fn publish_weights(gate: &Gate, version: u64, msg: WeightsMsg) -> Result<(), Gat
         session: st.me,
         body: Body::Weights(Box::new(msg)),
     }));
+    if st.weights.is_none() {
+        tracing::info!("first weights: version {version}");
+    }
     st.weights = Some((version, bytes.clone()));
     let now = Instant::now();
     let sessions: Vec<u64> = st.workers.keys().copied().collect();

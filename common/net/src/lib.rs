@@ -14,6 +14,7 @@
 //! * [`peer`]: one side's view of the other end (publisher, outbox, inbox, liveness).
 #![warn(missing_docs)]
 
+pub mod certs;
 pub mod head;
 pub mod link;
 pub mod peer;

@@ -86,6 +86,9 @@ pub struct WeightsMsg {
     pub counters: WeightsCounters,
     /// Its flat parameters.
     pub params: Vec<f32>,
+    /// When its publisher (the learner) sent it, ns since the Unix epoch: the worker measures
+    /// the weights' latency from it (meaningful when the hosts' clocks agree).
+    pub sent_ns: u64,
 }
 
 /// What a worker runs: its slots of the run's actors, with the run's config and arguments.

@@ -68,6 +68,13 @@ pub struct WorkerReport {
     pub batches_sent: u64,
     /// Messages of the stream sent more than once.
     pub resent: u64,
+    /// Weight snapshots published to the actors.
+    pub weights_applied: u64,
+    /// Latency of a weight snapshot from its publisher on the head to this host's shared
+    /// memory, milliseconds: median and 99th percentile (host clocks must agree).
+    pub weights_latency_ms_p50: f64,
+    /// See `weights_latency_ms_p50`.
+    pub weights_latency_ms_p99: f64,
 }
 
 /// One actor process.
@@ -145,7 +152,17 @@ pub fn run_worker(opts: &WorkerOptions) -> Result<WorkerReport, GatewayError> {
             .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
     };
     let mut report = WorkerReport::default();
-    let result = receive(&gate, &sub, &to_head, opts, &mut report);
+    let mut latencies = Vec::new();
+    let result = receive(&gate, &sub, &to_head, opts, &mut report, &mut latencies);
+    report.weights_applied = latencies.len() as u64;
+    latencies.sort_by(f64::total_cmp);
+    let pct = |q: f64| {
+        latencies
+            .get(((latencies.len() as f64 - 1.0) * q).round() as usize)
+            .copied()
+            .unwrap_or(0.0)
+    };
+    (report.weights_latency_ms_p50, report.weights_latency_ms_p99) = (pct(0.5), pct(0.99));
     gate.quit.store(true, Ordering::Relaxed);
     gate.space.notify_all();
     let _ = heart.join();
@@ -165,6 +182,7 @@ struct LocalOut {
     weights: WeightsPublisher<ipc::Service>,
     slots: usize,
     actors_listening: bool,
+    weights_seen: u64,
     _node: WireNode<ipc::Service>,
 }
 
@@ -174,6 +192,7 @@ fn receive(
     to_head: &Arc<zenoh::pubsub::Publisher<'static>>,
     opts: &WorkerOptions,
     report: &mut WorkerReport,
+    latencies: &mut Vec<f64>,
 ) -> Result<(), GatewayError> {
     let me = lock(&gate.state).me;
     let hello = crate::protocol::encode(&Envelope {
@@ -228,6 +247,14 @@ fn receive(
                     .map_err(|e| GatewayError::Zenoh(format!("sending hello: {e}")))?;
                 last_hello = Some(Instant::now());
             }
+        }
+        // An actor that subscribed after the last snapshot gets it only when the publisher
+        // looks for new subscribers (iceoryx2 delivers history then), and the head sends no
+        // newer one while the run waits for this very actor.
+        if let Some(out) = &local {
+            out.weights
+                .update_connections()
+                .map_err(RuntimeError::from)?;
         }
         let sample = match sub.recv_timeout(Duration::from_millis(100)) {
             Ok(Some(s)) => s,
@@ -308,7 +335,18 @@ fn receive(
             }
             Body::Weights(w) => {
                 if let Some(out) = local.as_mut().filter(|l| l.head == head) {
-                    apply_weights(gate, out, *w)?;
+                    let (sent_ns, version) = (w.sent_ns, w.version);
+                    let applied = apply_weights(gate, out, *w)?;
+                    if applied && out.weights_seen == 0 {
+                        tracing::info!("first weights: version {version}");
+                    }
+                    if applied {
+                        out.weights_seen += 1;
+                    }
+                    if applied && latencies.len() < 1_000_000 {
+                        let now = mbpo_wire::schema::now_ns();
+                        latencies.push(now.saturating_sub(sent_ns) as f64 / 1e6);
+                    }
                 }
             }
             Body::Hello { .. } => tracing::warn!("a worker's hello reached a worker"),
@@ -316,15 +354,16 @@ fn receive(
     }
 }
 
-fn apply_weights(gate: &Gate, out: &mut LocalOut, w: WeightsMsg) -> Result<(), GatewayError> {
+/// Publish `w` to the actors if it is newer than what they have; true if it was.
+fn apply_weights(gate: &Gate, out: &mut LocalOut, w: WeightsMsg) -> Result<bool, GatewayError> {
     if w.version <= out.weights.version() {
-        return Ok(());
+        return Ok(false);
     }
     out.weights
         .publish(&w.params, w.version, w.counters)
         .map_err(RuntimeError::from)?;
     lock(&gate.state).weights_have = w.version;
-    Ok(())
+    Ok(true)
 }
 
 /// One message of the head's stream, in order.
@@ -488,6 +527,7 @@ fn start_attempt(
         weights,
         slots,
         actors_listening: false,
+        weights_seen: 0,
         _node: node,
     })
 }

@@ -28,6 +28,9 @@ pub mod process;
 pub mod services;
 
 pub use args::{Mode, ServiceArgs, Slack};
+
+/// The head's gateway's account of the worker hosts, in the run directory (multi-host runs).
+pub const HOSTS_FILE: &str = "hosts.json";
 pub use error::{Result, RuntimeError};
 pub use inbox::{send_ack, wait_for, ControlInbox, RealInbox};
 pub use pipeline::{PipelineSpec, RoleKind};

@@ -43,6 +43,12 @@ enum Cmd {
     },
     /// A worker host's gateway (`mbpo join`).
     Join(JoinArgs),
+    /// Make a run's credentials (`mbpo certs`): DIR/head and DIR/worker.
+    Certs {
+        /// Directory to create them in.
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 /// `mbpo join`'s arguments.
@@ -110,6 +116,20 @@ fn main() -> ExitCode {
                 }
             }
         }
+        Cmd::Certs { out } => match mbpo_net::certs::make_credentials(&out) {
+            Ok(()) => {
+                println!(
+                    "made {0}/head and {0}/worker: on the head `mbpo run --listen tls/<address>:{1} --credentials {0}/head ...`, on each worker (a copy of {0}/worker) `mbpo join tls/<head address>:{1} --credentials <its copy>`",
+                    out.display(),
+                    DEFAULT_PORT
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e}");
+                ExitCode::FAILURE
+            }
+        },
         Cmd::Join(j) => {
             let cores = std::thread::available_parallelism().map_or(1, |n| n.get() as u16);
             let name = j.name.unwrap_or_else(host_name);
@@ -145,6 +165,3 @@ fn main() -> ExitCode {
         }
     }
 }
-
-#[allow(dead_code)]
-const _: u16 = DEFAULT_PORT;

@@ -26,6 +26,14 @@ pub enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
         args: Vec<String>,
     },
+    /// Make credentials for a multi-host run: `mbpo certs --out DIR` writes DIR/head and
+    /// DIR/worker (a CA, a certificate each, a password); runs `mbpo-gateway certs`.
+    #[command(disable_help_flag = true)]
+    Certs {
+        /// `--out DIR`.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
+        args: Vec<String>,
+    },
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),

@@ -28,7 +28,8 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
     match cli.command {
         cli::Command::Train(args) => train_cmd::run(&args),
         cli::Command::Run(args) => supervisor::run(&args),
-        cli::Command::Join { args } => supervisor::join(&args),
+        cli::Command::Join { args } => supervisor::gateway("join", &args),
+        cli::Command::Certs { args } => supervisor::gateway("certs", &args),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
         cli::Command::Config(cli::ConfigCommand::Show(source)) => {
             let cfg =

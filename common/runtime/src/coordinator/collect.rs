@@ -121,6 +121,10 @@ pub struct PipelineSummary {
     pub ipc_files_removed: usize,
     /// iceoryx2 files left behind (should be empty).
     pub ipc_leftovers: Vec<String>,
+    /// Worker hosts of a multi-host run (`hosts.json`, written by the head's gateway): per
+    /// worker its actors, transitions, attempts and restarts.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hosts: Option<serde_json::Value>,
 }
 
 /// The collector's bookkeeping, what a checkpoint keeps of it: every row ≤ T is written by
@@ -479,6 +483,7 @@ impl Collector {
             restarts: self.book.restarts,
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
+            hosts: None,
         }
     }
 }

@@ -143,15 +143,16 @@ fn make_run_id(env: &str, seed: u64) -> String {
     )
 }
 
-/// `mbpo join ARGS`: this host's gateway, `mbpo-gateway join ARGS`, in place of this process.
-pub fn join(args: &[String]) -> anyhow::Result<()> {
+/// `mbpo join|certs ARGS`: `mbpo-gateway join|certs ARGS` in place of this process (the
+/// gateway links Zenoh; `mbpo` does not).
+pub fn gateway(command: &str, args: &[String]) -> anyhow::Result<()> {
     use std::os::unix::process::CommandExt;
     let bin = std::env::current_exe()?
         .parent()
         .map(|d| d.join("mbpo-gateway"))
         .context("locating mbpo-gateway")?;
     let err = std::process::Command::new(&bin)
-        .arg("join")
+        .arg(command)
         .args(args)
         .exec();
     Err(anyhow::anyhow!("starting {}: {err}", bin.display()))
@@ -210,6 +211,9 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         r.ipc_files_removed = removed.as_ref().map_or(0, |n| *n);
         r.ipc_leftovers = leftovers.iter().map(|p| p.display().to_string()).collect();
         r.summary.wall_seconds = started.elapsed().as_secs_f64();
+        r.hosts = std::fs::read_to_string(out.join(mbpo_runtime::HOSTS_FILE))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
         let tmp = out.join("summary.json.tmp");
         std::fs::write(&tmp, serde_json::to_string_pretty(&r)? + "\n")?;
         std::fs::rename(tmp, out.join("summary.json"))?;
