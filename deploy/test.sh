@@ -10,6 +10,11 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash deploy/setup_python.sh
+# The multi-host tests make network namespaces (as root) with iproute2's `ip`.
+if ! command -v ip >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+    apt-get install -y -qq iproute2 >/dev/null 2>&1 ||
+        { apt-get update -qq && apt-get install -y -qq iproute2 >/dev/null; }
+fi
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
 cargo test --locked -p mbpo-envs --features mujoco "$@"

@@ -164,7 +164,7 @@ pub fn wait_output(mut child: Child, timeout: Duration) -> Output {
             let _ = child.kill();
             let out = child.wait_with_output().unwrap();
             panic!(
-                "mbpo run did not finish within {timeout:?}; stderr:\n{}",
+                "the process did not finish within {timeout:?}; stderr:\n{}",
                 String::from_utf8_lossy(&out.stderr)
             );
         }

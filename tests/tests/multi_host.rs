@@ -4,7 +4,7 @@
 //! binaries. Needs root; elsewhere each test says so and passes without running.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Output, Stdio};
+use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
 use mbpo_integration_tests::netns::TwoHosts;
@@ -139,25 +139,6 @@ fn short_root(dir: &Path, who: &str) -> PathBuf {
     ipc_root(&format!("{tag}{}", &who[..who.len().min(3)]))
 }
 
-fn wait_child(child: Child, what: &str) -> Output {
-    let t = Instant::now();
-    let mut child = child;
-    loop {
-        if child.try_wait().unwrap().is_some() {
-            return child.wait_with_output().unwrap();
-        }
-        if t.elapsed() > TIMEOUT {
-            let _ = child.kill();
-            let out = child.wait_with_output().unwrap();
-            panic!(
-                "{what} did not finish within {TIMEOUT:?}: {}",
-                String::from_utf8_lossy(&out.stderr)
-            );
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
-
 fn text(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_default()
 }
@@ -210,12 +191,12 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
         ],
     );
     let worker = start_worker_on(&hosts, "tls", &dir, "w1", Some(&certs.join("worker")), 2);
-    let o = wait_child(head.child, "mbpo run");
+    let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
     assert_eq!(s["status"], "completed");
     assert_no_loss(&s, 600);
-    let w = wait_child(worker, "mbpo join");
+    let w = wait_output(worker, TIMEOUT);
     assert!(w.status.success(), "{}", text(&dir.join("w1.log")));
     let report: serde_json::Value = serde_json::from_slice(&w.stdout).unwrap();
     assert_eq!(report["slots"], serde_json::json!([1, 2]), "{report}");
@@ -261,7 +242,7 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
-    let o = wait_child(head.child, "mbpo run");
+    let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
     assert_eq!(s["status"], "completed");
@@ -271,7 +252,7 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
         "remote lockstep != sequential"
     );
     assert_eq!(s["final_eval_return"], seq.final_eval_return);
-    assert!(wait_child(worker, "mbpo join").status.success());
+    assert!(wait_output(worker, TIMEOUT).status.success());
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -313,7 +294,7 @@ fn a_link_down_for_5_s_stalls_the_run_and_loses_nothing() {
     hosts.set_link(false);
     std::thread::sleep(Duration::from_secs(5));
     hosts.set_link(true);
-    let o = wait_child(head.child, "mbpo run");
+    let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
     assert_eq!(s["status"], "completed");
@@ -325,7 +306,7 @@ fn a_link_down_for_5_s_stalls_the_run_and_loses_nothing() {
         "the head never missed the worker: {log}"
     );
     assert!(log.contains("worker w1: heard again"), "{log}");
-    assert!(wait_child(worker, "mbpo join").status.success());
+    assert!(wait_output(worker, TIMEOUT).status.success());
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -381,7 +362,7 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
         "killed {killed} process(es): the gateway and its actor at least"
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
-    let o = wait_child(head.child, "mbpo run");
+    let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
     assert_eq!(s["status"], "completed");
@@ -392,7 +373,7 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
         "{s}"
     );
     assert!(
-        wait_child(worker, "mbpo join").status.success(),
+        wait_output(worker, TIMEOUT).status.success(),
         "{}",
         text(&dir.join("w1.log"))
     );
@@ -451,7 +432,7 @@ fn a_peer_without_the_credentials_is_refused_and_the_run_goes_on() {
     let anonymous = start_worker(&hosts, &dir, "anonymous", None, 1);
     std::thread::sleep(Duration::from_secs(5));
     let good = start_worker(&hosts, &dir, "good", Some(&creds), 1);
-    let o = wait_child(head.child, "mbpo run");
+    let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let s = summary(&head.out);
     assert_eq!(s["status"], "completed");
@@ -462,7 +443,7 @@ fn a_peer_without_the_credentials_is_refused_and_the_run_goes_on() {
         !gateway.contains("intruder") && !gateway.contains("anonymous"),
         "{gateway}"
     );
-    assert!(wait_child(good, "mbpo join").status.success());
+    assert!(wait_output(good, TIMEOUT).status.success());
     for (child, name) in [(intruder, "intruder"), (anonymous, "anonymous")] {
         let log = text(&dir.join(format!("{name}.log")));
         assert!(!log.contains("joined run"), "{name} joined: {log}");

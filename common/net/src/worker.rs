@@ -89,7 +89,6 @@ struct ActorProc {
 
 /// One attempt: the slots of one head session.
 struct Attempt {
-    head: u64,
     assignment: Assignment,
     run_dir: PathBuf,
     ipc: RunIpc,
@@ -166,10 +165,14 @@ pub fn run_worker(opts: &WorkerOptions) -> Result<WorkerReport, GatewayError> {
     gate.quit.store(true, Ordering::Relaxed);
     gate.space.notify_all();
     let _ = heart.join();
-    if let Some(a) = lock(&gate.state).attempt.take() {
-        let (batches, resent) = end_attempt(a, &gate);
-        report.batches_sent = batches;
-        report.resent += resent;
+    // (Not under the lock: ending an attempt joins its to-head thread, which takes it.)
+    let (attempt, resent) = {
+        let mut st = lock(&gate.state);
+        (st.attempt.take(), st.head.as_ref().map_or(0, Peer::resent))
+    };
+    report.resent += resent;
+    if let Some(a) = attempt {
+        report.batches_sent = end_attempt(a, &gate);
     }
     let _ = session.close().wait();
     result.map(|()| report)
@@ -513,7 +516,6 @@ fn start_attempt(
     st.weights_have = 0;
     let slots = a.slots.len();
     st.attempt = Some(Attempt {
-        head,
         assignment: a,
         run_dir,
         ipc,
@@ -537,18 +539,17 @@ fn leave(gate: &Gate, local: &mut Option<LocalOut>, report: &mut WorkerReport) {
     *local = None;
     let attempt = {
         let mut st = lock(&gate.state);
-        st.head = None;
+        report.resent += st.head.take().map_or(0, |p| p.resent());
         st.attempt.take()
     };
     if let Some(a) = attempt {
-        let (_, resent) = end_attempt(a, gate);
-        report.resent += resent;
+        end_attempt(a, gate);
     }
 }
 
-/// Stop an attempt's actors and thread, remove its shared memory. Returns (batches sent,
-/// messages resent).
-fn end_attempt(mut a: Attempt, gate: &Gate) -> (u64, u64) {
+/// Stop an attempt's actors and thread, remove its shared memory. Returns the transition
+/// batches it sent.
+fn end_attempt(mut a: Attempt, gate: &Gate) -> u64 {
     a.stop.store(true, Ordering::Relaxed);
     gate.space.notify_all();
     for p in &mut a.actors {
@@ -578,8 +579,7 @@ fn end_attempt(mut a: Attempt, gate: &Gate) -> (u64, u64) {
         a.assignment.slots,
         a.run_dir.display()
     );
-    let _ = a.head;
-    (batches, 0)
+    batches
 }
 
 /// The to-head thread of one attempt: local transitions and reports into the stream.

@@ -74,8 +74,8 @@ struct JoinArgs {
     /// Base directory of this host's iceoryx2 root.
     #[arg(long, default_value = "/tmp/mbpo-ipc")]
     ipc_root: PathBuf,
-    /// Seconds the head may be silent before this worker gives up (exit code 3; a service
-    /// manager starts it again).
+    /// Seconds the head may be silent before this worker stops its actors and joins again
+    /// (keep it above the head's --worker-timeout, 30 s, so the head gives up first).
     #[arg(long, default_value_t = 60.0)]
     head_timeout: f64,
 }
