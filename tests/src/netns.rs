@@ -125,8 +125,16 @@ impl TwoHosts {
 
 impl Drop for TwoHosts {
     fn drop(&mut self) {
-        // Deleting a namespace deletes its end of the veth pair, and so the pair.
-        let _ = ip(&["netns", "del", &self.head.ns]);
-        let _ = ip(&["netns", "del", &self.worker.ns]);
+        // Deleting a namespace deletes its end of the veth pair, and so the pair. It fails
+        // ("busy") while processes just killed are still leaving the namespace's mounts: try
+        // for up to 5 s.
+        for ns in [&self.head.ns, &self.worker.ns] {
+            for _ in 0..50 {
+                if ip(&["netns", "del", ns]).is_ok() {
+                    break;
+                }
+                std::thread::sleep(std::time::Duration::from_millis(100));
+            }
+        }
     }
 }
