@@ -32,14 +32,32 @@ fn credentials(dir: &Path, password: &str) -> PathBuf {
     d
 }
 
+/// A head's mode and actors.
+struct Actors {
+    mode: &'static str,
+    local: u16,
+    remote: u16,
+    /// `--restart on-failure`.
+    restart: bool,
+}
+
+const fn pipelined(local: u16, remote: u16) -> Actors {
+    Actors {
+        mode: "pipelined",
+        local,
+        remote,
+        restart: false,
+    }
+}
+
 struct Run {
     child: Child,
     out: PathBuf,
 }
 
 /// `mbpo run` in the head namespace, listening on the head's link address.
-fn start_head(hosts: &TwoHosts, dir: &Path, input: &Path, creds: &Path, extra: &[&str]) -> Run {
-    start_head_on(hosts, "tcp", dir, input, creds, extra)
+fn start_head(hosts: &TwoHosts, dir: &Path, input: &Path, creds: &Path, run: Actors) -> Run {
+    start_head_on(hosts, "tcp", dir, input, creds, run)
 }
 
 /// [`start_head`] on a `proto` (tcp or tls) endpoint.
@@ -49,9 +67,10 @@ fn start_head_on(
     dir: &Path,
     input: &Path,
     creds: &Path,
-    extra: &[&str],
+    run: Actors,
 ) -> Run {
     let out = dir.join("run");
+    let (local, remote) = (run.local.to_string(), run.remote.to_string());
     let root = short_root(dir, "h");
     let listen = format!("{proto}/{}:7447", hosts.head.addr);
     let mut args = vec![
@@ -67,8 +86,16 @@ fn start_head_on(
         "--credentials",
         creds.to_str().unwrap(),
         "--quiet",
+        "--mode",
+        run.mode,
+        "--actors",
+        &local,
+        "--remote-actors",
+        &remote,
     ];
-    args.extend_from_slice(extra);
+    if run.restart {
+        args.extend(["--restart", "on-failure"]);
+    }
     let child = hosts
         .command(&hosts.head, &bin_dir().join("mbpo"), &args)
         .stdout(Stdio::piped())
@@ -181,14 +208,7 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
         &dir,
         &input,
         &certs.join("head"),
-        &[
-            "--mode",
-            "pipelined",
-            "--actors",
-            "1",
-            "--remote-actors",
-            "2",
-        ],
+        pipelined(1, 2),
     );
     let worker = start_worker_on(&hosts, "tls", &dir, "w1", Some(&certs.join("worker")), 2);
     let o = wait_output(head.child, TIMEOUT);
@@ -231,14 +251,12 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
         &dir,
         &input,
         &creds,
-        &[
-            "--mode",
-            "lockstep",
-            "--actors",
-            "0",
-            "--remote-actors",
-            "1",
-        ],
+        Actors {
+            mode: "lockstep",
+            local: 0,
+            remote: 1,
+            restart: false,
+        },
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
@@ -269,20 +287,7 @@ fn a_link_down_for_5_s_stalls_the_run_and_loses_nothing() {
     let input = write_config(&tiny_config(steps), &dir);
     let creds = credentials(&dir, "right");
     bin_dir();
-    let head = start_head(
-        &hosts,
-        &dir,
-        &input,
-        &creds,
-        &[
-            "--mode",
-            "pipelined",
-            "--actors",
-            "0",
-            "--remote-actors",
-            "1",
-        ],
-    );
+    let head = start_head(&hosts, &dir, &input, &creds, pipelined(0, 1));
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     let gateway_log = head.out.join("logs").join("gateway.log");
     assert!(
@@ -328,16 +333,12 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
         &dir,
         &input,
         &creds,
-        &[
-            "--mode",
-            "pipelined",
-            "--actors",
-            "1",
-            "--remote-actors",
-            "1",
-            "--restart",
-            "on-failure",
-        ],
+        Actors {
+            mode: "pipelined",
+            local: 1,
+            remote: 1,
+            restart: true,
+        },
     );
     let mut worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     // Mid-run: after the first checkpoint, which holds the remote actor's file.
@@ -414,20 +415,7 @@ fn a_peer_without_the_credentials_is_refused_and_the_run_goes_on() {
     let creds = credentials(&dir, "right");
     let wrong = credentials(&dir, "wrong");
     bin_dir();
-    let head = start_head(
-        &hosts,
-        &dir,
-        &input,
-        &creds,
-        &[
-            "--mode",
-            "pipelined",
-            "--actors",
-            "0",
-            "--remote-actors",
-            "1",
-        ],
-    );
+    let head = start_head(&hosts, &dir, &input, &creds, pipelined(0, 1));
     let intruder = start_worker(&hosts, &dir, "intruder", Some(&wrong), 1);
     let anonymous = start_worker(&hosts, &dir, "anonymous", None, 1);
     std::thread::sleep(Duration::from_secs(5));
