@@ -672,25 +672,16 @@ fn append(dir: &Path, file: &str, text: &str) -> Result<(), GatewayError> {
     f.write_all(text.as_bytes()).map_err(io(path))
 }
 
-/// Write `bytes` to `path` through a temp file, fsync and rename (a crash leaves the old file
-/// or the new one, never half of one).
+/// Write `bytes` to `path` (its directory made first) the way checkpoint files are written:
+/// a crash leaves the old file or the new one, never half of one.
 pub(crate) fn write_atomically(path: &Path, bytes: &[u8]) -> Result<(), GatewayError> {
-    use std::io::Write;
-    let io = |p: &Path| {
-        let p = p.to_path_buf();
-        move |source| GatewayError::Io { path: p, source }
-    };
-    let dir = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    let mut f = std::fs::File::create(&tmp).map_err(io(&tmp))?;
-    f.write_all(bytes).map_err(io(&tmp))?;
-    f.sync_all().map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io(path))?;
-    if let Ok(d) = std::fs::File::open(dir) {
-        let _ = d.sync_all();
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|source| GatewayError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
     }
-    Ok(())
+    Ok(checkpoint::write_atomically(path, bytes)?)
 }
 
 /// The to-workers thread: control commands and weights of the remote slots.

@@ -74,7 +74,8 @@ via_runtime!(
     mbpo_wire::WaitError,
     mbpo_wire::WaiterCreateError,
     mbpo_wire::WaitForSubscribersError,
-    mbpo_wire::CleanupError
+    mbpo_wire::CleanupError,
+    mbpo_train::checkpoint::CheckpointError
 );
 
 /// The weights a run's actors act with (policy for MBPO, model for MPC): kind, layout hash
