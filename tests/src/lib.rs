@@ -14,7 +14,7 @@ use mbpo_train::{Algo, ExperimentConfig, PlanReward};
 
 pub mod netns;
 
-/// The packages whose binaries a pipeline run needs.
+/// The binaries a pipeline run needs (each package's binary has the package's name).
 pub const PACKAGES: [&str; 6] = [
     "mbpo",
     "mbpo-gateway",
@@ -31,16 +31,32 @@ pub fn bin_dir() -> &'static Path {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
         let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
         let mut cmd = Command::new(cargo);
-        cmd.current_dir(&root).args(["build", "--profile", "test"]);
-        for p in PACKAGES {
-            cmd.args(["-p", p]);
-        }
+        // `--workspace --tests` gives the same feature unification as `cargo test --workspace`
+        // (dev-dependencies active, e.g. serde_json's float_roundtrip): the libraries that run
+        // built are reused and only the binaries are linked. Building just these packages'
+        // binaries resolved other features and rebuilt zenoh, rustls and most crates again
+        // (6 minutes of a CI run).
+        cmd.current_dir(&root).args([
+            "build",
+            "--profile",
+            "test",
+            "--workspace",
+            "--tests",
+            "--bins",
+        ]);
         let status = cmd.status().expect("running cargo build");
         assert!(status.success(), "building the service binaries failed");
         // <target>/<profile>/deps/<this test> -> <target>/debug (the test profile's directory).
         let exe = std::env::current_exe().unwrap();
-        let target = exe.ancestors().nth(3).unwrap().to_path_buf();
-        target.join("debug")
+        let dir = exe.ancestors().nth(3).unwrap().join("debug");
+        for binary in PACKAGES {
+            assert!(
+                dir.join(binary).is_file(),
+                "no {binary} in {} after the build",
+                dir.display()
+            );
+        }
+        dir
     })
 }
 

@@ -461,3 +461,58 @@ fn chaos_kills_a_process_and_reports_the_run() {
     assert!(dir.join("chaos/chaos.json").is_file());
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// `mbpo chaos --kill-supervisor`: `mbpo run` itself is SIGKILLed once; its processes are gone
+/// within 5 s, it leaves shared memory that the resumed run (`mbpo run --resume`) removes, and
+/// the resumed run completes with every transition received once.
+#[test]
+fn chaos_kills_the_supervisor_and_the_resumed_run_completes_and_cleans_up() {
+    let dir = scratch("cli-chaos-supervisor");
+    let out = mbpo()
+        .args(["chaos", "--config"])
+        .arg(config_file())
+        .args(["--steps", "2000", "--set", "checkpoint.every=100"])
+        .args(["--max-delay-seconds", "0", "--runs", "1", "--kills", "1"])
+        .args(["--actors", "2", "--kill-supervisor"])
+        .arg("--out")
+        .arg(dir.join("chaos"))
+        .stderr(Stdio::null())
+        .output()
+        .unwrap();
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(out.status.success(), "{text}");
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let run = &lines[0];
+    assert_eq!(run["killed"], serde_json::json!(["supervisor"]), "{run}");
+    let kill = &run["supervisor_kills"][0];
+    assert_eq!(kill["orphans_after_5s"], 0, "{run}");
+    assert!(
+        kill["services_gone_seconds"]
+            .as_f64()
+            .is_some_and(|t| t <= 5.0),
+        "{run}"
+    );
+    assert!(
+        kill["shm_files_left_by_the_kill"].as_u64() > Some(0),
+        "a SIGKILLed launcher cannot clean up: {run}"
+    );
+    assert_eq!(run["completed"], true, "{run}");
+    assert_eq!(
+        run["every_consumer_received_every_transition"], true,
+        "{run}"
+    );
+    assert_eq!(
+        (run["lost"].as_u64(), run["produced"].as_u64()),
+        (Some(0), Some(2000))
+    );
+    // Nothing of either `mbpo run` is left: the resumed one removed the killed one's files.
+    assert_eq!(
+        (&run["shm_left"], &run["orphans"]),
+        (&0.into(), &0.into()),
+        "{run}"
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}

@@ -223,6 +223,9 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
     // The summary counts the worker host.
     assert_eq!(s["hosts"]["w1"]["actors"], serde_json::json!([1, 2]), "{s}");
     assert_eq!(s["hosts"]["w1"]["restarts"], 0, "{s}");
+    // What the progress line shows: who holds the remote slots.
+    let live = mbpo_runtime::LiveHosts::read(&head.out).expect("hosts-live.json");
+    assert_eq!(live.progress_text(1), "hosts: head 1, w1 2", "{live:?}");
     // The remote actors' logs reached the head (no shared filesystem).
     for slot in [1, 2] {
         let log = head

@@ -28,6 +28,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
+use mbpo_runtime::hosts::{LiveHosts, LiveWorker};
 use mbpo_runtime::{configure_run, Dims, PipelineSpec, RuntimeError, ServiceArgs};
 use mbpo_train::checkpoint;
 use mbpo_train::run_files::actor_file;
@@ -163,9 +164,10 @@ pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
     let heart = {
         let gate = gate.clone();
         let timeout = opts.worker_timeout;
+        let run_dir = args.run_dir.clone();
         std::thread::Builder::new()
             .name("heartbeat".into())
-            .spawn(move || heartbeat(&gate, timeout))
+            .spawn(move || heartbeat(&gate, timeout, &run_dir))
             .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
     };
     let mut counts = HashMap::new();
@@ -346,9 +348,7 @@ fn handle(
             }
             let mut st = lock(&gate.state);
             if let Some(w) = st.workers.get_mut(&from) {
-                w.send_now(Body::Ack {
-                    next: w.next_expected(),
-                })?;
+                w.acknowledge(accept)?;
             }
             Ok(())
         }
@@ -810,8 +810,9 @@ fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), Gatewa
 }
 
 /// The heartbeat thread.
-fn heartbeat(gate: &Gate, timeout: Duration) {
+fn heartbeat(gate: &Gate, timeout: Duration, run_dir: &Path) {
     let mut silenced = std::collections::HashSet::new();
+    let mut live: Option<LiveHosts> = None;
     while !gate.stopping() {
         std::thread::sleep(HEARTBEAT_PERIOD);
         let mut st = lock(&gate.state);
@@ -862,5 +863,34 @@ fn heartbeat(gate: &Gate, timeout: Duration) {
                 tracing::warn!("heartbeat: {e}");
             }
         }
+        let now_live = live_hosts(&st, &silenced);
+        drop(st);
+        if live.as_ref() != Some(&now_live) {
+            if let Err(e) = now_live.write(run_dir) {
+                tracing::warn!("writing {}: {e}", mbpo_runtime::LIVE_HOSTS_FILE);
+            }
+            live = Some(now_live);
+        }
+    }
+}
+
+/// Who holds the remote slots now (for the supervisor's progress line).
+fn live_hosts(st: &Shared, silenced: &std::collections::HashSet<u64>) -> LiveHosts {
+    let mut workers: Vec<LiveWorker> = st
+        .workers
+        .iter()
+        .map(|(session, w)| LiveWorker {
+            name: w.name.clone(),
+            actors: (0..st.owner.len())
+                .filter(|&i| st.owner[i] == Some(*session))
+                .map(|i| st.first_slot + i as u16)
+                .collect(),
+            silent: silenced.contains(session),
+        })
+        .collect();
+    workers.sort_by(|a, b| a.actors.cmp(&b.actors));
+    LiveHosts {
+        remote_slots: st.owner.len() as u16,
+        workers,
     }
 }

@@ -17,6 +17,10 @@ pub const WINDOW_MESSAGES: usize = 256;
 pub const WINDOW_BYTES: usize = 8 << 20;
 /// How often heartbeats go out.
 pub const HEARTBEAT_PERIOD: Duration = Duration::from_millis(200);
+/// A receiver acknowledges every this many delivered messages at once; in between the
+/// heartbeat carries the acknowledgement (well within the sender's resend timeout). Half the
+/// link's messages were acknowledgements of one transition batch each.
+pub const ACK_EVERY: u32 = 32;
 
 /// The Zenoh publisher of `session` on `key`: reliable, and blocking when the link is congested
 /// rather than dropping.
@@ -45,6 +49,8 @@ pub struct Peer {
     inbox: Inbox,
     /// When anything last arrived from it.
     pub last_heard: Instant,
+    /// Its messages delivered since we last told it how far we are.
+    unacknowledged: u32,
 }
 
 impl Peer {
@@ -63,6 +69,7 @@ impl Peer {
             outbox: Outbox::new(WINDOW_MESSAGES, WINDOW_BYTES),
             inbox: Inbox::default(),
             last_heard: Instant::now(),
+            unacknowledged: 0,
         }
     }
 
@@ -149,8 +156,25 @@ impl Peer {
         self.inbox.duplicates()
     }
 
-    /// A heartbeat saying what we have seen.
-    pub fn heartbeat(&self, weights: u64) -> Result<(), GatewayError> {
+    /// Acknowledge its message that `accept` judged: every [`ACK_EVERY`] deliveries, and at
+    /// once for a copy or an early message (it is sending again and needs to know how far we
+    /// are); the heartbeat acknowledges the rest.
+    pub fn acknowledge(&mut self, accept: Accept) -> Result<(), GatewayError> {
+        if accept == Accept::Deliver {
+            self.unacknowledged += 1;
+            if self.unacknowledged < ACK_EVERY {
+                return Ok(());
+            }
+        }
+        self.unacknowledged = 0;
+        self.send_now(Body::Ack {
+            next: self.next_expected(),
+        })
+    }
+
+    /// A heartbeat saying what we have seen (and so acknowledging it).
+    pub fn heartbeat(&mut self, weights: u64) -> Result<(), GatewayError> {
+        self.unacknowledged = 0;
         self.send_now(Body::Heartbeat {
             next: self.next_expected(),
             weights,

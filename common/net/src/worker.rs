@@ -320,11 +320,9 @@ fn receive(
                 if accept == Accept::Deliver {
                     deliver(gate, out, item)?;
                 }
-                let st = lock(&gate.state);
-                if let Some(p) = st.head.as_ref() {
-                    p.send_now(Body::Ack {
-                        next: p.next_expected(),
-                    })?;
+                let mut st = lock(&gate.state);
+                if let Some(p) = st.head.as_mut() {
+                    p.acknowledge(accept)?;
                 }
             }
             Body::Ack { next } | Body::Heartbeat { next, .. } => {

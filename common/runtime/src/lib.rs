@@ -11,6 +11,7 @@
 //! * [`pipeline`]: which roles a run has (the one list every launcher and count reads).
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
+//! * [`hosts`]: which hosts a multi-host run's actors are on (files the head's gateway writes).
 //!
 //! What crosses shared memory (stats records, the model-weights layout) is defined in
 //! `mbpo-wire`; when things happen (train points, eval points, updates owed) in
@@ -21,6 +22,7 @@ pub mod args;
 pub mod barrier;
 pub mod coordinator;
 pub mod error;
+pub mod hosts;
 pub mod in_process;
 pub mod inbox;
 pub mod pipeline;
@@ -28,10 +30,8 @@ pub mod process;
 pub mod services;
 
 pub use args::{Mode, ServiceArgs, Slack};
-
-/// The head's gateway's account of the worker hosts, in the run directory (multi-host runs).
-pub const HOSTS_FILE: &str = "hosts.json";
 pub use error::{Result, RuntimeError};
+pub use hosts::{LiveHosts, HOSTS_FILE, LIVE_HOSTS_FILE};
 pub use inbox::{send_ack, wait_for, ControlInbox, RealInbox};
 pub use pipeline::{PipelineSpec, RoleKind};
 pub use process::{

@@ -107,6 +107,8 @@ pub struct Progress {
     updates: u64,
     eval: Option<f64>,
     model_version: Option<u64>,
+    /// Where the actors are, in a multi-host run (`hosts: head 1, gpu-box 2`).
+    hosts: Option<String>,
     /// What the second counter counts (`updates`: SAC updates; MPC runs count `plans`).
     units: &'static str,
     finished: bool,
@@ -152,6 +154,7 @@ impl Progress {
             updates: 0,
             eval: None,
             model_version: None,
+            hosts: None,
             units: "updates",
             finished: false,
         };
@@ -223,6 +226,11 @@ impl Progress {
         self.model_version = Some(version);
     }
 
+    /// Where the actors are (a multi-host run), shown last in the status.
+    pub fn set_hosts(&mut self, hosts: String) {
+        self.hosts = Some(hosts);
+    }
+
     /// Close the rate window ending at `now` (if it is long enough to mean something).
     fn roll_window(&mut self, now: Instant) {
         let Some((t0, s0, u0)) = self.window else {
@@ -265,6 +273,9 @@ impl Progress {
         });
         if let Some(v) = self.model_version {
             parts.push(format!("model v{v}"));
+        }
+        if let Some(hosts) = &self.hosts {
+            parts.push(hosts.clone());
         }
         parts.join(" | ")
     }
@@ -363,6 +374,8 @@ mod tests {
             p.line(t0 + Duration::from_secs(10)),
             "sac P s0: [10 s] step 100/1000 (10 %) | 10.0 env steps/s | 200 updates/s | eval -151.2 | model v3 | ETA 90 s"
         );
+        p.set_hosts("hosts: head 1, w 2".into());
+        assert!(p.status().ends_with("model v3 | hosts: head 1, w 2"));
         // The next window only counts its own steps: 400 steps in 20 s. The ETA goes by all
         // 500 steps in 30 s: 500 left take 30 s.
         p.update_at(500, 2000, t0 + Duration::from_secs(30));

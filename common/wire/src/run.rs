@@ -279,10 +279,21 @@ impl RunIpc {
         Ok(report)
     }
 
+    /// Record this process as the run's launcher (`<root>/launcher`: pid and start time), so
+    /// that [`RunIpc::remove_dead_runs`] of a later launcher knows at once when it is gone.
+    pub fn mark_launcher(&self) -> std::io::Result<()> {
+        let me = std::process::id();
+        let start = process_start_ticks(me).unwrap_or(0);
+        std::fs::create_dir_all(&self.root)?;
+        std::fs::write(self.root.join(LAUNCHER_FILE), format!("{me} {start}\n"))
+    }
+
     /// Remove what other runs left under `base_dir` once every one of their nodes is known
-    /// dead (a node of unknown state, e.g. another user's, counts as alive) and their root path
-    /// is at least `min_age` old (a run starting this moment has no node yet): a launcher
-    /// killed with SIGKILL cannot clean up after itself, so the next one on the host does.
+    /// dead (a node of unknown state, e.g. another user's, counts as alive). A run without any
+    /// node counts as dead only when its launcher is known gone ([`RunIpc::mark_launcher`]) or,
+    /// if it has no launcher file, when its root path is at least `min_age` old (a run starting
+    /// this moment has no node yet). A launcher killed with SIGKILL cannot clean up after
+    /// itself, so the next one on the host does.
     /// Returns the root paths removed. A run that cannot be inspected or removed is logged and
     /// skipped: someone else's leftovers never stop a launch.
     pub fn remove_dead_runs<S: Service>(
@@ -303,15 +314,20 @@ impl RunIpc {
                 .metadata()
                 .and_then(|m| m.modified())
                 .is_ok_and(|t| t.elapsed().is_ok_and(|age| age >= min_age));
-            if !is_run_root || !old_enough {
+            if !is_run_root {
+                continue;
+            }
+            let launcher_alive = launcher_alive(&entry.path());
+            if launcher_alive == Some(true) {
                 continue;
             }
             let Ok(run) = Self::with_prefix(&name, 0, format!("{name}_"), base) else {
                 continue;
             };
-            match run.all_nodes_dead::<S>() {
-                Ok(true) => {}
-                Ok(false) => continue,
+            let launcher_gone = launcher_alive == Some(false);
+            match run.dead_nodes_if_all_dead::<S>() {
+                Ok(Some(dead)) if dead > 0 || launcher_gone || old_enough => {}
+                Ok(_) => continue,
                 Err(e) => {
                     tracing::warn!(run = %run.root.display(), error = %e, "cannot inspect a run's nodes; left as it is");
                     continue;
@@ -327,14 +343,18 @@ impl RunIpc {
         removed
     }
 
-    /// True when every node of this run is known dead (none alive, none of unknown state).
-    fn all_nodes_dead<S: Service>(&self) -> Result<bool, CleanupError> {
-        let mut all_dead = true;
+    /// The number of this run's nodes when every one is known dead (none alive, none of
+    /// unknown state); `None` otherwise.
+    fn dead_nodes_if_all_dead<S: Service>(&self) -> Result<Option<usize>, CleanupError> {
+        let (mut dead, mut all_dead) = (0, true);
         Node::<S>::list(&self.shared.config, |state| {
-            all_dead &= matches!(state, NodeState::Dead(_));
+            match state {
+                NodeState::Dead(_) => dead += 1,
+                _ => all_dead = false,
+            }
             CallbackProgression::Continue
         })?;
-        Ok(all_dead)
+        Ok(all_dead.then_some(dead))
     }
 
     /// Names of the live nodes of this run.
@@ -408,6 +428,34 @@ impl RunIpc {
         out.sort();
         out
     }
+}
+
+/// The file in a run's root path naming its launcher.
+const LAUNCHER_FILE: &str = "launcher";
+
+/// Whether the launcher recorded under `root` still runs (`None`: no readable record). A pid
+/// is taken for the same process only with the same start time (pids are reused).
+fn launcher_alive(root: &Path) -> Option<bool> {
+    let text = std::fs::read_to_string(root.join(LAUNCHER_FILE)).ok()?;
+    let mut fields = text.split_whitespace().map(str::parse::<u64>);
+    let (Some(Ok(pid)), Some(Ok(start))) = (fields.next(), fields.next()) else {
+        return None;
+    };
+    let pid = u32::try_from(pid).ok()?;
+    Some(process_start_ticks(pid).is_some_and(|s| s == start))
+}
+
+/// Start time of process `pid` in clock ticks since boot (`/proc/<pid>/stat` field 22), or
+/// `None` if there is no such process (a zombie counts as gone).
+fn process_start_ticks(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces) start at field 3, the state.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let mut fields = rest.split_whitespace();
+    if fields.next()? == "Z" {
+        return None;
+    }
+    fields.nth(18)?.parse().ok()
 }
 
 fn list_files(dir: &Path, out: &mut Vec<PathBuf>) {

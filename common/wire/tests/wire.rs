@@ -607,8 +607,9 @@ fn stale_resources_of_a_killed_process_are_removed() {
 }
 
 /// A run whose every process was killed (its launcher too) is cleaned up by the next
-/// launcher on the host: `remove_dead_runs` removes its nodes, shared memory and directory,
-/// and leaves a run with a live node alone.
+/// launcher on the host: `remove_dead_runs` removes its nodes, shared memory and directory
+/// at once (however young), and leaves alone a run with a live node and a young run without
+/// any node yet (one starting this moment).
 #[test]
 fn the_leftovers_of_a_dead_run_are_removed_by_the_next_one() {
     let base = format!("/tmp/mbpo-wire-dead-{}", std::process::id());
@@ -627,8 +628,31 @@ fn the_leftovers_of_a_dead_run_are_removed_by_the_next_one() {
     assert!(!dead.leftovers().is_empty());
     let live = RunIpc::new("live-run", &base).unwrap();
     let _node = live.node::<ipc::Service>(Role::Learner, 0).unwrap();
+    // Runs without any node: one starting (no launcher file yet), one whose launcher is
+    // this live process, one whose launcher is gone (no such pid).
+    let starting = RunIpc::new("starting-run", &base).unwrap();
+    std::fs::create_dir_all(starting.root_path()).unwrap();
+    let ours = RunIpc::new("our-run", &base).unwrap();
+    ours.mark_launcher().unwrap();
+    let orphaned = RunIpc::new("orphaned-run", &base).unwrap();
+    std::fs::create_dir_all(orphaned.root_path()).unwrap();
+    std::fs::write(orphaned.root_path().join("launcher"), "4000000000 1\n").unwrap();
+    let min_age = Duration::from_secs(3600);
+    let mut removed = RunIpc::remove_dead_runs::<ipc::Service>(&base, min_age);
+    removed.sort();
+    let mut expected = [dead.root_path(), orphaned.root_path()].map(|p| p.to_path_buf());
+    expected.sort();
+    assert_eq!(removed, expected);
+    assert!(starting.root_path().is_dir(), "a starting run was removed");
+    // Old enough, a run without a launcher file and without nodes is taken for dead; one
+    // whose launcher lives never is.
     let removed = RunIpc::remove_dead_runs::<ipc::Service>(&base, Duration::ZERO);
-    assert_eq!(removed, [dead.root_path().to_path_buf()]);
+    assert_eq!(removed, [starting.root_path().to_path_buf()]);
+    assert!(
+        ours.root_path().is_dir(),
+        "a run whose launcher lives was removed"
+    );
+    std::fs::remove_dir_all(ours.root_path()).unwrap();
     assert_eq!(dead.leftovers(), Vec::<std::path::PathBuf>::new());
     assert!(!live.leftovers().is_empty(), "the live run was touched");
     drop(_node);

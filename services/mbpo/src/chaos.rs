@@ -4,6 +4,10 @@
 //! often it restarted, nothing was lost (every consumer received every real transition), no
 //! shared memory and no process was left behind, and -- in lockstep mode -- it ended on the
 //! sequential run's `policy_sha256`. One JSON line per run, one for all, and `<out>/chaos.json`.
+//!
+//! With `--kill-supervisor` the victim is `mbpo run` itself: each kill reports how long the
+//! run's processes outlived it (goal: gone within 5 s) and the shared memory it left, and the
+//! run continues with `mbpo run --resume`, which must complete and remove those leftovers.
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -95,6 +99,7 @@ fn one_run(
         .collect();
     points.sort_unstable();
     let mut killed = Vec::new();
+    let mut supervisor_kills = Vec::new();
     for (attempt, &point) in points.iter().enumerate() {
         let victim = &kinds[index(&mut rng, kinds.len())];
         let delay = uniform_range_f64(&mut rng, 0.0, args.max_delay_seconds);
@@ -104,15 +109,39 @@ fn one_run(
             delay,
             end: cfg.steps,
         };
+        if args.kill_supervisor {
+            let Some(kill) = kill_supervisor_when_up(&mut child, &run, root, when)? else {
+                break; // the run ended first
+            };
+            supervisor_kills.push(kill);
+            killed.push(SUPERVISOR.to_string());
+            child = resume(args, &run, root)?;
+            continue;
+        }
         match kill_when_up(&mut child, &run, victim, when)? {
             true => killed.push(victim.clone()),
             false => break, // the run ended first
         }
     }
     let status = child.wait().context("waiting for mbpo run")?;
-    let outcome = (r, status.success(), killed, started);
+    let outcome = Outcome {
+        run: r,
+        exited_ok: status.success(),
+        killed,
+        supervisor_kills,
+        started,
+    };
     report(&run, root, cfg.steps, outcome, reference)
 }
+
+/// The name a kill of `mbpo run` itself has in the reports.
+const SUPERVISOR: &str = "supervisor";
+
+/// How long the run's processes may outlive a killed `mbpo run` (the goal is 5 s: their
+/// parent-death signal and their coordinator's liveness check).
+const ORPHAN_DEADLINE: Duration = Duration::from_secs(5);
+/// How long a kill report waits for them at most.
+const ORPHAN_WAIT: Duration = Duration::from_secs(15);
 
 /// `mbpo run` of the config into `run`, restarting on failure, quiet, its stderr in a log.
 fn start(args: &ChaosArgs, config: &Path, run: &Path, root: &Path) -> anyhow::Result<Child> {
@@ -141,6 +170,112 @@ fn start(args: &ChaosArgs, config: &Path, run: &Path, root: &Path) -> anyhow::Re
         .stderr(log)
         .spawn()
         .context("starting mbpo run")
+}
+
+/// `mbpo run --resume` of `run`, restarting on failure, quiet, its stderr appended to the log.
+fn resume(args: &ChaosArgs, run: &Path, root: &Path) -> anyhow::Result<Child> {
+    let exe = std::env::current_exe().context("finding the mbpo executable")?;
+    let log = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(run.with_extension("stderr.log"))?;
+    Command::new(exe)
+        .arg("run")
+        .args(["--resume".as_ref(), run.as_os_str()])
+        .args(["--ipc-root".as_ref(), root.as_os_str()])
+        .args([
+            "--restart",
+            "on-failure",
+            "--max-restarts",
+            &args.kills.to_string(),
+            "--quiet",
+        ])
+        .stdout(Stdio::null())
+        .stderr(log)
+        .spawn()
+        .context("starting mbpo run --resume")
+}
+
+/// What a SIGKILL of `mbpo run` left: its run id, how long its processes lived on, and the
+/// shared-memory files nobody removed (the resumed run must).
+struct SupervisorKill {
+    run_id: String,
+    /// Seconds from the kill until no process of the run was left (None: not within
+    /// [`ORPHAN_WAIT`]).
+    services_gone_seconds: Option<f64>,
+    /// The run's processes still alive [`ORPHAN_DEADLINE`] after the kill.
+    orphans_after_deadline: usize,
+    shm_files_left: usize,
+}
+
+/// SIGKILL the supervisor (`child`) once the newest checkpoint is at `at.point` or later and
+/// its learner runs, then watch its processes go. `Ok(None)`: the run ended first.
+fn kill_supervisor_when_up(
+    child: &mut Child,
+    run: &Path,
+    root: &Path,
+    at: KillAt,
+) -> anyhow::Result<Option<SupervisorKill>> {
+    let t = Instant::now();
+    let run_id = loop {
+        if child.try_wait()?.is_some() {
+            return Ok(None);
+        }
+        let newest = mbpo_train::checkpoint::latest(run).ok().flatten();
+        let reached = newest.is_some_and(|(_, m)| m.env_steps >= at.point);
+        let learner = logged_pids(&run.join("logs").join("learner.log"))
+            .last()
+            .copied();
+        match learner.and_then(run_id_of) {
+            Some(id) if reached => break id,
+            _ => {}
+        }
+        if t.elapsed() > START_TIMEOUT {
+            bail!(
+                "the run did not reach env step {} within {START_TIMEOUT:?}",
+                at.point
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    std::thread::sleep(Duration::from_secs_f64(at.delay));
+    let newest = mbpo_train::checkpoint::latest(run).ok().flatten();
+    if child.try_wait()?.is_some() || newest.is_some_and(|(_, m)| m.env_steps >= at.end) {
+        return Ok(None);
+    }
+    tracing::info!("killing mbpo run (pid {}) of run {run_id}", child.id());
+    child.kill().context("killing mbpo run")?; // SIGKILL
+    child.wait().context("reaping mbpo run")?;
+    let killed = Instant::now();
+    let mut orphans_after_deadline = None;
+    let services_gone_seconds = loop {
+        let left = mbpo_runtime::processes_mentioning(&run_id).len();
+        if left == 0 {
+            break Some(killed.elapsed().as_secs_f64());
+        }
+        if killed.elapsed() >= ORPHAN_DEADLINE && orphans_after_deadline.is_none() {
+            orphans_after_deadline = Some(left);
+        }
+        if killed.elapsed() > ORPHAN_WAIT {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let shm_files_left = mbpo_wire::RunIpc::new(&run_id, root)?.leftovers().len();
+    Ok(Some(SupervisorKill {
+        run_id,
+        services_gone_seconds,
+        orphans_after_deadline: orphans_after_deadline.unwrap_or(0),
+        shm_files_left,
+    }))
+}
+
+/// The `--run-id` on the command line of process `pid`, if it lives.
+fn run_id_of(pid: i32) -> Option<String> {
+    let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).ok()?;
+    let mut args = cmdline.split(|&b| b == 0).map(String::from_utf8_lossy);
+    args.find(|a| a == "--run-id")?;
+    args.next().map(|id| id.into_owned())
 }
 
 /// When a kill comes: in the pipeline's attempt `attempt + 1` (after `attempt` kills), once
@@ -192,46 +327,69 @@ fn logged_pids(log: &Path) -> Vec<i32> {
     mbpo_runtime::pids_in_log(&std::fs::read_to_string(log).unwrap_or_default())
 }
 
+/// How a run went, for its report.
+struct Outcome {
+    run: u64,
+    exited_ok: bool,
+    killed: Vec<String>,
+    supervisor_kills: Vec<SupervisorKill>,
+    started: Instant,
+}
+
 /// One run's line: completed, kills, restarts, lost, received per consumer, final return,
 /// shared memory and processes left, lockstep hash check.
 fn report(
     run: &Path,
     root: &Path,
     steps: u64,
-    (r, exited_ok, killed, started): (u64, bool, Vec<String>, Instant),
+    outcome: Outcome,
     reference: Option<&str>,
 ) -> anyhow::Result<Value> {
     let text = std::fs::read_to_string(run.join("summary.json")).unwrap_or_default();
     let s: Value = serde_json::from_str(&text).unwrap_or(Value::Null);
-    let run_id = s["run_id"].as_str().unwrap_or_default();
     let real = &s["real_transitions"];
     let received_all = ["model-trainer", "rollout-generator", "learner"]
         .iter()
         .all(|c| real["received"][c] == steps);
-    let shm_left = match run_id.is_empty() {
-        true => Vec::new(),
-        false => {
-            let ipc = mbpo_wire::RunIpc::new(run_id, root)?;
-            let left = ipc.leftovers();
-            let _ = std::fs::remove_dir(ipc.root_path());
-            left
-        }
-    };
-    let orphans = match run_id.is_empty() {
-        true => 0,
-        false => mbpo_runtime::processes_mentioning(run_id).len(),
-    };
+    // Every run id the run had: one per `mbpo run` (a resumed run gets a new one, and must
+    // have removed what a killed predecessor left).
+    let mut run_ids: Vec<&str> = outcome
+        .supervisor_kills
+        .iter()
+        .map(|k| k.run_id.as_str())
+        .collect();
+    run_ids.extend(s["run_id"].as_str());
+    let (mut shm_left, mut orphans) = (0, 0);
+    for run_id in run_ids {
+        let ipc = mbpo_wire::RunIpc::new(run_id, root)?;
+        shm_left += ipc.leftovers().len();
+        let _ = std::fs::remove_dir(ipc.root_path());
+        orphans += mbpo_runtime::processes_mentioning(run_id).len();
+    }
+    let supervisor_kills: Vec<Value> = outcome
+        .supervisor_kills
+        .iter()
+        .map(|k| {
+            json!({
+                "services_gone_seconds": k.services_gone_seconds.map(|t| (t * 100.0).round() / 100.0),
+                "orphans_after_5s": k.orphans_after_deadline,
+                "shm_files_left_by_the_kill": k.shm_files_left,
+            })
+        })
+        .collect();
+    let (r, started) = (outcome.run, outcome.started);
     Ok(json!({
         "run": r,
-        "completed": exited_ok && s["status"] == "completed",
-        "killed": killed,
+        "completed": outcome.exited_ok && s["status"] == "completed",
+        "killed": outcome.killed,
+        "supervisor_kills": supervisor_kills,
         "restarts": s["restarts"],
         "produced": real["produced"],
         "received": real["received"],
         "every_consumer_received_every_transition": received_all,
         "lost": real["lost"],
         "final_eval_return": s["final_eval_return"],
-        "shm_left": shm_left.len(),
+        "shm_left": shm_left,
         "orphans": orphans,
         "policy_sha256_equals_sequential": reference.map(|h| s["policy_sha256"] == h),
         "wall_seconds": (started.elapsed().as_secs_f64() * 10.0).round() / 10.0,
@@ -248,6 +406,11 @@ fn held(r: &Value) -> bool {
         && r["shm_left"] == 0
         && r["orphans"] == 0
         && r["policy_sha256_equals_sequential"] != false
+        && r["supervisor_kills"].as_array().is_none_or(|kills| {
+            kills
+                .iter()
+                .all(|k| k["orphans_after_5s"] == 0 && !k["services_gone_seconds"].is_null())
+        })
 }
 
 /// The line over all runs.
@@ -259,6 +422,10 @@ fn totals(reports: &[Value], args: &ChaosArgs) -> Value {
             .map(|r| r[key].as_u64().unwrap_or(0))
             .sum::<u64>()
     };
+    let kills: Vec<&Value> = reports
+        .iter()
+        .flat_map(|r| r["supervisor_kills"].as_array().into_iter().flatten())
+        .collect();
     json!({
         "mode": args.mode.name(),
         "runs": reports.len(),
@@ -269,6 +436,12 @@ fn totals(reports: &[Value], args: &ChaosArgs) -> Value {
         "lost": sum("lost"),
         "shm_left": sum("shm_left"),
         "orphans": sum("orphans"),
+        "supervisor_kills": kills.len(),
+        "orphans_after_5s": kills.iter().map(|k| k["orphans_after_5s"].as_u64().unwrap_or(0)).sum::<u64>(),
+        "slowest_services_gone_seconds": kills
+            .iter()
+            .filter_map(|k| k["services_gone_seconds"].as_f64())
+            .fold(None, |m: Option<f64>, t| Some(m.map_or(t, |m| m.max(t)))),
         "equal_to_sequential": (args.mode == Mode::Lockstep)
             .then(|| count(&|r| r["policy_sha256_equals_sequential"] == true)),
     })

@@ -84,6 +84,11 @@ pub struct ChaosArgs {
     /// Seed of the kill schedule (which process, when).
     #[arg(long, default_value_t = 0)]
     pub kill_seed: u64,
+    /// SIGKILL `mbpo run` itself instead of one of its processes, then continue the run with
+    /// `mbpo run --resume`: each kill reports how long the run's processes outlived it and what
+    /// shared memory it left, and the resumed run must complete and clean that up.
+    #[arg(long)]
+    pub kill_supervisor: bool,
     /// Output directory: the runs and `chaos.json`.
     #[arg(long, default_value = "runs/chaos")]
     pub out: std::path::PathBuf,

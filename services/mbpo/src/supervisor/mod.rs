@@ -31,6 +31,23 @@ use mbpo_wire::{ipc, RunIpc, WaitOutcome, Waiter};
 use crate::cli::{RestartPolicy, RunArgs};
 use crate::train_cmd::{fresh_run_dir, overwrite_earlier_run, resolve_config, resumed_config};
 
+/// In a service process between fork and exec: SIGTERM when the supervisor dies (kept across
+/// exec), and not start at all if it died already. The service sets the signal again at start
+/// (`init_service_process`), but a supervisor SIGKILLed between the fork and that line would
+/// leave the service running with no one to stop it.
+fn exit_with_the_supervisor(supervisor: libc::pid_t) -> std::io::Result<()> {
+    // SAFETY: prctl and getppid are async-signal-safe and touch only this process.
+    unsafe {
+        if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        if libc::getppid() != supervisor {
+            return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
+        }
+    }
+    Ok(())
+}
+
 /// One supervised process.
 struct Proc {
     name: String,
@@ -50,7 +67,13 @@ impl Proc {
             .open(&self.log)
             .with_context(|| format!("opening {}", self.log.display()))?;
         use std::os::unix::process::CommandExt;
-        let child = Command::new(&self.bin)
+        let mut command = Command::new(&self.bin);
+        let supervisor = std::process::id() as libc::pid_t;
+        // SAFETY: runs between fork and exec, calling only async-signal-safe functions.
+        unsafe {
+            command.pre_exec(move || exit_with_the_supervisor(supervisor));
+        }
+        let child = command
             .args(&self.args)
             // Own process group: a Ctrl-C at the terminal reaches only the supervisor, which
             // answers it with a checkpoint and a clean stop of every process.
@@ -314,6 +337,8 @@ fn open_ipc(
 ) -> anyhow::Result<RunIpc> {
     let mut ipc = RunIpc::new(run_id, &args.ipc_root)?;
     configure_run(&mut ipc);
+    ipc.mark_launcher()
+        .with_context(|| format!("writing the launcher file in {}", ipc.root_path().display()))?;
     let stale = ipc.remove_stale_nodes::<ipc::Service>()?;
     if stale.removed > 0 {
         tracing::warn!("removed the resources of {} dead node(s)", stale.removed);
@@ -617,6 +642,7 @@ fn coordinate(
     let label = format!("mbpo run {} s{}", cx.cfg.env, cx.cfg.seed);
     let mut progress = Progress::new(label, cx.cfg.steps, display);
     let mut end = LoopEnd::default();
+    let mut hosts_read = Instant::now();
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
             mbpo_wire::take_termination_request();
@@ -627,6 +653,13 @@ fn coordinate(
         }
         coord.pump(ports, run_dir, cx.started)?;
         coord.collector.show_progress(&mut progress);
+        if cx.args.remote.listen.is_some() && hosts_read.elapsed() >= Duration::from_secs(1) {
+            hosts_read = Instant::now();
+            if let Some(hosts) = mbpo_runtime::LiveHosts::read(run_dir.path()) {
+                let local = cx.args.actors - cx.args.remote.remote_actors;
+                progress.set_hosts(hosts.progress_text(local));
+            }
+        }
         if let Some(crash) = first_crash(cx.args, procs, restarts)? {
             match crash {
                 Crash::Restart(name) => end.crashed = Some(name),
