@@ -44,6 +44,25 @@ pub fn bin_dir() -> &'static Path {
             "--tests",
             "--bins",
         ]);
+        // What cargo set for this test process would look like a change to build scripts that
+        // watch it (ring's watches CARGO_MANIFEST_DIR) and rebuild them and all above them.
+        for (key, _) in std::env::vars_os() {
+            let key = key.to_string_lossy();
+            let set_by_cargo_test = key.starts_with("CARGO_PKG_")
+                || key.starts_with("CARGO_BIN_EXE_")
+                || [
+                    "CARGO_MANIFEST_DIR",
+                    "CARGO_MANIFEST_PATH",
+                    "CARGO_CRATE_NAME",
+                    "CARGO_PRIMARY_PACKAGE",
+                    "CARGO_TARGET_TMPDIR",
+                    "OUT_DIR",
+                ]
+                .contains(&key.as_ref());
+            if set_by_cargo_test {
+                cmd.env_remove(key.as_ref());
+            }
+        }
         let status = cmd.status().expect("running cargo build");
         assert!(status.success(), "building the service binaries failed");
         // <target>/<profile>/deps/<this test> -> <target>/debug (the test profile's directory).

@@ -11,7 +11,9 @@
 //!   shows it missed one.
 //!
 //! Decoding never trusts a length: [`decode`] refuses a message over [`MAX_MESSAGE_BYTES`]
-//! before bincode reads it, and bincode's own limit stops any collection longer than the input.
+//! before bincode reads it, and bincode's limit on the bytes its collections claim grows with the
+//! message (at most 16 times its size, 64 KiB for small ones): bincode allocates a claimed
+//! length before reading it, so a few bytes must not claim hundreds of megabytes.
 
 use mbpo_runtime::{Mode, Slack};
 use mbpo_wire::{ControlMsg, StatsRecord, TransitionMeta, WeightsCounters, WeightsKind};
@@ -207,6 +209,13 @@ fn config() -> impl bincode::config::Config {
     bincode::config::standard().with_limit::<MAX_MESSAGE_BYTES>()
 }
 
+/// `bytes` decoded with at most `LIMIT` bytes claimed by collections.
+fn decode_claiming<const LIMIT: usize>(
+    bytes: &[u8],
+) -> Result<(Envelope, usize), bincode::error::DecodeError> {
+    bincode::serde::decode_from_slice(bytes, bincode::config::standard().with_limit::<LIMIT>())
+}
+
 /// The bytes of `envelope`.
 pub fn encode(envelope: &Envelope) -> Vec<u8> {
     // Every field is plain data: encoding cannot fail.
@@ -218,8 +227,15 @@ pub fn decode(bytes: &[u8]) -> Result<Envelope, DecodeError> {
     if bytes.len() > MAX_MESSAGE_BYTES {
         return Err(DecodeError::TooLarge(bytes.len()));
     }
-    let (envelope, used): (Envelope, usize) = bincode::serde::decode_from_slice(bytes, config())
-        .map_err(|e| DecodeError::Malformed(e.to_string()))?;
+    // A claim counts the decoded size (a u64 of one encoded byte claims 8): 16 times the
+    // message's size class leaves room for any real message.
+    let decoded = match bytes.len() {
+        n if n <= 4 << 10 => decode_claiming::<{ 64 << 10 }>(bytes),
+        n if n <= 64 << 10 => decode_claiming::<{ 1 << 20 }>(bytes),
+        n if n <= 1 << 20 => decode_claiming::<{ 16 << 20 }>(bytes),
+        _ => decode_claiming::<MAX_MESSAGE_BYTES>(bytes),
+    };
+    let (envelope, used) = decoded.map_err(|e| DecodeError::Malformed(e.to_string()))?;
     if used != bytes.len() {
         return Err(DecodeError::Trailing(bytes.len() - used));
     }
@@ -276,6 +292,42 @@ mod tests {
         let mut longer = bytes.clone();
         longer.push(0);
         assert!(matches!(decode(&longer), Err(DecodeError::Trailing(1))));
+    }
+
+    #[test]
+    fn a_small_message_cannot_claim_a_large_allocation() {
+        let log = |len: usize| Envelope {
+            version: PROTOCOL_VERSION,
+            session: 1,
+            body: Body::Data {
+                seq: 0,
+                item: Item::Log {
+                    slot: 0,
+                    text: "x".repeat(len),
+                },
+            },
+        };
+        // A whole 200 KiB log decodes; its first 2 KiB claim 200 KiB (bincode allocates a
+        // string's claimed length before reading it), over a small message's 64 KiB, and are
+        // refused before the 200 KiB are allocated.
+        let bytes = encode(&log(200 << 10));
+        assert_eq!(decode(&bytes).unwrap(), log(200 << 10));
+        match decode(&bytes[..2 << 10]) {
+            Err(DecodeError::Malformed(why)) => assert!(why.contains("Limit"), "{why}"),
+            other => panic!("{other:?}"),
+        }
+        // Real messages of every size class decode.
+        for rows in [10, 1000, 100_000, 1_000_000] {
+            let mut e = sample();
+            if let Body::Data {
+                item: Item::Transitions { rows: r, .. },
+                ..
+            } = &mut e.body
+            {
+                *r = vec![0.5; rows];
+            }
+            assert_eq!(decode(&encode(&e)).unwrap(), e);
+        }
     }
 
     #[test]

@@ -78,11 +78,20 @@ impl Dims {
         let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
             RuntimeError::protocol(format!("{}: not an env description: {e}", path.display()))
         })?;
+        // Every network and wire layout is sized from these: 0 would panic building them, a
+        // huge value would allocate its size (the file may come from another host).
+        const MAX_WIDTH: u64 = 1 << 16;
         let width = |key: &str| {
             json[key]
                 .as_u64()
+                .filter(|v| (1..=MAX_WIDTH).contains(v))
                 .map(|v| v as usize)
-                .ok_or_else(|| RuntimeError::protocol(format!("{}: no `{key}`", path.display())))
+                .ok_or_else(|| {
+                    RuntimeError::protocol(format!(
+                        "{}: no `{key}` in 1..={MAX_WIDTH}",
+                        path.display()
+                    ))
+                })
         };
         Self::with_env_dims(cfg, width("obs_dim")?, width("act_dim")?)
     }

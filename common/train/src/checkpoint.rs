@@ -194,10 +194,12 @@ fn checked_payload(
             CheckpointError::NotACheckpoint { path: p() }
         });
     }
-    let mut at = 8;
+    let mut at: usize = 8;
     let mut take = |n: usize| -> Result<&[u8], CheckpointError> {
-        let s = bytes.get(at..at + n).ok_or_else(|| truncated(at + n))?;
-        at += n;
+        // Saturating: a length near u64::MAX in a damaged header must not overflow.
+        let end = at.saturating_add(n);
+        let s = bytes.get(at..end).ok_or_else(|| truncated(end))?;
+        at = end;
         Ok(s)
     };
     let version = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));

@@ -101,6 +101,12 @@ impl ModelWireLayout {
         model: &mut ProbabilisticEnsemble,
     ) -> Result<(), DecodeError> {
         let [p, mean, std, elites, termination] = self.parts(flat)?;
+        // An index is a whole number >= 0 (`as usize` would truncate 1.5, NaN and -3 to members).
+        if let Some(e) = elites.iter().find(|e| !(e.fract() == 0.0 && **e >= 0.0)) {
+            return Err(DecodeError::ModelWeights(format!(
+                "elite index {e} of a snapshot is not a whole number"
+            )));
+        }
         let elites = elites.iter().map(|&e| e as usize);
         let bad = |e: mbpo_model::ParamsError| DecodeError::ModelWeights(e.to_string());
         model

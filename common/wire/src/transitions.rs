@@ -627,7 +627,7 @@ impl<S: Service> TransitionSubscriber<S> {
 }
 
 /// Validate a transition header against what a subscriber expects.
-pub(crate) fn check_header(
+pub fn check_header(
     h: &TransitionHeader,
     payload: usize,
     run_hash: u64,

@@ -298,37 +298,14 @@ impl<S: Service> WeightsSubscriber<S> {
     }
 
     fn validate(&self, h: &WeightsHeader, payload: usize) -> Result<(), HeaderMismatch> {
-        if h.schema_version != SCHEMA_VERSION {
-            return Err(HeaderMismatch::Schema {
-                expected: SCHEMA_VERSION,
-                found: h.schema_version,
-            });
-        }
-        if h.run_hash != self.run_hash {
-            return Err(HeaderMismatch::Run {
-                expected: self.run_hash,
-                found: h.run_hash,
-            });
-        }
-        if h.kind != self.kind as u32 {
-            return Err(HeaderMismatch::Kind {
-                expected: self.kind as u32,
-                found: h.kind,
-            });
-        }
-        if h.layout_hash != self.layout_hash {
-            return Err(HeaderMismatch::Layout {
-                expected: self.layout_hash,
-                found: h.layout_hash,
-            });
-        }
-        if h.n_values != self.n_values as u64 || payload != self.n_values {
-            return Err(HeaderMismatch::Length {
-                announced: h.n_values,
-                payload: payload as u64,
-            });
-        }
-        Ok(())
+        check_weights_header(
+            h,
+            payload,
+            self.run_hash,
+            self.kind,
+            self.layout_hash,
+            self.n_values,
+        )
     }
 
     /// The newest snapshot if it is newer than the last one returned, else `None`. A
@@ -402,6 +379,49 @@ impl<S: Service> WeightsSubscriber<S> {
     pub(crate) fn side(&self) -> &SubscriberSide<S> {
         &self.side
     }
+}
+
+/// Validate a weights header (and its payload length, in floats) against what a subscriber
+/// expects.
+pub fn check_weights_header(
+    h: &WeightsHeader,
+    payload: usize,
+    run_hash: u64,
+    kind: WeightsKind,
+    layout_hash: u64,
+    n_values: usize,
+) -> Result<(), HeaderMismatch> {
+    if h.schema_version != SCHEMA_VERSION {
+        return Err(HeaderMismatch::Schema {
+            expected: SCHEMA_VERSION,
+            found: h.schema_version,
+        });
+    }
+    if h.run_hash != run_hash {
+        return Err(HeaderMismatch::Run {
+            expected: run_hash,
+            found: h.run_hash,
+        });
+    }
+    if h.kind != kind as u32 {
+        return Err(HeaderMismatch::Kind {
+            expected: kind as u32,
+            found: h.kind,
+        });
+    }
+    if h.layout_hash != layout_hash {
+        return Err(HeaderMismatch::Layout {
+            expected: layout_hash,
+            found: h.layout_hash,
+        });
+    }
+    if h.n_values != n_values as u64 || payload != n_values {
+        return Err(HeaderMismatch::Length {
+            announced: h.n_values,
+            payload: payload as u64,
+        });
+    }
+    Ok(())
 }
 
 /// Policy versions cross the wire shifted by one ([`WeightsPublisher`] versions start at 1,

@@ -87,6 +87,14 @@ fn any_model_snapshot_loads_or_is_refused() {
         for v in flat.iter_mut() {
             *v = normal_f32(&mut rng);
         }
+        // Elites are member indices: whole numbers below `members`, so that without the
+        // adversarial floats below a snapshot of the right length can load.
+        if len == layout.len() {
+            let at = layout.n_params + 2 * layout.in_dim;
+            for v in &mut flat[at..at + layout.elites] {
+                *v = index(&mut rng, 3) as f32;
+            }
+        }
         // A few adversarial floats anywhere, elites included (the snapshot's tail).
         for _ in 0..index(&mut rng, 6) {
             if len > 0 {
