@@ -4,7 +4,8 @@
 #   tools/bench_multihost.sh [config] [steps] [bin dir]
 # Runs pipelined MBPO four ways and prints one JSON line each (also appended to
 # results/multihost-bench.jsonl): 1 local actor; 0 local + 1 remote; 1 local + 2 remote;
-# 3 local. Figures: env steps per second of the whole run (wall), the summary's lost count,
+# 3 local. Figures: env steps per second of the whole run (wall) and in steady state (first to
+# last metrics row, i.e. without start-up and join), the summary's lost count,
 # and the worker's weight latency (learner publish -> worker's shared memory, p50/p99 ms; one
 # machine, so one clock). Measure on a quiet machine.
 set -euo pipefail
@@ -49,10 +50,16 @@ s = json.load(open(summary))
 w = {}
 if os.path.exists(worker) and os.path.getsize(worker) > 0:
     w = json.loads(open(worker).read().strip().splitlines()[-1])
+# Steady state: from the first metrics row (the first evaluation, after start-up and the
+# workers' join) to the last.
+import csv
+rows = list(csv.DictReader(open(os.path.join(os.path.dirname(summary), "metrics.csv"))))
+(t0, s0), (t1, s1) = [(float(r["wall_seconds"]), int(r["env_steps"])) for r in (rows[0], rows[-1])]
 print(json.dumps({
     "setup": name, "config": config, "steps": int(steps), "status": s["status"],
     "wall_seconds": round(s["wall_seconds"], 2),
     "env_steps_per_second": round(int(steps) / s["wall_seconds"], 1),
+    "steady_env_steps_per_second": round((s1 - s0) / (t1 - t0), 1) if t1 > t0 else None,
     "lost": s["real_transitions"]["lost"],
     "weights_latency_ms_p50": w.get("weights_latency_ms_p50"),
     "weights_latency_ms_p99": w.get("weights_latency_ms_p99"),

@@ -403,43 +403,35 @@ fn learning_bench_logs_each_seed_into_its_run() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// `mbpo chaos` runs the pipeline with kills and reports each run: one run, one kill, which
-/// restarts the pipeline; the run completes with every transition received by every consumer
-/// and nothing left behind, and the report says so.
-#[test]
-fn chaos_kills_a_process_and_reports_the_run() {
-    let dir = scratch("cli-chaos");
+/// `mbpo chaos` of one 2000-step run with one kill and two actors (plus `extra`), in
+/// `dir/chaos`: its lines (the run's, then the totals). The kill comes as soon as a checkpoint
+/// passes its point (at most 1600): hundreds of steps before the end, so it always lands.
+fn chaos_one_kill(dir: &std::path::Path, extra: &[&str]) -> Vec<serde_json::Value> {
     let out = mbpo()
         .args(["chaos", "--config"])
         .arg(config_file())
         .args(["--steps", "2000", "--set", "checkpoint.every=100"])
-        // The kill comes as soon as a checkpoint passes its point (at most 1600): hundreds of
-        // steps before the end, so it always lands.
-        .args([
-            "--max-delay-seconds",
-            "0",
-            "--runs",
-            "1",
-            "--kills",
-            "1",
-            "--actors",
-            "2",
-        ])
+        .args(["--max-delay-seconds", "0", "--runs", "1", "--kills", "1"])
+        .args(["--actors", "2"])
+        .args(extra)
         .arg("--out")
         .arg(dir.join("chaos"))
         .stderr(Stdio::null())
         .output()
         .unwrap();
-    assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
+    assert!(out.status.success(), "{text}");
     let lines: Vec<serde_json::Value> = text
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     assert_eq!(lines.len(), 2, "{text}");
-    let (run, totals) = (&lines[0], &lines[1]);
-    assert_eq!(run["killed"].as_array().map(Vec::len), Some(1), "{run}");
-    assert_eq!(run["restarts"], 1, "{run}");
+    lines
+}
+
+/// The run completed with every transition received once by every consumer, none lost, and
+/// nothing left behind (shared memory, processes).
+fn assert_run_held(run: &serde_json::Value) {
     assert_eq!(run["completed"], true, "{run}");
     assert_eq!(
         run["every_consumer_received_every_transition"], true,
@@ -447,13 +439,27 @@ fn chaos_kills_a_process_and_reports_the_run() {
     );
     assert_eq!(
         (run["lost"].as_u64(), run["produced"].as_u64()),
-        (Some(0), Some(2000))
+        (Some(0), Some(2000)),
+        "{run}"
     );
     assert_eq!(
         (&run["shm_left"], &run["orphans"]),
         (&0.into(), &0.into()),
         "{run}"
     );
+}
+
+/// `mbpo chaos` runs the pipeline with kills and reports each run: one run, one kill, which
+/// restarts the pipeline; the run completes with every transition received by every consumer
+/// and nothing left behind, and the report says so.
+#[test]
+fn chaos_kills_a_process_and_reports_the_run() {
+    let dir = scratch("cli-chaos");
+    let lines = chaos_one_kill(&dir, &[]);
+    let (run, totals) = (&lines[0], &lines[1]);
+    assert_eq!(run["killed"].as_array().map(Vec::len), Some(1), "{run}");
+    assert_eq!(run["restarts"], 1, "{run}");
+    assert_run_held(run);
     assert_eq!(
         (&totals["runs"], &totals["completed"]),
         (&1.into(), &1.into())
@@ -468,23 +474,7 @@ fn chaos_kills_a_process_and_reports_the_run() {
 #[test]
 fn chaos_kills_the_supervisor_and_the_resumed_run_completes_and_cleans_up() {
     let dir = scratch("cli-chaos-supervisor");
-    let out = mbpo()
-        .args(["chaos", "--config"])
-        .arg(config_file())
-        .args(["--steps", "2000", "--set", "checkpoint.every=100"])
-        .args(["--max-delay-seconds", "0", "--runs", "1", "--kills", "1"])
-        .args(["--actors", "2", "--kill-supervisor"])
-        .arg("--out")
-        .arg(dir.join("chaos"))
-        .stderr(Stdio::null())
-        .output()
-        .unwrap();
-    let text = String::from_utf8(out.stdout).unwrap();
-    assert!(out.status.success(), "{text}");
-    let lines: Vec<serde_json::Value> = text
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let lines = chaos_one_kill(&dir, &["--kill-supervisor"]);
     let run = &lines[0];
     assert_eq!(run["killed"], serde_json::json!(["supervisor"]), "{run}");
     let kill = &run["supervisor_kills"][0];
@@ -499,20 +489,7 @@ fn chaos_kills_the_supervisor_and_the_resumed_run_completes_and_cleans_up() {
         kill["shm_files_left_by_the_kill"].as_u64() > Some(0),
         "a SIGKILLed launcher cannot clean up: {run}"
     );
-    assert_eq!(run["completed"], true, "{run}");
-    assert_eq!(
-        run["every_consumer_received_every_transition"], true,
-        "{run}"
-    );
-    assert_eq!(
-        (run["lost"].as_u64(), run["produced"].as_u64()),
-        (Some(0), Some(2000))
-    );
     // Nothing of either `mbpo run` is left: the resumed one removed the killed one's files.
-    assert_eq!(
-        (&run["shm_left"], &run["orphans"]),
-        (&0.into(), &0.into()),
-        "{run}"
-    );
+    assert_run_held(run);
     let _ = std::fs::remove_dir_all(dir);
 }

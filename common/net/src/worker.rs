@@ -36,6 +36,10 @@ use crate::protocol::{decode, Assignment, Body, Envelope, Item, WeightsMsg};
 use crate::session::{self, NetOptions, Side};
 use crate::{actor_weights, GatewayError};
 
+/// A worker not yet in a run says hello this often: it joins within this of the head starting
+/// (a hello is a few bytes; once a second made every remote run start up to 1 s late).
+const HELLO_PERIOD: Duration = Duration::from_millis(200);
+
 /// What `mbpo join` is given.
 #[derive(Debug, Clone)]
 pub struct WorkerOptions {
@@ -229,7 +233,7 @@ fn receive(
                     return Ok(());
                 }
             }
-            // Not a member: say hello once a second, and say it when nobody answers.
+            // Not a member: say hello every HELLO_PERIOD, and say it when nobody answers.
             if st.attempt.is_none() && st.head.is_none() {
                 let waited = started.elapsed();
                 if waited > next_complaint {
@@ -241,9 +245,7 @@ fn receive(
                     next_complaint = waited * 2;
                 }
             }
-            if st.attempt.is_none()
-                && last_hello.is_none_or(|t| t.elapsed() > Duration::from_secs(1))
-            {
+            if st.attempt.is_none() && last_hello.is_none_or(|t| t.elapsed() > HELLO_PERIOD) {
                 to_head
                     .put(hello.clone())
                     .wait()

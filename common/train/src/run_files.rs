@@ -199,7 +199,8 @@ impl RunBook {
     pub fn rows_upto(&self, env_steps: u64) -> u64 {
         self.unwritten_evals
             .first()
-            .map_or(env_steps, |&(t, _, _)| t - 1)
+            // A book read from a damaged or forged file may hold t = 0: no rows then.
+            .map_or(env_steps, |&(t, _, _)| t.saturating_sub(1))
     }
 
     /// Keep the episode `actor` ended in its last step, if it had `episodes_before` before.

@@ -328,6 +328,29 @@ pub enum HeaderMismatch {
     },
 }
 
+impl HeaderMismatch {
+    /// Every header starts with the writer's schema version and run hash: both must be ours.
+    pub(crate) fn check_schema_and_run(
+        schema_version: u32,
+        found_run: u64,
+        run_hash: u64,
+    ) -> Result<(), Self> {
+        if schema_version != crate::names::SCHEMA_VERSION {
+            return Err(HeaderMismatch::Schema {
+                expected: crate::names::SCHEMA_VERSION,
+                found: schema_version,
+            });
+        }
+        if found_run != run_hash {
+            return Err(HeaderMismatch::Run {
+                expected: run_hash,
+                found: found_run,
+            });
+        }
+        Ok(())
+    }
+}
+
 /// A hole in a producer's sequence numbers: `got - expected` messages never arrived.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[error("{missing} message(s) from {producer} on {channel} lost: expected sequence number {expected}, got {got}{}", if *.first_contact { " (first message seen from this publisher)" } else { "" })]

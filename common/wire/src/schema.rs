@@ -187,7 +187,7 @@ impl StatsKind {
     }
 }
 
-/// One statistics event, everyone -> supervisor. 112 bytes, fixed size.
+/// One statistics event, everyone -> supervisor. 88 bytes, fixed size.
 #[derive(
     Debug, Default, Clone, Copy, PartialEq, ZeroCopySend, serde::Serialize, serde::Deserialize,
 )]

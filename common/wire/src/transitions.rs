@@ -635,18 +635,7 @@ pub fn check_header(
     layout: RowLayout,
     layout_hash: u64,
 ) -> Result<(), HeaderMismatch> {
-    if h.schema_version != SCHEMA_VERSION {
-        return Err(HeaderMismatch::Schema {
-            expected: SCHEMA_VERSION,
-            found: h.schema_version,
-        });
-    }
-    if h.run_hash != run_hash {
-        return Err(HeaderMismatch::Run {
-            expected: run_hash,
-            found: h.run_hash,
-        });
-    }
+    HeaderMismatch::check_schema_and_run(h.schema_version, h.run_hash, run_hash)?;
     if h.stream != channel.tag() {
         return Err(HeaderMismatch::Stream {
             expected: channel.tag(),

@@ -391,18 +391,7 @@ pub fn check_weights_header(
     layout_hash: u64,
     n_values: usize,
 ) -> Result<(), HeaderMismatch> {
-    if h.schema_version != SCHEMA_VERSION {
-        return Err(HeaderMismatch::Schema {
-            expected: SCHEMA_VERSION,
-            found: h.schema_version,
-        });
-    }
-    if h.run_hash != run_hash {
-        return Err(HeaderMismatch::Run {
-            expected: run_hash,
-            found: h.run_hash,
-        });
-    }
+    HeaderMismatch::check_schema_and_run(h.schema_version, h.run_hash, run_hash)?;
     if h.kind != kind as u32 {
         return Err(HeaderMismatch::Kind {
             expected: kind as u32,

@@ -143,57 +143,43 @@ const ORPHAN_DEADLINE: Duration = Duration::from_secs(5);
 /// How long a kill report waits for them at most.
 const ORPHAN_WAIT: Duration = Duration::from_secs(15);
 
-/// `mbpo run` of the config into `run`, restarting on failure, quiet, its stderr in a log.
+/// `mbpo run` of the config into `run`, restarting on failure, quiet, its stderr in
+/// `<run>.stderr.log`.
 fn start(args: &ChaosArgs, config: &Path, run: &Path, root: &Path) -> anyhow::Result<Child> {
-    let exe = std::env::current_exe().context("finding the mbpo executable")?;
     std::fs::create_dir_all(root)?;
     let log = std::fs::File::create(run.with_extension("stderr.log"))?;
-    Command::new(exe)
-        .arg("run")
-        .args(["--config".as_ref(), config.as_os_str()])
+    let mut cmd = mbpo_run(args, root, log)?;
+    cmd.args(["--config".as_ref(), config.as_os_str()])
         .args(["--out".as_ref(), run.as_os_str()])
-        .args(["--ipc-root".as_ref(), root.as_os_str()])
-        .args([
-            "--mode",
-            args.mode.name(),
-            "--actors",
-            &args.actors.to_string(),
-        ])
-        .args([
-            "--restart",
-            "on-failure",
-            "--max-restarts",
-            &args.kills.to_string(),
-            "--quiet",
-        ])
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .context("starting mbpo run")
+        .args(["--mode", args.mode.name()])
+        .args(["--actors", &args.actors.to_string()]);
+    cmd.spawn().context("starting mbpo run")
 }
 
-/// `mbpo run --resume` of `run`, restarting on failure, quiet, its stderr appended to the log.
+/// `mbpo run --resume` of `run` (its mode and actors are the run's), its stderr appended to
+/// the log.
 fn resume(args: &ChaosArgs, run: &Path, root: &Path) -> anyhow::Result<Child> {
-    let exe = std::env::current_exe().context("finding the mbpo executable")?;
     let log = std::fs::OpenOptions::new()
         .append(true)
         .create(true)
         .open(run.with_extension("stderr.log"))?;
-    Command::new(exe)
-        .arg("run")
-        .args(["--resume".as_ref(), run.as_os_str()])
+    let mut cmd = mbpo_run(args, root, log)?;
+    cmd.args(["--resume".as_ref(), run.as_os_str()]);
+    cmd.spawn().context("starting mbpo run --resume")
+}
+
+/// The `mbpo run` command line every run of the chaos shares: this executable, the IPC root,
+/// restarts on failure (one per kill), quiet, stderr into `log`.
+fn mbpo_run(args: &ChaosArgs, root: &Path, log: std::fs::File) -> anyhow::Result<Command> {
+    let exe = std::env::current_exe().context("finding the mbpo executable")?;
+    let mut cmd = Command::new(exe);
+    cmd.arg("run")
         .args(["--ipc-root".as_ref(), root.as_os_str()])
-        .args([
-            "--restart",
-            "on-failure",
-            "--max-restarts",
-            &args.kills.to_string(),
-            "--quiet",
-        ])
+        .args(["--restart", "on-failure"])
+        .args(["--max-restarts", &args.kills.to_string(), "--quiet"])
         .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .context("starting mbpo run --resume")
+        .stderr(log);
+    Ok(cmd)
 }
 
 /// What a SIGKILL of `mbpo run` left: its run id, how long its processes lived on, and the
