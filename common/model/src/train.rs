@@ -57,6 +57,8 @@ pub struct TrainReport {
     pub stop: StopReason,
     /// Wall-clock seconds of the call.
     pub seconds: f64,
+    /// Of those, seconds computing the holdout MSE after each epoch.
+    pub holdout_seconds: f64,
     /// The learned termination rule's training, when the model has one.
     pub termination: Option<crate::TerminationReport>,
 }
@@ -216,6 +218,8 @@ impl ProbabilisticEnsemble {
         rng: &mut Rng,
         mut stop_requested: impl FnMut() -> bool,
     ) -> Result<Option<TrainReport>, TrainError> {
+        // Subnormals flushed, as every job of the pool (mbpo_nn::subnormal says why).
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let start = Instant::now();
         self.check_training_data(data)?;
         let cfg = self.config.clone();
@@ -263,6 +267,7 @@ impl ProbabilisticEnsemble {
             elites: Vec::new(),
             stop: StopReason::NoImprovement,
             seconds: 0.0,
+            holdout_seconds: 0.0,
             termination: None,
         };
         self.ws.grads.resize(self.theta.len(), 0.0);
@@ -281,6 +286,7 @@ impl ProbabilisticEnsemble {
             boot.shuffle_rows(rng);
 
             // 5. Holdout MSE, snapshots, patience.
+            let holdout_start = Instant::now();
             holdout_mse(
                 &mut self.ws.threads,
                 &self.net,
@@ -290,6 +296,7 @@ impl ProbabilisticEnsemble {
                 n_hold,
                 &mut mse,
             );
+            report.holdout_seconds += holdout_start.elapsed().as_secs_f64();
             let stop = stopper.update(&mse, &mut improved);
             for e in (0..members).filter(|&e| improved[e]) {
                 let r = self.net.ensemble().member_range(e);

@@ -30,6 +30,7 @@ pub mod mlp;
 pub mod ops;
 pub mod pool;
 pub mod simd;
+pub mod subnormal;
 
 pub use activation::Activation;
 pub use adam::{Adam, AdamConfig, AdamState, WeightDecay};
@@ -38,3 +39,4 @@ pub use init::Init;
 pub use layout::{ParamFile, ParamLayout, ParamLoadError};
 pub use mlp::{Mlp, MlpCache};
 pub use pool::WorkerPool;
+pub use subnormal::FlushSubnormals;

@@ -80,7 +80,10 @@ impl WorkerPool {
                 let shared = Arc::clone(&shared);
                 std::thread::Builder::new()
                     .name(format!("mbpo-worker-{index}"))
-                    .spawn(move || worker_loop(&shared, index))
+                    .spawn(move || {
+                        crate::FlushSubnormals::for_this_thread();
+                        worker_loop(&shared, index)
+                    })
                     .expect("cannot spawn a worker thread")
             })
             .collect();
@@ -95,6 +98,7 @@ impl WorkerPool {
     /// Run `job(i)` for every thread index i in `0..threads()` at once (i = 0 on the caller)
     /// and return when all have finished. A panic in any of them is re-raised here.
     pub fn run(&mut self, job: &(dyn Fn(usize) + Sync)) {
+        let _flush = crate::FlushSubnormals::new();
         if self.workers.is_empty() {
             job(0);
             return;

@@ -245,6 +245,8 @@ impl Sac {
 
     /// One SAC update on `batch` (any source: real, model, or mixed).
     pub fn update(&mut self, batch: &Batch, rng: &mut Rng) -> SacStats {
+        // Subnormals flushed, as every job of the pool (mbpo_nn::subnormal says why).
+        let _flush = mbpo_nn::FlushSubnormals::new();
         assert_eq!(
             batch.len, self.config.batch_size,
             "batch size differs from the config"

@@ -294,8 +294,9 @@ pub fn latest(run: &Path) -> Result<Option<(PathBuf, Manifest)>, CheckpointError
     Ok(Some((dir, manifest)))
 }
 
-/// Delete all but the newest `keep` complete checkpoints (and any incomplete older ones).
-pub fn prune(run: &Path, keep: usize) -> Result<(), CheckpointError> {
+/// Delete all but the newest `keep` complete checkpoints (and any incomplete older ones); a
+/// complete one taken at a multiple of `keep_every` env steps (when not 0) is kept as well.
+pub fn prune(run: &Path, keep: usize, keep_every: u64) -> Result<(), CheckpointError> {
     let root = root(run);
     let Ok(entries) = std::fs::read_dir(&root) else {
         return Ok(());
@@ -306,7 +307,14 @@ pub fn prune(run: &Path, keep: usize) -> Result<(), CheckpointError> {
     let Some(oldest_kept) = complete.len().checked_sub(keep.max(1)).map(|i| complete[i]) else {
         return Ok(());
     };
-    for d in dirs.iter().filter(|d| *d < oldest_kept) {
+    let milestone = |d: &Path| {
+        keep_every > 0
+            && d.join(COMPLETE).is_file()
+            && d.file_name()
+                .and_then(|n| n.to_str()?.parse::<u64>().ok())
+                .is_some_and(|steps| steps.is_multiple_of(keep_every))
+    };
+    for d in dirs.iter().filter(|d| *d < oldest_kept && !milestone(d)) {
         std::fs::remove_dir_all(d).map_err(io_err(d))?;
     }
     Ok(())
@@ -405,13 +413,25 @@ mod tests {
         let err = mark_complete(&d, 400, &["a.ckpt", "b.ckpt"]).unwrap_err();
         assert!(err.to_string().contains("b.ckpt is missing"), "{err}");
 
-        prune(&run, 2).unwrap();
-        let mut left: Vec<_> = std::fs::read_dir(root(&run))
-            .unwrap()
-            .map(|e| e.unwrap().file_name().into_string().unwrap())
-            .collect();
-        left.sort();
-        assert_eq!(left, ["0000000200", "0000000300", "0000000400"]);
+        let left = || {
+            let mut left: Vec<_> = std::fs::read_dir(root(&run))
+                .unwrap()
+                .map(|e| e.unwrap().file_name().into_string().unwrap())
+                .collect();
+            left.sort();
+            left
+        };
+        prune(&run, 2, 0).unwrap();
+        assert_eq!(left(), ["0000000200", "0000000300", "0000000400"]);
+        // With keep_every, older complete checkpoints at its multiples stay.
+        for steps in [500, 600] {
+            let d = dir_for(&run, steps);
+            std::fs::create_dir_all(&d).unwrap();
+            write(&d.join("a.ckpt"), "a", &steps).unwrap();
+            mark_complete(&d, steps, &["a.ckpt"]).unwrap();
+        }
+        prune(&run, 1, 200).unwrap();
+        assert_eq!(left(), ["0000000200", "0000000600"]);
         std::fs::remove_dir_all(run).unwrap();
     }
 }

@@ -112,6 +112,9 @@ pub struct CheckpointConfig {
     pub every: u64,
     /// Complete checkpoints kept; older ones are deleted.
     pub keep: usize,
+    /// Also keep every checkpoint taken at a multiple of this many env steps (0: none), e.g.
+    /// to measure a long run's costs later at several sizes of D_env (`mbpo bench breakdown`).
+    pub keep_every: u64,
 }
 
 impl Default for CheckpointConfig {
@@ -119,6 +122,7 @@ impl Default for CheckpointConfig {
         Self {
             every: 1000,
             keep: 2,
+            keep_every: 0,
         }
     }
 }
@@ -453,6 +457,17 @@ impl ExperimentConfig {
             if v <= 0.0 {
                 return Err(bad(key, "a positive number", v.to_string()));
             }
+        }
+        let c = &self.checkpoint;
+        if c.keep_every > 0 && (c.every == 0 || !c.keep_every.is_multiple_of(c.every)) {
+            return Err(bad(
+                "checkpoint.keep_every",
+                &format!(
+                    "0 or a multiple of checkpoint.every ({}), where checkpoints are taken",
+                    c.every
+                ),
+                c.keep_every.to_string(),
+            ));
         }
         if !(0.0..=1.0).contains(&m.real_ratio) {
             return Err(bad(

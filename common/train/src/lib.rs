@@ -4,6 +4,7 @@
 //! * [`env_config`]: the config's environment (built-in or Python Gymnasium) and the
 //!   termination rule of model rollouts.
 //! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
+//! * [`breakdown`]: where an MBPO run's time goes, from a kept checkpoint (`mbpo bench breakdown`).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
@@ -13,6 +14,7 @@
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
 //! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
 //! * [`termination_bench`]: the learned termination rule against a task's exact one.
+//! * [`phase_times`]: seconds per phase of an MBPO run (model training, rollouts, SAC, acting).
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
 //! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
 //!   single-process MPC run).
@@ -21,6 +23,7 @@
 
 pub mod actor;
 pub mod algorithm;
+pub mod breakdown;
 pub mod checkpoint;
 pub mod config;
 pub mod env_config;
@@ -28,6 +31,7 @@ pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
 pub mod mpc;
+pub mod phase_times;
 pub mod policy_file;
 pub mod progress;
 pub mod roles;

@@ -23,6 +23,7 @@ use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
 use crate::eval::Evaluator;
+use crate::phase_times::PhaseTimes;
 use crate::progress::{Display, Progress};
 use crate::roles::{
     ActorRole, LearnerRole, ModelSnapshot, ModelTrainerRole, RolloutRole, Schedule,
@@ -55,6 +56,8 @@ pub struct Mbpo {
     /// The run's book (episode ends, model MSEs, step times, rows): what a checkpoint keeps of
     /// the run besides the roles, the same as `mbpo run`'s coordinator keeps.
     pub book: RunBook,
+    /// Seconds per phase so far (this process's steps only; not checkpointed).
+    pub phases: PhaseTimes,
 }
 
 impl Mbpo {
@@ -72,6 +75,7 @@ impl Mbpo {
             learner,
             last_model_report: None,
             book: RunBook::start(),
+            phases: PhaseTimes::default(),
         };
         mbpo.actor.set_policy(&mbpo.learner.policy());
         Ok(mbpo)
@@ -133,6 +137,7 @@ impl Mbpo {
         snapshot: ModelSnapshot,
         report: TrainReport,
     ) -> Result<&TrainReport, TrainError> {
+        self.phases.add_training(&report);
         self.rollout.set_model(&snapshot)?;
         let mse = report.elite_holdout_mse();
         self.book.models.insert(snapshot.version, mse);
@@ -144,23 +149,33 @@ impl Mbpo {
     /// from D_env.
     pub fn branch_rollouts(&mut self, epoch: usize) -> Result<(), TrainError> {
         self.rollout.set_policy(&self.learner.policy());
+        let started = Instant::now();
         let imagined = self.rollout.branch(epoch)?;
         self.learner.add_imagined(&imagined);
+        self.phases.rollout_seconds += started.elapsed().as_secs_f64();
+        self.phases.imagined += imagined.rows.len as u64;
         Ok(())
     }
 
     /// One real env step with a ~ π(·|s) into D_env.
     pub fn env_step(&mut self) -> Result<(), TrainError> {
+        let started = Instant::now();
         self.actor.set_policy(&self.learner.policy());
-        self.act_and_distribute(Behaviour::Policy)
+        self.act_and_distribute(Behaviour::Policy)?;
+        self.phases.act_seconds += started.elapsed().as_secs_f64();
+        self.phases.steps += 1;
+        Ok(())
     }
 
     /// G SAC updates on batches of `real_ratio` D_env and the rest D_model.
     pub fn policy_updates(&mut self) -> Result<(), TrainError> {
+        let started = Instant::now();
         for _ in 0..self.updates_per_step {
             self.learner.update()?;
         }
         self.learner.finish_step();
+        self.phases.sac_seconds += started.elapsed().as_secs_f64();
+        self.phases.sac_updates += self.updates_per_step as u64;
         Ok(())
     }
 
@@ -327,11 +342,16 @@ pub fn train_mbpo_with(
         evaluator.write_book(&mut book);
         book.progress = (t, mbpo.sac().updates(), mbpo.model_trainer.version());
         mbpo.write_checkpoint(&checkpoint::dir_for(out, t), t, evaluator, &book)?;
-        Ok(checkpoint::prune(out, cfg.checkpoint.keep)?)
+        Ok(checkpoint::prune(
+            out,
+            cfg.checkpoint.keep,
+            cfg.checkpoint.keep_every,
+        )?)
     };
     let mut status = "completed";
     let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
+    let mut phases_at_last_row = mbpo.phases;
     for t in done + 1..=cfg.steps {
         let started = Instant::now();
         let stepped = match mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps)) {
@@ -368,6 +388,11 @@ pub fn train_mbpo_with(
             run.write_metrics(&row)?;
             mbpo.book.next_row += 1;
             evaluator.log("mbpo", &row);
+            let phases = mbpo.phases.since(&phases_at_last_row);
+            if phases.steps > 0 {
+                tracing::info!("{}", phases.per_step_line());
+            }
+            phases_at_last_row = mbpo.phases;
             progress.set_eval(row.eval_return);
         }
         progress.update(t, mbpo.sac().updates());

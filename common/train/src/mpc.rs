@@ -548,7 +548,11 @@ pub fn train_mpc_with(
         book.elapsed_seconds = started.elapsed().as_secs_f64();
         book.progress = (t, 0, mpc.model_trainer.version());
         mpc.write_checkpoint(&checkpoint::dir_for(out, t), t, book)?;
-        Ok(checkpoint::prune(out, cfg.checkpoint.keep)?)
+        Ok(checkpoint::prune(
+            out,
+            cfg.checkpoint.keep,
+            cfg.checkpoint.keep_every,
+        )?)
     };
     let mut status = "completed";
     let label = format!("mpc {} s{}", cfg.env, cfg.seed);

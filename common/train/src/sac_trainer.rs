@@ -175,7 +175,7 @@ pub fn train_sac_with(
             };
             checkpoint::write(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND, &state)?;
             checkpoint::mark_complete(&dir, t, &[SAC_CHECKPOINT_FILE])?;
-            checkpoint::prune(out, cfg.checkpoint.keep)?;
+            checkpoint::prune(out, cfg.checkpoint.keep, cfg.checkpoint.keep_every)?;
         }
         if stopping {
             log_stopped(t, out);

@@ -168,6 +168,14 @@ const CASES: &[(&str, &[&str])] = &[
         &["`checkpoint.keep`", "a positive number", "found 0"],
     ),
     (
+        "[checkpoint]\nevery = 1000\nkeep_every = 2500",
+        &[
+            "`checkpoint.keep_every`",
+            "a multiple of checkpoint.every (1000)",
+            "found 2500",
+        ],
+    ),
+    (
         "algo = \"mbpo\"\n[model]\nmembers = 7\nelites = 9",
         &["`model.elites`", "between 1 and members (7)", "found 9"],
     ),

@@ -11,6 +11,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(args) => env(&args),
         BenchCommand::Learning(args) => learning(&args),
+        BenchCommand::Breakdown(args) => breakdown(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
@@ -167,6 +168,66 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
                "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                "results": args.out.join(format!("learning-{}.json", cfg.env_file_name()))})
     );
+    Ok(())
+}
+
+fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
+    use mbpo_train::breakdown::{breakdown_at, projected_seconds};
+    let config = args.run.join("config.toml");
+    let cfg = mbpo_train::ExperimentConfig::resolve(Some(&config), &args.overrides)?;
+    anyhow::ensure!(
+        cfg.algo == mbpo_train::Algo::MBPO,
+        "{}: algo is {}; the breakdown is of MBPO runs",
+        config.display(),
+        cfg.algo.name()
+    );
+    let mut points = Vec::new();
+    for &at in &args.at {
+        let p = breakdown_at(&cfg, &args.run, at, args.window)?;
+        let m = &p.ms_per_step;
+        eprintln!(
+            "at {:>6}: {:7.1} ms/step = model training {:6.1} ({:4.1} epochs x {:.2} s, holdout \
+             {:4.1}) + rollouts {:5.1} (k = {}) + SAC {:5.1} ({:.2} ms/update) + acting {:4.2} + \
+             other {:4.2}",
+            at,
+            m.total,
+            m.model_training,
+            m.epochs_per_training,
+            m.seconds_per_epoch,
+            m.model_holdout,
+            m.rollouts,
+            p.rollout_length,
+            m.sac,
+            m.ms_per_sac_update,
+            m.acting,
+            m.other
+        );
+        println!("{}", serde_json::to_string(&p)?);
+        points.push(p);
+    }
+    let seconds = projected_seconds(&points, cfg.mbpo.init_random_steps, args.project);
+    let report = json!({
+        "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
+        "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
+        "points": points,
+        "projection": {"env_steps": args.project, "hours": seconds / 3600.0,
+                       "note": "per-step cost piecewise linear in env steps between the points, warm-up left out"},
+    });
+    eprintln!(
+        "projected: {:.2} h for {} env steps (model.threads {}, sac.threads {})",
+        seconds / 3600.0,
+        args.project,
+        cfg.model.threads,
+        cfg.sac.threads
+    );
+    if args.out.as_os_str() != "-" {
+        std::fs::create_dir_all(&args.out)?;
+        let file = args
+            .out
+            .join(format!("breakdown-{}.json", cfg.env_file_name()));
+        std::fs::write(&file, serde_json::to_string_pretty(&report)? + "\n")?;
+        eprintln!("wrote {}", file.display());
+    }
     Ok(())
 }
 

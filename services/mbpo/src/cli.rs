@@ -163,6 +163,9 @@ pub enum BenchCommand {
     ModelRollout(Repetitions),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
     Learning(LearningArgs),
+    /// Where an MBPO run's time goes at given sizes of D_env: continue a run from its kept
+    /// checkpoints and time each phase per env step -> <out>/breakdown-<env>.json.
+    Breakdown(BreakdownArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
     /// The learned termination rule against the env's own: trained on random-action
@@ -312,6 +315,30 @@ pub struct LearningArgs {
     /// the last evaluation at or before each budget, and the wall-clock seconds to get there.
     #[arg(long, value_delimiter = ',')]
     pub budgets: Vec<u64>,
+}
+
+#[derive(Debug, Args)]
+pub struct BreakdownArgs {
+    /// A run directory of `mbpo train` or `mbpo bench learning` (MBPO) with complete
+    /// checkpoints at the `--at` steps (`--set checkpoint.keep_every=N` keeps them).
+    #[arg(long)]
+    pub run: std::path::PathBuf,
+    /// Env steps (real transitions) to measure at, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "10000,25000,50000")]
+    pub at: Vec<u64>,
+    /// Env steps measured after each point (whole model-training periods make sense).
+    #[arg(long, default_value_t = 1000)]
+    pub window: u64,
+    /// Override a key of the run's config, e.g. `model.threads=2` (thread counts do not
+    /// change results; anything else measures a different run).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Project the wall-clock of a run of this many env steps from the measured points.
+    #[arg(long, default_value_t = 100_000)]
+    pub project: u64,
+    /// Results directory (`breakdown-<env>.json`; `-` for none).
+    #[arg(long, default_value = "results")]
+    pub out: std::path::PathBuf,
 }
 
 #[derive(Debug, Args)]

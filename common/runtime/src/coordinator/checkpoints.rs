@@ -153,15 +153,15 @@ impl Barrier {
     }
 }
 
-/// Write the run book, the launcher's file and `COMPLETE`, then keep the newest `keep`
-/// checkpoints.
+/// Write the run book, the launcher's file and `COMPLETE`, then prune per the config's
+/// `checkpoint.keep` and `checkpoint.keep_every`.
 pub fn finish(
     run: &Path,
     pipeline: &PipelineSpec,
     cut: Cut,
     state: &SupervisorCheckpoint,
     book: &RunBook,
-    keep: usize,
+    keep: &mbpo_train::config::CheckpointConfig,
 ) -> Result<()> {
     let dir = checkpoint::dir_for(run, cut.env_steps);
     checkpoint::write(
@@ -177,7 +177,7 @@ pub fn finish(
     let files = barrier::pipeline_files(pipeline, state.actors);
     let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
     checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
-    checkpoint::prune(run, keep)?;
+    checkpoint::prune(run, keep.keep, keep.keep_every)?;
     Ok(())
 }
 

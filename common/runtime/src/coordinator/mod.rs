@@ -279,7 +279,7 @@ impl Coordinator {
             cut,
             &state,
             &book,
-            self.cfg.checkpoint.keep,
+            &self.cfg.checkpoint,
         )?;
         tracing::info!(
             "checkpoint after step {} complete ({:.2} s barrier): {}",
