@@ -151,19 +151,26 @@ fn kept_checkpoints(run: &Path) -> String {
 
 /// Seconds a run of `steps` env steps would take, from per-step costs measured at `points`:
 /// piecewise linear in N between the points, held at the first point's value before it and
-/// extended along the last segment after the last point (flat with one point). Warm-up steps
+/// extended along the last segment after the last point. `None` with fewer than two points at
+/// distinct steps: the cost grows with N, so one point says nothing about a run. Warm-up steps
 /// (uniform random, no training) are left out.
-pub fn projected_seconds(points: &[BreakdownPoint], init_random_steps: u64, steps: u64) -> f64 {
+pub fn projected_seconds(
+    points: &[BreakdownPoint],
+    init_random_steps: u64,
+    steps: u64,
+) -> Option<f64> {
     let mut pts: Vec<(f64, f64)> = points
         .iter()
         .map(|p| (p.at as f64, p.ms_per_step.total / 1e3))
         .collect();
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let Some(&first) = pts.first() else {
-        return 0.0;
-    };
+    pts.dedup_by(|a, b| a.0 == b.0);
+    if pts.len() < 2 {
+        return None;
+    }
+    let first = pts[0];
     let cost = |n: f64| -> f64 {
-        if pts.len() == 1 || n <= first.0 {
+        if n <= first.0 {
             return first.1;
         }
         let i = pts
@@ -182,7 +189,7 @@ pub fn projected_seconds(points: &[BreakdownPoint], init_random_steps: u64, step
         total += cost(n as f64 + len as f64 / 2.0) * len as f64;
         n += len;
     }
-    total
+    Some(total)
 }
 
 #[cfg(test)]
@@ -202,17 +209,18 @@ mod tests {
         // 1 ms/step at 10k, 3 ms/step at 30k: linear, 2e-4 ms per transition.
         let pts = [point(10_000, 1.0), point(30_000, 3.0)];
         // From 10k to 30k the mean cost is 2 ms: 40 s.
-        let s = projected_seconds(&pts, 10_000, 30_000);
+        let s = projected_seconds(&pts, 10_000, 30_000).unwrap();
         assert!((s - 40.0).abs() < 1e-9, "{s}");
         // Before the first point the first cost holds: 5k..10k at 1 ms.
-        let s = projected_seconds(&pts, 5_000, 10_000);
+        let s = projected_seconds(&pts, 5_000, 10_000).unwrap();
         assert!((s - 5.0).abs() < 1e-9, "{s}");
         // After the last point the last segment goes on: 30k..40k, 3 -> 4 ms, mean 3.5 ms.
-        let s = projected_seconds(&pts, 30_000, 40_000);
+        let s = projected_seconds(&pts, 30_000, 40_000).unwrap();
         assert!((s - 35.0).abs() < 1e-9, "{s}");
-        // One point: flat.
-        let s = projected_seconds(&pts[..1], 0, 2_000);
-        assert!((s - 2.0).abs() < 1e-9, "{s}");
+        // One point, or two at the same step: no projection.
+        assert_eq!(projected_seconds(&pts[..1], 0, 2_000), None);
+        let same = [point(10_000, 1.0), point(10_000, 2.0)];
+        assert_eq!(projected_seconds(&same, 0, 2_000), None);
     }
 
     #[test]

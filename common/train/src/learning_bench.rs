@@ -3,8 +3,10 @@
 //! `results/learning-<env>.json` holds one entry per algorithm (SAC, MBPO, ...), each with
 //! every seed's evaluation curve, final return and env steps to reach the task's target return
 //! ([`ExperimentConfig::target_return`]: −200 for Pendulum, Gymnasium's `reward_threshold` for
-//! the MuJoCo tasks), so sample efficiency is compared in one place. Seeds run in parallel threads (each run is
-//! single-threaded and deterministic, so parallelism does not change any result).
+//! the MuJoCo tasks), so sample efficiency is compared in one place. Seeds run in parallel
+//! threads; when more than one runs at once, each gets one core (`model.threads` and
+//! `sac.threads` are set to 1, whatever the config says), and each run is deterministic, so
+//! parallelism does not change any result.
 //!
 //! Fixed env-step budgets (e.g. the MBPO paper's "return at 20k and 50k steps") are read off
 //! the curves: at each budget, the last evaluation at or before it and the wall-clock seconds
@@ -209,6 +211,22 @@ pub fn learning_benchmark(
     learning_benchmark_at(cfg, config_name, seeds, threads, out, train, &[])
 }
 
+/// `cfg` for seeds run `parallel` at once: one core each (a config's threads are for one run
+/// alone on the machine; more threads than cores would only make the seeds wait on each other).
+fn one_core_per_seed(cfg: &ExperimentConfig, parallel: usize) -> ExperimentConfig {
+    let mut cfg = cfg.clone();
+    if parallel > 1 && (cfg.model.threads > 1 || cfg.sac.threads > 1) {
+        tracing::info!(
+            "{parallel} seeds run at once, one core each: model.threads {} -> 1, sac.threads {} -> 1",
+            cfg.model.threads,
+            cfg.sac.threads
+        );
+        cfg.model.threads = 1;
+        cfg.sac.threads = 1;
+    }
+    cfg
+}
+
 /// [`learning_benchmark`] that also reports eval return and wall-clock at env-step `budgets`.
 pub fn learning_benchmark_at(
     cfg: &ExperimentConfig,
@@ -229,6 +247,7 @@ pub fn learning_benchmark_at(
     // A results file that cannot be merged into must stop the benchmark before hours of work,
     // not be found unreadable at the end.
     read_results(&file)?;
+    let cfg = &one_core_per_seed(cfg, threads);
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
     std::thread::scope(|s| {
@@ -409,6 +428,29 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("mbpo-lb-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         dir
+    }
+
+    #[test]
+    fn seeds_run_at_once_get_one_core_each_and_one_seed_at_a_time_keeps_the_configs_threads() {
+        fn threads_as_return(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
+            let mut summary = fake_run(cfg, dir)?;
+            summary.final_eval_return = (10 * cfg.model.threads + cfg.sac.threads) as f64;
+            Ok(summary)
+        }
+        let mut cfg = ExperimentConfig {
+            algo: Algo::SAC,
+            ..Default::default()
+        };
+        (cfg.model.threads, cfg.sac.threads) = (2, 2);
+        let out = temp_out("threads-parallel");
+        let r = learning_benchmark(&cfg, "c.toml", &[0, 1], 2, &out, threads_as_return).unwrap();
+        assert_eq!(r.median_final_return, 11.0);
+        let out2 = temp_out("threads-one");
+        let r = learning_benchmark(&cfg, "c.toml", &[0, 1], 1, &out2, threads_as_return).unwrap();
+        assert_eq!(r.median_final_return, 22.0);
+        for dir in [out, out2] {
+            std::fs::remove_dir_all(dir).unwrap();
+        }
     }
 
     #[test]

@@ -182,6 +182,7 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         cfg.algo.name()
     );
     let mut points = Vec::new();
+    let mut pipelines = Vec::new();
     for &at in &args.at {
         let p = breakdown_at(&cfg, &args.run, at, args.window)?;
         let m = &p.ms_per_step;
@@ -203,23 +204,31 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
             m.other
         );
         println!("{}", serde_json::to_string(&p)?);
+        if let Some(mode) = args.pipeline {
+            let ipc = pipeline_ipc(&cfg, &args.run, at, args.window, mode)?;
+            eprintln!("at {at:>6}: mbpo run --mode {}: {ipc}", mode.name());
+            pipelines.push(ipc);
+        }
         points.push(p);
     }
-    let seconds = projected_seconds(&points, cfg.mbpo.init_random_steps, args.project);
+    let hours = projected_seconds(&points, cfg.mbpo.init_random_steps, args.project)
+        .map(|s| s / 3600.0);
     let report = json!({
         "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
         "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
         "points": points,
-        "projection": {"env_steps": args.project, "hours": seconds / 3600.0,
-                       "note": "per-step cost piecewise linear in env steps between the points, warm-up left out"},
+        "pipeline": args.pipeline.map(|m| json!({"mode": m.name(), "points": pipelines})),
+        "projection": {"env_steps": args.project, "hours": hours,
+                       "note": "per-step cost piecewise linear in env steps between the points \
+                                (null with fewer than two), warm-up left out"},
     });
-    eprintln!(
-        "projected: {:.2} h for {} env steps (model.threads {}, sac.threads {})",
-        seconds / 3600.0,
-        args.project,
-        cfg.model.threads,
-        cfg.sac.threads
-    );
+    match hours {
+        Some(h) => eprintln!(
+            "projected: {h:.2} h for {} env steps (model.threads {}, sac.threads {})",
+            args.project, cfg.model.threads, cfg.sac.threads
+        ),
+        None => eprintln!("no projection: it needs points at two or more steps"),
+    }
     if args.out.as_os_str() != "-" {
         std::fs::create_dir_all(&args.out)?;
         let file = args
@@ -229,6 +238,67 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         eprintln!("wrote {}", file.display());
     }
     Ok(())
+}
+
+/// Continue `run` from its checkpoint at `at` for `window` steps as `mbpo run --mode MODE` in a
+/// scratch copy (config with the bench's overrides, the metrics and that checkpoint), and
+/// report per env step its wall-clock (start-up and shutdown included) and each process's
+/// time inside IPC calls.
+fn pipeline_ipc(
+    cfg: &mbpo_train::ExperimentConfig,
+    run: &std::path::Path,
+    at: u64,
+    window: u64,
+    mode: mbpo_runtime::Mode,
+) -> anyhow::Result<serde_json::Value> {
+    use anyhow::Context;
+    use mbpo_train::checkpoint;
+    let scratch = std::env::temp_dir().join(format!(
+        "mbpo-breakdown-{}-{at}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&scratch);
+    let to = checkpoint::dir_for(&scratch, at);
+    std::fs::create_dir_all(&to)?;
+    std::fs::write(scratch.join("config.toml"), cfg.to_toml())?;
+    std::fs::copy(run.join("metrics.csv"), scratch.join("metrics.csv"))
+        .with_context(|| format!("copying {}/metrics.csv", run.display()))?;
+    for entry in std::fs::read_dir(checkpoint::dir_for(run, at))? {
+        let entry = entry?;
+        std::fs::copy(entry.path(), to.join(entry.file_name()))?;
+    }
+    let started = Instant::now();
+    let status = std::process::Command::new(std::env::current_exe()?)
+        .arg("run")
+        .arg("--resume")
+        .arg(&scratch)
+        .args(["--steps", &(at + window).to_string()])
+        .args(["--mode", mode.name(), "--quiet"])
+        .status()
+        .context("starting mbpo run")?;
+    // The whole command: start-up and shutdown of the processes included.
+    let wall = started.elapsed().as_secs_f64();
+    anyhow::ensure!(
+        status.success(),
+        "mbpo run --resume {} failed ({status}); its logs are in {}/logs",
+        scratch.display(),
+        scratch.display()
+    );
+    let text = std::fs::read_to_string(scratch.join("summary.json"))?;
+    let summary: serde_json::Value = serde_json::from_str(&text)?;
+    let per_step = |s: f64| 1e3 * s / window as f64;
+    let ipc: serde_json::Map<String, serde_json::Value> = summary["ipc"]
+        .as_object()
+        .into_iter()
+        .flatten()
+        .map(|(who, share)| {
+            let s = share["ipc_seconds"].as_f64().unwrap_or(0.0);
+            (who.clone(), json!(per_step(s)))
+        })
+        .collect();
+    std::fs::remove_dir_all(&scratch)?;
+    Ok(json!({"at": at, "window": window, "wall_ms_per_step": per_step(wall),
+              "ipc_ms_per_step": ipc}))
 }
 
 fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBenchConfig {

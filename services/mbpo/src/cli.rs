@@ -333,6 +333,10 @@ pub struct BreakdownArgs {
     /// change results; anything else measures a different run).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
+    /// Also continue each point as `mbpo run --mode MODE` (lockstep or pipelined) over the
+    /// same window, for its wall-clock and each process's seconds inside IPC calls.
+    #[arg(long, value_enum)]
+    pub pipeline: Option<mbpo_runtime::Mode>,
     /// Project the wall-clock of a run of this many env steps from the measured points.
     #[arg(long, default_value_t = 100_000)]
     pub project: u64,
