@@ -211,8 +211,8 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         }
         points.push(p);
     }
-    let hours = projected_seconds(&points, cfg.mbpo.init_random_steps, args.project)
-        .map(|s| s / 3600.0);
+    let hours =
+        projected_seconds(&points, cfg.mbpo.init_random_steps, args.project).map(|s| s / 3600.0);
     let report = json!({
         "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
         "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
@@ -253,10 +253,7 @@ fn pipeline_ipc(
 ) -> anyhow::Result<serde_json::Value> {
     use anyhow::Context;
     use mbpo_train::checkpoint;
-    let scratch = std::env::temp_dir().join(format!(
-        "mbpo-breakdown-{}-{at}",
-        std::process::id()
-    ));
+    let scratch = std::env::temp_dir().join(format!("mbpo-breakdown-{}-{at}", std::process::id()));
     let _ = std::fs::remove_dir_all(&scratch);
     let to = checkpoint::dir_for(&scratch, at);
     std::fs::create_dir_all(&to)?;
@@ -297,8 +294,10 @@ fn pipeline_ipc(
         })
         .collect();
     std::fs::remove_dir_all(&scratch)?;
-    Ok(json!({"at": at, "window": window, "wall_ms_per_step": per_step(wall),
-              "ipc_ms_per_step": ipc}))
+    Ok(
+        json!({"at": at, "window": window, "wall_ms_per_step": per_step(wall),
+              "ipc_ms_per_step": ipc}),
+    )
 }
 
 fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBenchConfig {
