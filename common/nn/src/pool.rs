@@ -5,7 +5,7 @@
 //! Spawning threads per phase would cost tens of microseconds and lose faer's thread-local
 //! packing buffers each time, so the workers live as long as the pool and sleep on a condvar
 //! between phases. A thread that waits (a worker for the next phase, the caller for the
-//! workers) first polls for [`SPIN`], about the length of a short gap between phases, and then
+//! workers) first polls for [`SPIN`], a little longer than the gap between two updates, and then
 //! sleeps: no busy polling beyond that.
 //!
 //! Work is assigned statically: item i always runs on thread i (item 0 on the caller), so what
@@ -18,8 +18,11 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-/// How long a waiting thread polls an atomic before sleeping on its condvar.
-pub const SPIN: Duration = Duration::from_micros(30);
+/// How long a waiting thread polls an atomic before sleeping on its condvar: longer than the
+/// gap between two SAC updates (drawing the next minibatch), so a worker is awake when the
+/// next update starts. 100 µs instead of 30 made Hopper's SAC updates on two threads 2.64 ->
+/// 2.50 ms (`mbpo bench breakdown`, results/measurements.md, session 16).
+pub const SPIN: Duration = Duration::from_micros(100);
 
 /// A job with its lifetime erased; [`WorkerPool::run`] does not return before every worker has
 /// finished with it, which is what makes the erasure sound.
