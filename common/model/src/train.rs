@@ -64,6 +64,13 @@ pub struct TrainReport {
 }
 
 impl TrainReport {
+    /// The report with its wall-clock fields zeroed: what two runs of the same training share.
+    pub fn without_timings(mut self) -> Self {
+        self.seconds = 0.0;
+        self.holdout_seconds = 0.0;
+        self
+    }
+
     /// Mean holdout MSE of the elites (the `model_holdout_mse` metrics column), summed in
     /// elite order: every command computes it here, so their rows agree bit for bit.
     pub fn elite_holdout_mse(&self) -> f64 {
