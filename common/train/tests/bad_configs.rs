@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 
 use mbpo_train::ExperimentConfig;
 
-fn scratch() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mbpo-bad-configs-{}", std::process::id()));
+/// A directory of the test `name` alone (tests run at once and each removes its own).
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("mbpo-bad-configs-{}-{name}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir
 }
@@ -216,7 +217,7 @@ const CASES: &[(&str, &[&str])] = &[
 #[test]
 fn every_bad_config_is_refused_naming_its_key_value_and_what_is_allowed() {
     assert!(CASES.len() >= 30);
-    let dir = scratch();
+    let dir = scratch("cases");
     for (n, (text, fragments)) in CASES.iter().enumerate() {
         let err = refusal(&dir, n, text);
         for f in *fragments {
@@ -231,7 +232,7 @@ fn every_bad_config_is_refused_naming_its_key_value_and_what_is_allowed() {
 
 #[test]
 fn config_files_that_are_missing_a_directory_empty_or_binary_are_refused_by_name() {
-    let dir = scratch().join("files");
+    let dir = scratch("files");
     std::fs::create_dir_all(&dir).unwrap();
     let empty = dir.join("empty.toml");
     std::fs::write(&empty, "  \n").unwrap();
