@@ -11,7 +11,7 @@
 
 use crate::checkpoint::{self, COMPLETE};
 use crate::config::ExperimentConfig;
-use crate::phase_times::PhaseTimes;
+use crate::phase_times::{MsPerStep, PhaseTimes};
 use crate::sac_trainer::TrainError;
 use crate::schedule::Schedule;
 use crate::Mbpo;
@@ -36,48 +36,9 @@ pub struct BreakdownPoint {
     pub ms_per_step: MsPerStep,
 }
 
-/// Milliseconds per env step of each phase, and what explains them.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct MsPerStep {
-    /// Model training (all of it, holdout included).
-    pub model_training: f64,
-    /// Of which the holdout MSE after each epoch.
-    pub model_holdout: f64,
-    /// Epochs per model training.
-    pub epochs_per_training: f64,
-    /// Seconds per model-training epoch.
-    pub seconds_per_epoch: f64,
-    /// Model rollouts.
-    pub rollouts: f64,
-    /// SAC updates.
-    pub sac: f64,
-    /// Milliseconds per SAC update.
-    pub ms_per_sac_update: f64,
-    /// Acting in the env.
-    pub acting: f64,
-    /// Whatever else the window's wall-clock held (progress, bookkeeping).
-    pub other: f64,
-    /// The whole window.
-    pub total: f64,
-}
-
 impl BreakdownPoint {
     fn new(at: u64, rollout_length: usize, wall_seconds: f64, phases: PhaseTimes) -> Self {
-        let steps = phases.steps.max(1) as f64;
-        let per_step = |s: f64| 1e3 * s / steps;
-        let ratio = |a: f64, b: u64| if b == 0 { 0.0 } else { a / b as f64 };
-        let ms_per_step = MsPerStep {
-            model_training: per_step(phases.model_train_seconds),
-            model_holdout: per_step(phases.model_holdout_seconds),
-            epochs_per_training: ratio(phases.model_epochs as f64, phases.model_trainings),
-            seconds_per_epoch: ratio(phases.model_train_seconds, phases.model_epochs),
-            rollouts: per_step(phases.rollout_seconds),
-            sac: per_step(phases.sac_seconds),
-            ms_per_sac_update: 1e3 * ratio(phases.sac_seconds, phases.sac_updates),
-            acting: per_step(phases.act_seconds),
-            other: per_step(wall_seconds - phases.total_seconds()).max(0.0),
-            total: per_step(wall_seconds),
-        };
+        let ms_per_step = phases.ms_per_step(wall_seconds);
         Self {
             at,
             window: phases.steps,
@@ -129,16 +90,7 @@ pub fn breakdown_at(
 
 /// The env steps of `run`'s complete checkpoints, for an error message.
 fn kept_checkpoints(run: &Path) -> String {
-    let mut steps: Vec<u64> = std::fs::read_dir(checkpoint::root(run))
-        .into_iter()
-        .flatten()
-        .filter_map(|e| {
-            let p = e.ok()?.path();
-            p.join(COMPLETE).is_file().then_some(())?;
-            p.file_name()?.to_str()?.parse().ok()
-        })
-        .collect();
-    steps.sort_unstable();
+    let steps = checkpoint::complete_steps(run);
     match steps.is_empty() {
         true => "none".into(),
         false => steps

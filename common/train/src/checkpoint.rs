@@ -250,6 +250,25 @@ pub fn dir_for(run: &Path, env_steps: u64) -> PathBuf {
     root(run).join(format!("{env_steps:010}"))
 }
 
+/// The env steps a checkpoint directory was taken at (its name), if it is one.
+fn steps_of(dir: &Path) -> Option<u64> {
+    dir.file_name()?.to_str()?.parse().ok()
+}
+
+/// The env steps of `run`'s complete checkpoints, oldest first (none without a checkpoint root).
+pub fn complete_steps(run: &Path) -> Vec<u64> {
+    let mut steps: Vec<u64> = std::fs::read_dir(root(run))
+        .into_iter()
+        .flatten()
+        .filter_map(|e| {
+            let dir = e.ok()?.path();
+            dir.join(COMPLETE).is_file().then(|| steps_of(&dir))?
+        })
+        .collect();
+    steps.sort_unstable();
+    steps
+}
+
 /// Mark `dir` complete (after every role file in `files` is written).
 pub fn mark_complete(dir: &Path, env_steps: u64, files: &[&str]) -> Result<(), CheckpointError> {
     for f in files {
@@ -310,9 +329,7 @@ pub fn prune(run: &Path, keep: usize, keep_every: u64) -> Result<(), CheckpointE
     let milestone = |d: &Path| {
         keep_every > 0
             && d.join(COMPLETE).is_file()
-            && d.file_name()
-                .and_then(|n| n.to_str()?.parse::<u64>().ok())
-                .is_some_and(|steps| steps.is_multiple_of(keep_every))
+            && steps_of(d).is_some_and(|steps| steps.is_multiple_of(keep_every))
     };
     for d in dirs.iter().filter(|d| *d < oldest_kept && !milestone(d)) {
         std::fs::remove_dir_all(d).map_err(io_err(d))?;

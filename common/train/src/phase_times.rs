@@ -33,6 +33,31 @@ pub struct PhaseTimes {
     pub act_seconds: f64,
 }
 
+/// Milliseconds per env step of each phase, and what explains them.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct MsPerStep {
+    /// Model training (all of it, holdout included).
+    pub model_training: f64,
+    /// Of which the holdout MSE after each epoch.
+    pub model_holdout: f64,
+    /// Epochs per model training.
+    pub epochs_per_training: f64,
+    /// Seconds per model-training epoch.
+    pub seconds_per_epoch: f64,
+    /// Model rollouts.
+    pub rollouts: f64,
+    /// SAC updates.
+    pub sac: f64,
+    /// Milliseconds per SAC update.
+    pub ms_per_sac_update: f64,
+    /// Acting in the env.
+    pub acting: f64,
+    /// Whatever else the window's wall-clock held (progress, bookkeeping).
+    pub other: f64,
+    /// The whole window.
+    pub total: f64,
+}
+
 impl PhaseTimes {
     /// Add one model training.
     pub fn add_training(&mut self, report: &TrainReport) {
@@ -63,27 +88,45 @@ impl PhaseTimes {
         self.model_train_seconds + self.rollout_seconds + self.sac_seconds + self.act_seconds
     }
 
+    /// Milliseconds per env step of each phase over steps that took `wall_seconds` in all
+    /// (what no phase holds is `other`).
+    pub fn ms_per_step(&self, wall_seconds: f64) -> MsPerStep {
+        let per_step = |s: f64| 1e3 * s / self.steps.max(1) as f64;
+        let ratio = |a: f64, b: u64| if b == 0 { 0.0 } else { a / b as f64 };
+        MsPerStep {
+            model_training: per_step(self.model_train_seconds),
+            model_holdout: per_step(self.model_holdout_seconds),
+            epochs_per_training: ratio(self.model_epochs as f64, self.model_trainings),
+            seconds_per_epoch: ratio(self.model_train_seconds, self.model_epochs),
+            rollouts: per_step(self.rollout_seconds),
+            sac: per_step(self.sac_seconds),
+            ms_per_sac_update: 1e3 * ratio(self.sac_seconds, self.sac_updates),
+            acting: per_step(self.act_seconds),
+            other: per_step(wall_seconds - self.total_seconds()).max(0.0),
+            total: per_step(wall_seconds),
+        }
+    }
+
     /// One log line: milliseconds per env step of each phase, with the counts that explain them.
     pub fn per_step_line(&self) -> String {
-        let per_step = |s: f64| 1e3 * s / self.steps.max(1) as f64;
-        let per = |s: f64, n: u64| if n == 0 { 0.0 } else { 1e3 * s / n as f64 };
+        let m = self.ms_per_step(self.total_seconds());
         format!(
             "ms per env step over {} steps: model training {:.1} ({} trainings, {} epochs, \
              {:.0} ms/epoch, holdout {:.1}), rollouts {:.1} ({} imagined), SAC {:.1} ({} updates, \
              {:.2} ms each), acting {:.2}; total {:.1}",
             self.steps,
-            per_step(self.model_train_seconds),
+            m.model_training,
             self.model_trainings,
             self.model_epochs,
-            per(self.model_train_seconds, self.model_epochs),
-            per_step(self.model_holdout_seconds),
-            per_step(self.rollout_seconds),
+            1e3 * m.seconds_per_epoch,
+            m.model_holdout,
+            m.rollouts,
             self.imagined,
-            per_step(self.sac_seconds),
+            m.sac,
             self.sac_updates,
-            per(self.sac_seconds, self.sac_updates),
-            per_step(self.act_seconds),
-            per_step(self.total_seconds()),
+            m.ms_per_sac_update,
+            m.acting,
+            m.total,
         )
     }
 }

@@ -329,8 +329,8 @@ pub struct BreakdownArgs {
     /// Env steps measured after each point (whole model-training periods make sense).
     #[arg(long, default_value_t = 1000)]
     pub window: u64,
-    /// Override a key of the run's config, e.g. `model.threads=2` (thread counts do not
-    /// change results; anything else measures a different run).
+    /// Override a key of the run's config, e.g. `model.threads=2` (model threads do not
+    /// change results, SAC threads only their rounding; other keys measure a different run).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
     /// Also continue each point as `mbpo run --mode MODE` (lockstep or pipelined) over the
