@@ -551,7 +551,7 @@ fn pipelined_stop_and_resume(
 #[test]
 fn a_damaged_or_missing_checkpoint_is_a_clear_error() {
     let mut cfg = tiny_config(400);
-    cfg.checkpoint.every = 250;
+    cfg.checkpoint.every = 100;
     let (dir, run, root, log) = finished_lockstep_run(&cfg, "resume-damaged", "rd");
     // A resume reads the newest checkpoint, the last step's.
     let ckpt: PathBuf = mbpo_train::checkpoint::dir_for(&run, 400);
