@@ -169,7 +169,10 @@ fn finished_lockstep_run(
     assert!(status.success(), "{err}");
     let steps = checkpoints(&run);
     let every = cfg.checkpoint.every;
-    assert!(every <= 100 && cfg.checkpoint.keep == 2, "see the doc comment");
+    assert!(
+        every <= 100 && cfg.checkpoint.keep == 2,
+        "see the doc comment"
+    );
     assert!(
         steps.len() == 2 && steps[0] >= every && steps[1] == cfg.steps,
         "{steps:?}"
