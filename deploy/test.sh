@@ -18,4 +18,4 @@ fi
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
 cargo test --locked -p mbpo-envs --features mujoco "$@"
-cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume "$@"
+cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume --test diagnose "$@"

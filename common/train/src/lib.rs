@@ -5,6 +5,8 @@
 //!   termination rule of model rollouts.
 //! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
 //! * [`breakdown`]: where an MBPO run's time goes, from a kept checkpoint (`mbpo bench breakdown`).
+//! * [`diagnose`]: a run's critic and model held against the real environment, from a kept
+//!   checkpoint (`mbpo bench diagnose`).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
@@ -26,6 +28,7 @@ pub mod algorithm;
 pub mod breakdown;
 pub mod checkpoint;
 pub mod config;
+pub mod diagnose;
 pub mod env_config;
 pub mod eval;
 pub mod learning_bench;

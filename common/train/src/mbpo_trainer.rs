@@ -96,6 +96,16 @@ impl Mbpo {
         self.learner.sac()
     }
 
+    /// The learner role (SAC with D_env and D_model), for diagnostics.
+    pub fn learner_mut(&mut self) -> &mut LearnerRole {
+        &mut self.learner
+    }
+
+    /// The rollout role (the model and the termination rule), for diagnostics.
+    pub fn rollout_mut(&mut self) -> &mut RolloutRole {
+        &mut self.rollout
+    }
+
     /// One env step with `behaviour`, its transition handed to every role that keeps real data.
     fn act_and_distribute(&mut self, behaviour: Behaviour) -> Result<(), TrainError> {
         let episodes = self.actor.env_actor().episodes;

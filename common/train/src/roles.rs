@@ -436,6 +436,23 @@ impl RolloutRole {
         self.policy.params.copy_from_slice(params);
         self.policy_version = version;
     }
+    /// The model the rollouts use.
+    pub fn model_mut(&mut self) -> &mut ProbabilisticEnsemble {
+        &mut self.model
+    }
+    /// `done` of `n` transitions by the rollouts' termination rule (see
+    /// [`RolloutRule::done_batch`]).
+    pub fn done_batch(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        next_obs: &[f32],
+        n: usize,
+        out: &mut [bool],
+    ) -> Result<(), mbpo_model::RolloutError> {
+        self.termination
+            .done_batch(&mut self.model, obs, act, next_obs, n, out)
+    }
     /// The role's state (for checkpoints).
     pub fn checkpoint(&self) -> RolloutState {
         RolloutState {
@@ -612,6 +629,10 @@ impl LearnerRole {
     /// The SAC agent.
     pub fn sac(&self) -> &Sac {
         &self.sac
+    }
+    /// The SAC agent (mutable, for its TD targets' scratch) with D_env and D_model.
+    pub fn sac_and_buffers(&mut self) -> (&mut Sac, &ReplayBuffer, &ReplayBuffer) {
+        (&mut self.sac, &self.d_env, &self.d_model)
     }
     /// Learner steps completed (= the version of [`LearnerRole::policy`]).
     pub fn steps(&self) -> u64 {

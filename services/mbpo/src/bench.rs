@@ -12,6 +12,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Env(args) => env(&args),
         BenchCommand::Learning(args) => learning(&args),
         BenchCommand::Breakdown(args) => breakdown(&args),
+        BenchCommand::Diagnose(args) => diagnose(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
@@ -234,6 +235,81 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         let file = args
             .out
             .join(format!("breakdown-{}.json", cfg.env_file_name()));
+        std::fs::write(&file, serde_json::to_string_pretty(&report)? + "\n")?;
+        eprintln!("wrote {}", file.display());
+    }
+    Ok(())
+}
+
+/// `mbpo bench diagnose`: one JSON line per checkpoint, a summary line each on stderr, and
+/// all of them in `<out>/diagnose-<run>.json`.
+fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
+    use mbpo_train::diagnose::diagnose_at;
+    let config = args.run.join("config.toml");
+    let cfg = mbpo_train::ExperimentConfig::resolve(Some(&config), &args.overrides)?;
+    anyhow::ensure!(
+        cfg.algo == mbpo_train::Algo::MBPO,
+        "{}: algo is {}; the diagnosis is of MBPO runs",
+        config.display(),
+        cfg.algo.name()
+    );
+    let at = match args.at.is_empty() {
+        true => mbpo_train::checkpoint::complete_steps(&args.run),
+        false => args.at.clone(),
+    };
+    anyhow::ensure!(
+        !at.is_empty(),
+        "{}: no complete checkpoint to diagnose",
+        args.run.display()
+    );
+    let mut points = Vec::new();
+    for &at in &at {
+        let d = diagnose_at(&cfg, &args.run, at, args.episodes)?;
+        let (v, m, i) = (&d.value, &d.model, &d.imagined);
+        eprintln!(
+            "at {:>6}: return {:7.1} ({:5.0} steps) | Q {:7.1} vs soft return {:7.1} (bias {:+.0} %) \
+             | model MSE on-policy {:.4} vs holdout {} | imagined: terminal {:.3} (real {:.3}), \
+             outside real box {:.4}, Q {:.1} (real {:.1}), TD error {:.2} (real {:.2}) | k {} alpha {:.3}",
+            at,
+            v.mean_return,
+            v.mean_length,
+            v.q_mean,
+            v.soft_return_mean,
+            100.0 * v.relative_bias,
+            m.on_policy_mse,
+            m.holdout_mse.map_or("-".into(), |h| format!("{h:.4}")),
+            i.terminal_rate,
+            d.real.terminal_rate,
+            i.outside_real_box,
+            i.q_mean,
+            d.real.q_mean,
+            i.td_error_rms,
+            d.real.td_error_rms,
+            d.rollout_length,
+            d.alpha
+        );
+        if m.termination_disagreements > 0 {
+            tracing::warn!(
+                "at {at}: the rollouts' termination rule disagrees with the environment on {} of \
+                 {} real transitions",
+                m.termination_disagreements,
+                m.transitions
+            );
+        }
+        println!("{}", serde_json::to_string(&d)?);
+        points.push(d);
+    }
+    if args.out.as_os_str() != "-" {
+        std::fs::create_dir_all(&args.out)?;
+        let name = args
+            .run
+            .file_name()
+            .map_or("run".into(), |n| n.to_string_lossy().into_owned());
+        let file = args.out.join(format!("diagnose-{name}.json"));
+        let report = json!({
+            "bench": "diagnose", "env": cfg.env, "run": args.run, "episodes": args.episodes,
+            "points": points,
+        });
         std::fs::write(&file, serde_json::to_string_pretty(&report)? + "\n")?;
         eprintln!("wrote {}", file.display());
     }

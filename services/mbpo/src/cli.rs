@@ -166,6 +166,10 @@ pub enum BenchCommand {
     /// Where an MBPO run's time goes at given sizes of D_env: continue a run from its kept
     /// checkpoints and time each phase per env step -> <out>/breakdown-<env>.json.
     Breakdown(BreakdownArgs),
+    /// What an MBPO run's critic and model believe against the real environment at its kept
+    /// checkpoints: Q against real soft returns, on-policy model error against holdout,
+    /// imagined data against real -> <out>/diagnose-<run>.json.
+    Diagnose(DiagnoseArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
     /// The learned termination rule against the env's own: trained on random-action
@@ -341,6 +345,26 @@ pub struct BreakdownArgs {
     #[arg(long, default_value_t = 100_000)]
     pub project: u64,
     /// Results directory (`breakdown-<env>.json`; `-` for none).
+    #[arg(long, default_value = "results")]
+    pub out: std::path::PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct DiagnoseArgs {
+    /// A run directory of `mbpo train` or `mbpo bench learning` (MBPO).
+    #[arg(long)]
+    pub run: std::path::PathBuf,
+    /// Env steps of the checkpoints to diagnose, comma-separated (default: every complete
+    /// checkpoint the run kept).
+    #[arg(long, value_delimiter = ',')]
+    pub at: Vec<u64>,
+    /// Episodes of the stochastic policy played per checkpoint.
+    #[arg(long, default_value_t = 5)]
+    pub episodes: usize,
+    /// Override a key of the run's config (threads only; other keys diagnose another run).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// Results directory (`diagnose-<run>.json`; `-` for none).
     #[arg(long, default_value = "results")]
     pub out: std::path::PathBuf,
 }
