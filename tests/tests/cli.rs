@@ -286,6 +286,51 @@ fn bench_learning(out: &std::path::Path, steps: &str, extra: &[&str]) -> std::pr
         .unwrap()
 }
 
+/// Ctrl-C during `mbpo bench learning` stops the seed under way with a checkpoint and begins
+/// no queued seed; the same command then continues.
+#[test]
+fn learning_bench_stopped_begins_no_queued_seed() {
+    let dir = scratch("cli-bench-stop");
+    // One seed at a time: seed 1 first (the queue's end), seed 0 queued behind it.
+    let mut child = mbpo()
+        .args(["bench", "learning", "--config"])
+        .arg(config_file())
+        .args(["--seeds", "2", "--threads", "1", "--steps", "3000"])
+        .args(["--set", "checkpoint.every=250", "--out"])
+        .arg(&dir)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let first = dir.join("runs/mbpo-Pendulum-v1-s1/checkpoints/0000000250/COMPLETE");
+    let deadline = Instant::now() + Duration::from_secs(300);
+    while !first.is_file() {
+        assert!(Instant::now() < deadline, "no checkpoint after 300 s");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the benchmark ended early"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: kill(2) on our child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success(),
+        "a stopped benchmark has no results: {err}"
+    );
+    assert!(err.contains("rerun the same command to continue"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let stopped = summary_of(&dir.join("runs/mbpo-Pendulum-v1-s1"));
+    assert_eq!(stopped["status"], "stopped", "{stopped}");
+    assert!(
+        !dir.join("runs/mbpo-Pendulum-v1-s0").exists(),
+        "the queued seed 0 was begun after the stop: {err}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 fn summary_of(run: &std::path::Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(run.join("summary.json")).unwrap()).unwrap()
 }

@@ -181,6 +181,13 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
 /// else starts fresh. So a benchmark of several hours can be stopped (Ctrl-C checkpoints) and
 /// rerun with the same command, even in another session, without losing what was done.
 pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
+    // After Ctrl-C the seeds under way checkpoint and stop; a seed still queued is not begun.
+    if stop_on_signals().load(Ordering::Relaxed) {
+        return Err(TrainError::Config(format!(
+            "{}: not started, a stop was requested; rerun the same command to continue",
+            dir.display()
+        )));
+    }
     let stored = dir.join("config.toml");
     let resume = mbpo_train::checkpoint::latest(dir)?.is_some();
     // This seed's events (its thread's) also go to its run's log, as `mbpo train`'s do, once
