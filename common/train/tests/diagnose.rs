@@ -2,44 +2,19 @@
 //! is reproducible, and its figures agree with what the run itself recorded.
 
 use mbpo_train::diagnose::{diagnose_at, known_tail, BUFFER_ROWS};
-use mbpo_train::{train_mbpo, Algo, ExperimentConfig};
+use mbpo_train::{train_mbpo, ExperimentConfig};
 use std::path::{Path, PathBuf};
 
-/// MBPO on Pendulum, small (train points at 201, 301, 401), γ = 0.9 so that 200-step
-/// truncated episodes have states with a known soft return; checkpoints every 100 steps.
-fn small_mbpo(env: &str, steps: u64) -> ExperimentConfig {
-    let mut cfg = ExperimentConfig {
-        algo: Algo::MBPO,
-        env: env.into(),
-        steps,
-        ..Default::default()
-    };
-    cfg.eval.every = 100;
-    cfg.eval.episodes = 1;
-    cfg.sac.hidden = vec![32, 32];
-    cfg.sac.batch_size = 32;
-    cfg.sac.gamma = 0.9;
-    cfg.mbpo.init_random_steps = 200;
-    cfg.mbpo.epoch_length = 100;
-    cfg.mbpo.model_train_freq = 100;
-    cfg.mbpo.rollouts_per_step = 10;
-    cfg.mbpo.rollout_schedule = [1, 3, 1, 3];
-    cfg.mbpo.updates_per_step = 2;
-    cfg.model.members = 3;
-    cfg.model.elites = 2;
-    cfg.model.hidden = vec![16, 16];
-    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
-    cfg.model.batch_size = 32;
-    cfg.model.max_epochs = Some(5);
-    cfg.checkpoint.every = 100;
-    cfg.checkpoint.keep = 10;
-    cfg
-}
+mod support;
+use support::{small_mbpo, temp_dir};
 
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mbpo-diagnose-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
+/// The small MBPO run on `env` with γ = 0.9, so that Pendulum's 200-step truncated episodes
+/// have states with a known soft return.
+fn small_mbpo_on(env: &str, steps: u64) -> ExperimentConfig {
+    let mut cfg = small_mbpo(steps);
+    cfg.env = env.into();
+    cfg.sac.gamma = 0.9;
+    cfg
 }
 
 /// Every file of `dir` with its bytes, sorted by path.
@@ -73,7 +48,7 @@ fn metrics_value(run: &Path, step: u64, column: &str) -> f64 {
 
 #[test]
 fn a_kept_checkpoint_is_diagnosed_reproducibly_without_touching_the_run() {
-    let cfg = small_mbpo("Pendulum-v1", 400);
+    let cfg = small_mbpo_on("Pendulum-v1", 400);
     let dir = temp_dir("pendulum");
     train_mbpo(&cfg, &dir).unwrap();
     let before = files(&dir);
@@ -119,7 +94,7 @@ fn a_kept_checkpoint_is_diagnosed_reproducibly_without_touching_the_run() {
 
 #[test]
 fn a_step_without_a_kept_checkpoint_is_a_clear_error() {
-    let cfg = small_mbpo("Pendulum-v1", 200);
+    let cfg = small_mbpo_on("Pendulum-v1", 200);
     let dir = temp_dir("missing");
     train_mbpo(&cfg, &dir).unwrap();
     let e = diagnose_at(&cfg, &dir, 150, 1).unwrap_err().to_string();
@@ -135,7 +110,7 @@ fn a_step_without_a_kept_checkpoint_is_a_clear_error() {
 #[cfg(feature = "mujoco")]
 #[test]
 fn hoppers_terminations_agree_with_the_rollout_rule() {
-    let mut cfg = small_mbpo("Hopper-v5", 300);
+    let mut cfg = small_mbpo_on("Hopper-v5", 300);
     cfg.sac.gamma = 0.99;
     let dir = temp_dir("hopper");
     train_mbpo(&cfg, &dir).unwrap();

@@ -2,7 +2,9 @@
 
 use mbpo_train::run_dir::read_eval_curve;
 use mbpo_train::{train_mbpo, Algo, ExperimentConfig, Mbpo};
-use std::path::PathBuf;
+
+mod support;
+use support::temp_dir;
 
 /// MBPO on Pendulum with small networks: 8 SAC updates and 50 rollouts per env step.
 fn small_config(steps: u64) -> ExperimentConfig {
@@ -30,10 +32,6 @@ fn small_config(steps: u64) -> ExperimentConfig {
     cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
     cfg.model.batch_size = 64;
     cfg
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("mbpo-test-{name}-{}", std::process::id()))
 }
 
 #[test]

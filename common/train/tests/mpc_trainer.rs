@@ -9,6 +9,9 @@ use mbpo_train::{
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
+mod support;
+use support::temp_dir;
+
 /// MPC-CEM on Pendulum with a small model and planner.
 fn small_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
@@ -35,10 +38,6 @@ fn small_config(steps: u64) -> ExperimentConfig {
     cfg.model.batch_size = 32;
     cfg.model.max_epochs_since_update = 50;
     cfg
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("mbpo-test-{name}-{}", std::process::id()))
 }
 
 #[test]

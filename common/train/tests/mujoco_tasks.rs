@@ -5,7 +5,10 @@
 
 use mbpo_train::run_dir::read_eval_curve;
 use mbpo_train::{train_mbpo, ExperimentConfig};
-use std::path::{Path, PathBuf};
+use std::path::Path;
+
+mod support;
+use support::temp_dir;
 
 /// A shipped MuJoCo config shrunk to seconds: small networks, few updates and rollouts.
 fn tiny(config: &str, steps: u64) -> ExperimentConfig {
@@ -27,10 +30,6 @@ fn tiny(config: &str, steps: u64) -> ExperimentConfig {
     cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
     cfg.model.batch_size = 32;
     cfg
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("mbpo-test-{name}-{}", std::process::id()))
 }
 
 #[test]

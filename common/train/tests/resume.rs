@@ -4,38 +4,13 @@
 use mbpo_train::breakdown::breakdown_at;
 use mbpo_train::checkpoint;
 use mbpo_train::{
-    train_mbpo, train_mbpo_with, train_sac, train_sac_with, Algo, ExperimentConfig, RunOptions,
+    train_mbpo, train_mbpo_with, train_sac, train_sac_with, ExperimentConfig, RunOptions,
 };
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
-/// MBPO on Pendulum, small: train points at t = 201, 301, 401; checkpoints every 100 steps.
-fn small_mbpo(steps: u64) -> ExperimentConfig {
-    let mut cfg = ExperimentConfig {
-        algo: Algo::MBPO,
-        steps,
-        ..Default::default()
-    };
-    cfg.eval.every = 50;
-    cfg.eval.episodes = 1;
-    cfg.sac.hidden = vec![32, 32];
-    cfg.sac.batch_size = 32;
-    cfg.mbpo.init_random_steps = 200;
-    cfg.mbpo.epoch_length = 100;
-    cfg.mbpo.model_train_freq = 100;
-    cfg.mbpo.rollouts_per_step = 10;
-    cfg.mbpo.rollout_schedule = [1, 3, 1, 3];
-    cfg.mbpo.updates_per_step = 2;
-    cfg.model.members = 3;
-    cfg.model.elites = 2;
-    cfg.model.hidden = vec![16, 16];
-    cfg.model.weight_decay = vec![2.5e-5, 5e-5, 1e-4];
-    cfg.model.batch_size = 32;
-    cfg.model.max_epochs = Some(5);
-    cfg.checkpoint.every = 100;
-    cfg.checkpoint.keep = 10;
-    cfg
-}
+mod support;
+use support::{small_mbpo, temp_dir};
 
 fn small_sac(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
@@ -50,12 +25,6 @@ fn small_sac(steps: u64) -> ExperimentConfig {
     cfg.checkpoint.every = 100;
     cfg.checkpoint.keep = 10;
     cfg
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mbpo-resume-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
 }
 
 /// metrics.csv without the two timing columns (wall_seconds, env_steps_per_sec).

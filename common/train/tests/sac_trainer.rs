@@ -2,7 +2,9 @@
 
 use mbpo_train::run_dir::read_eval_curve;
 use mbpo_train::{train_sac, ExperimentConfig};
-use std::path::PathBuf;
+
+mod support;
+use support::temp_dir;
 
 fn small_config(steps: u64) -> ExperimentConfig {
     let mut cfg = ExperimentConfig {
@@ -18,10 +20,6 @@ fn small_config(steps: u64) -> ExperimentConfig {
     cfg.sac.alpha_lr = 1e-3;
     cfg.sac_loop.random_steps = 500;
     cfg
-}
-
-fn temp_dir(name: &str) -> PathBuf {
-    std::env::temp_dir().join(format!("mbpo-test-{name}-{}", std::process::id()))
 }
 
 #[test]
