@@ -4,32 +4,50 @@
 # 1000 steps and keeping a checkpoint every 5000 (for `mbpo bench breakdown` and
 # `mbpo bench diagnose`), then the curves with min..max bands over seeds.
 #
-#   bash deploy/learning_mujoco.sh [--steps 50000] [ENV ...]     # ENV: hopper halfcheetah walker2d ant
+#   bash deploy/learning_mujoco.sh [--steps 50000]
+#
+# Two lanes run side by side, one core each (sac.threads = model.threads = 1, as
+# `mbpo bench learning` sets them for seeds run in parallel): Hopper then HalfCheetah, and
+# Walker2d then Ant, each seed after the other. So both cores stay busy to the last seed (one
+# benchmark of 3 seeds on 2 cores would leave one idle for its third seed).
 #
 # Hours per seed: it is meant to run niced in the background across sessions. Ctrl-C (or
-# SIGTERM) checkpoints the seeds under way and stops; the same command continues each seed from
-# its checkpoint and reuses the seeds already completed. Results: results/learning-<env>.json,
-# results/learning-<env>.png (+ -losses.png), runs in results/runs/mbpo-<env>-s<seed>.
+# SIGTERM to the process group) checkpoints the seeds under way and stops; the same command
+# continues each seed from its checkpoint and reuses the seeds already completed. Results:
+# results/learning-<env>.json, results/learning-<env>.png (+ -losses.png), runs in
+# results/runs/mbpo-<env>-s<seed>, each lane's log in results/runs/lane-<n>.log.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 steps=50000
 if [ "${1:-}" = "--steps" ]; then
     steps=$2
-    shift 2
 fi
-envs=("$@")
-[ ${#envs[@]} -gt 0 ] || envs=(hopper halfcheetah walker2d ant)
 bash deploy/setup_mujoco.sh >&2
 cargo build --release --locked -p mbpo --features mujoco >&2
 mbpo=./target/release/mbpo
-for env in "${envs[@]}"; do
-    config=deploy/configs/$env.toml
-    [ -f "$config" ] || { echo "no config $config (one of: hopper halfcheetah walker2d ant)" >&2; exit 2; }
-    # Two seeds side by side, one core each (the bench sets the thread counts to 1 per seed).
-    "$mbpo" bench learning --config "$config" --steps "$steps" --seeds 3 --threads 2 \
-        --budgets "20000,$steps" --set checkpoint.keep_every=5000 --set eval.episodes=5 \
-        --out results
-    id=$(grep -m1 '^env = ' "$config" | sed 's/env = "\(.*\)"/\1/')
-    "$mbpo" plot results/runs/mbpo-"$id"-s0 results/runs/mbpo-"$id"-s1 results/runs/mbpo-"$id"-s2 \
-        --out "results/learning-$id.png" --title "MBPO $id, 3 seeds (min..max)"
-done
+mkdir -p results/runs
+
+# Learn every task named, seeds one after another on one core, and plot each.
+lane() {
+    for task in "$@"; do
+        local config=deploy/configs/$task.toml
+        "$mbpo" bench learning --config "$config" --steps "$steps" --seeds 3 --threads 1 \
+            --budgets "20000,$steps" --set checkpoint.keep_every=5000 --set eval.episodes=5 \
+            --set sac.threads=1 --set model.threads=1 --out results
+        local id
+        id=$(sed -n 's/^env = "\(.*\)"/\1/p' "$config")
+        "$mbpo" plot results/runs/mbpo-"$id"-s0 results/runs/mbpo-"$id"-s1 \
+            results/runs/mbpo-"$id"-s2 --out "results/learning-$id.png" \
+            --title "MBPO $id, 3 seeds (mean, min..max)"
+    done
+}
+
+lane hopper halfcheetah > results/runs/lane-1.log 2>&1 &
+first=$!
+lane walker2d ant > results/runs/lane-2.log 2>&1 &
+second=$!
+status=0
+wait "$first" || status=$?
+wait "$second" || status=$?
+[ "$status" = 0 ] || echo "a lane stopped (exit $status): see results/runs/lane-*.log; rerun to continue" >&2
+exit "$status"
