@@ -36,6 +36,9 @@ pub fn known_tail(gamma: f64) -> usize {
     (0.01f64.ln() / gamma.ln()).ceil().max(1.0) as usize
 }
 
+/// Horizons of the open-loop model error ([`ModelCheck::open_loop_obs_mse`]): 1..=this.
+pub const OPEN_LOOP_HORIZON: usize = 5;
+
 /// Rows sampled from each buffer for [`DataCheck`] (whole SAC batches).
 pub const BUFFER_ROWS: usize = 10_240;
 
@@ -93,6 +96,11 @@ pub struct ModelCheck {
     pub on_policy_mse: f64,
     /// on_policy_mse / holdout_mse.
     pub on_policy_over_holdout: Option<f64>,
+    /// Open-loop error at horizons h = 1..=[`OPEN_LOOP_HORIZON`]: each elite, from a real
+    /// state s_t, fed the episode's real actions a_t..a_{t+h-1} and its own mean predictions,
+    /// against the real s_{t+h} (MSE over dimensions, mean over start states and elites; start
+    /// states with h real steps after them in their episode). What k-step rollouts compound.
+    pub open_loop_obs_mse: Vec<f64>,
     /// Real transitions whose `terminated` the rollouts' termination rule gets wrong.
     pub termination_disagreements: usize,
     /// Real transitions checked.
@@ -143,7 +151,8 @@ pub fn diagnose_at(
     let played = play_episodes(cfg, mbpo.sac(), episodes, &mut rng)?;
     let alpha = mbpo.sac().alpha();
     let value = value_check(mbpo.sac(), &played, alpha, cfg.sac.gamma as f64);
-    let model = model_check(&mut mbpo, &played.transitions, holdout_mse)?;
+    let mut model = model_check(&mut mbpo, &played.transitions, holdout_mse)?;
+    model.open_loop_obs_mse = open_loop_errors(&mut mbpo, &played, OPEN_LOOP_HORIZON)?;
     let learner = mbpo.learner_mut();
     let rollout_length = learner.rollout_length;
     let (sac, d_env, d_model) = learner.sac_and_buffers();
@@ -313,9 +322,70 @@ fn model_check(
         holdout_mse,
         on_policy_mse,
         on_policy_over_holdout: holdout_mse.map(|h| on_policy_mse / h),
+        open_loop_obs_mse: Vec::new(),
         termination_disagreements,
         transitions: n,
     })
+}
+
+/// Start rows t whose episode has at least `horizon` real steps from t on: (row, episode
+/// end), in row order.
+fn open_loop_starts(played: &Played, horizon: usize) -> Vec<usize> {
+    played
+        .episodes
+        .iter()
+        .flat_map(|&(first, len, _)| first..(first + len + 1).saturating_sub(horizon))
+        .collect()
+}
+
+/// [`ModelCheck::open_loop_obs_mse`] of the rollout model on the played episodes.
+fn open_loop_errors(
+    mbpo: &mut Mbpo,
+    played: &Played,
+    horizon: usize,
+) -> Result<Vec<f64>, TrainError> {
+    let t = &played.transitions;
+    let (o, a) = (t.obs_dim, t.act_dim);
+    let starts = open_loop_starts(played, horizon);
+    let n = starts.len();
+    let model = mbpo.rollout_mut().model_mut();
+    let elites = model.elites().to_vec();
+    let mut sums = vec![0.0f64; horizon];
+    if n == 0 || elites.is_empty() {
+        return Ok(sums);
+    }
+    let d = 1 + o;
+    let (mut mean, mut logvar) = (vec![0.0f32; n * d], vec![0.0f32; n * d]);
+    let (mut obs, mut act) = (vec![0.0f32; n * o], vec![0.0f32; n * a]);
+    for &e in &elites {
+        let members = vec![e; n];
+        for (i, &row) in starts.iter().enumerate() {
+            obs[i * o..(i + 1) * o].copy_from_slice(&t.obs[row * o..(row + 1) * o]);
+        }
+        for (h, sum) in sums.iter_mut().enumerate() {
+            for (i, &row) in starts.iter().enumerate() {
+                let r = row + h;
+                act[i * a..(i + 1) * a].copy_from_slice(&t.act[r * a..(r + 1) * a]);
+            }
+            model
+                .predict_gaussian(&obs, &act, n, &members, &mut mean, &mut logvar)
+                .map_err(|e| TrainError::Config(e.to_string()))?;
+            for (i, &row) in starts.iter().enumerate() {
+                let r = row + h;
+                let predicted = &mean[i * d + 1..(i + 1) * d];
+                let real = &t.next_obs[r * o..(r + 1) * o];
+                let se: f64 = predicted
+                    .iter()
+                    .zip(real)
+                    .map(|(&p, &y)| ((p - y) as f64).powi(2))
+                    .sum();
+                *sum += se / o as f64;
+                obs[i * o..(i + 1) * o].copy_from_slice(predicted);
+            }
+        }
+    }
+    let count = (n * elites.len()) as f64;
+    Ok(sums.into_iter().map(|s| s / count).collect())
 }
 
 /// The per-dimension [min, max] of every next state in D_env.
@@ -428,6 +498,15 @@ mod tests {
         let g = soft_returns(&p, 0.0, 0.01);
         assert_eq!(g[5], Some(30.0));
         assert_eq!(g[4], Some(20.0 + 0.01 * 30.0));
+    }
+
+    #[test]
+    fn open_loop_starts_have_the_horizon_inside_their_episode() {
+        let p = played([0.0; 6]);
+        // Episodes of 3 rows at 0..3 and 3..6.
+        assert_eq!(open_loop_starts(&p, 1), [0, 1, 2, 3, 4, 5]);
+        assert_eq!(open_loop_starts(&p, 3), [0, 3]);
+        assert!(open_loop_starts(&p, 4).is_empty());
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `mbpo bench diagnose` on small runs: it reads a kept checkpoint without touching the run,
 //! is reproducible, and its figures agree with what the run itself recorded.
 
-use mbpo_train::diagnose::{diagnose_at, known_tail, BUFFER_ROWS};
+use mbpo_train::diagnose::{diagnose_at, known_tail, BUFFER_ROWS, OPEN_LOOP_HORIZON};
 use mbpo_train::{train_mbpo, ExperimentConfig};
 use std::path::{Path, PathBuf};
 
@@ -80,6 +80,17 @@ fn a_kept_checkpoint_is_diagnosed_reproducibly_without_touching_the_run() {
         "{holdout} vs {recorded}"
     );
     assert!(m.on_policy_mse.is_finite() && m.on_policy_mse > 0.0);
+    // One step open loop is the on-policy error without the reward: MSE over the 3 state
+    // dimensions is at most (1 + 3) / 3 of the MSE over [reward, Δobs].
+    assert_eq!(m.open_loop_obs_mse.len(), OPEN_LOOP_HORIZON);
+    assert!(m
+        .open_loop_obs_mse
+        .iter()
+        .all(|e| e.is_finite() && *e > 0.0));
+    assert!(
+        m.open_loop_obs_mse[0] * 3.0 <= m.on_policy_mse * 4.0 * (1.0 + 1e-4),
+        "{m:?}"
+    );
     assert_eq!((m.transitions, m.termination_disagreements), (400, 0));
 
     // D_env's rows lie in the box of D_env's next states by construction; D_model's rows

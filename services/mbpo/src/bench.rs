@@ -268,7 +268,8 @@ fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
         let (v, m, i) = (&d.value, &d.model, &d.imagined);
         eprintln!(
             "at {:>6}: return {:7.1} ({:5.0} steps) | Q {:7.1} vs soft return {:7.1} (bias {:+.0} %) \
-             | model MSE on-policy {:.4} vs holdout {} | imagined: terminal {:.3} (real {:.3}), \
+             | model MSE on-policy {:.4} vs holdout {}, open loop h=1..{} {} | imagined: terminal \
+             {:.3} (real {:.3}), \
              outside real box {:.4}, Q {:.1} (real {:.1}), TD error {:.2} (real {:.2}) | k {} alpha {:.3}",
             at,
             v.mean_return,
@@ -278,6 +279,12 @@ fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
             100.0 * v.relative_bias,
             m.on_policy_mse,
             m.holdout_mse.map_or("-".into(), |h| format!("{h:.4}")),
+            m.open_loop_obs_mse.len(),
+            m.open_loop_obs_mse
+                .iter()
+                .map(|e| format!("{e:.3}"))
+                .collect::<Vec<_>>()
+                .join(" "),
             i.terminal_rate,
             d.real.terminal_rate,
             i.outside_real_box,
