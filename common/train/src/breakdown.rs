@@ -9,7 +9,6 @@
 //! N between the measured points (each phase's cost per step is close to linear in N or
 //! constant), so a run too long for one session still gets a figure.
 
-use crate::checkpoint::{self, COMPLETE};
 use crate::config::ExperimentConfig;
 use crate::phase_times::{MsPerStep, PhaseTimes};
 use crate::sac_trainer::TrainError;
@@ -59,17 +58,7 @@ pub fn breakdown_at(
     at: u64,
     window: u64,
 ) -> Result<BreakdownPoint, TrainError> {
-    let dir = checkpoint::dir_for(run, at);
-    if !dir.join(COMPLETE).is_file() {
-        return Err(TrainError::Config(format!(
-            "{}: no complete checkpoint at {at} env steps (kept: {}). Run with \
-             `--set checkpoint.keep_every=N` to keep one every N env steps",
-            run.display(),
-            kept_checkpoints(run)
-        )));
-    }
-    let mut mbpo = Mbpo::new(cfg)?;
-    mbpo.restore_checkpoint(&dir, at)?;
+    let (mut mbpo, _) = Mbpo::from_kept_checkpoint(cfg, run, at)?;
     let schedule = Schedule::of(cfg);
     let epoch = (at + 1..=at + window).find_map(|t| schedule.train_point(t));
     let k = mbpo_model::rollout_length(epoch.unwrap_or(0), cfg.mbpo.rollout_schedule);
@@ -86,19 +75,6 @@ pub fn breakdown_at(
     }
     let wall = started.elapsed().as_secs_f64();
     Ok(BreakdownPoint::new(at, k, wall, mbpo.phases))
-}
-
-/// The env steps of `run`'s complete checkpoints, for an error message.
-fn kept_checkpoints(run: &Path) -> String {
-    let steps = checkpoint::complete_steps(run);
-    match steps.is_empty() {
-        true => "none".into(),
-        false => steps
-            .iter()
-            .map(u64::to_string)
-            .collect::<Vec<_>>()
-            .join(", "),
-    }
 }
 
 /// Seconds a run of `steps` env steps would take, from per-step costs measured at `points`:

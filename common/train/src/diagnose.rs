@@ -16,7 +16,6 @@
 //! swing can be put next to what changed. Nothing is written to the run, and the run's random
 //! streams are not touched (the episodes draw from their own `diagnose` stream).
 
-use crate::checkpoint::{self, COMPLETE};
 use crate::config::ExperimentConfig;
 use crate::sac_trainer::TrainError;
 use crate::Mbpo;
@@ -127,6 +126,43 @@ pub struct DataCheck {
     pub td_error_rms: f64,
 }
 
+impl Diagnosis {
+    /// One line for a terminal: the figures to compare across checkpoints.
+    pub fn summary_line(&self) -> String {
+        let (v, m, i, r) = (&self.value, &self.model, &self.imagined, &self.real);
+        let open_loop: Vec<String> = m
+            .open_loop_obs_mse
+            .iter()
+            .map(|e| format!("{e:.3}"))
+            .collect();
+        format!(
+            "at {:>6}: return {:7.1} ({:5.0} steps) | Q {:7.1} vs soft return {:7.1} (bias {:+.0} %) \
+             | model MSE on-policy {:.4} vs holdout {}, open loop h=1..{} {} | imagined: terminal \
+             {:.3} (real {:.3}), outside real box {:.4}, Q {:.1} (real {:.1}), TD error {:.2} \
+             (real {:.2}) | k {} alpha {:.3}",
+            self.at,
+            v.mean_return,
+            v.mean_length,
+            v.q_mean,
+            v.soft_return_mean,
+            100.0 * v.relative_bias,
+            m.on_policy_mse,
+            m.holdout_mse.map_or("-".into(), |h| format!("{h:.4}")),
+            open_loop.len(),
+            open_loop.join(" "),
+            i.terminal_rate,
+            r.terminal_rate,
+            i.outside_real_box,
+            i.q_mean,
+            r.q_mean,
+            i.td_error_rms,
+            r.td_error_rms,
+            self.rollout_length,
+            self.alpha
+        )
+    }
+}
+
 /// Restore `run` (config `cfg`) at its complete checkpoint after `at` env steps and diagnose
 /// it with `episodes` fresh episodes of its stochastic policy.
 pub fn diagnose_at(
@@ -135,24 +171,13 @@ pub fn diagnose_at(
     at: u64,
     episodes: usize,
 ) -> Result<Diagnosis, TrainError> {
-    let dir = checkpoint::dir_for(run, at);
-    if !dir.join(COMPLETE).is_file() {
-        return Err(TrainError::Config(format!(
-            "{}: no complete checkpoint at {at} env steps (kept: {:?}). Run with \
-             `--set checkpoint.keep_every=N` to keep one every N env steps",
-            run.display(),
-            checkpoint::complete_steps(run)
-        )));
-    }
-    let mut mbpo = Mbpo::new(cfg)?;
-    let (_, book) = mbpo.restore_checkpoint(&dir, at)?;
+    let (mut mbpo, book) = Mbpo::from_kept_checkpoint(cfg, run, at)?;
     let holdout_mse = book.models.values().next_back().copied();
     let mut rng = stream(cfg.seed, "diagnose", at);
     let played = play_episodes(cfg, mbpo.sac(), episodes, &mut rng)?;
     let alpha = mbpo.sac().alpha();
     let value = value_check(mbpo.sac(), &played, alpha, cfg.sac.gamma as f64);
-    let mut model = model_check(&mut mbpo, &played.transitions, holdout_mse)?;
-    model.open_loop_obs_mse = open_loop_errors(&mut mbpo, &played, OPEN_LOOP_HORIZON)?;
+    let model = model_check(&mut mbpo, &played, holdout_mse)?;
     let learner = mbpo.learner_mut();
     let rollout_length = learner.rollout_length;
     let (sac, d_env, d_model) = learner.sac_and_buffers();
@@ -292,9 +317,10 @@ fn value_check(sac: &Sac, played: &Played, alpha: f32, gamma: f64) -> ValueCheck
 
 fn model_check(
     mbpo: &mut Mbpo,
-    transitions: &Batch,
+    played: &Played,
     holdout_mse: Option<f64>,
 ) -> Result<ModelCheck, TrainError> {
+    let transitions = &played.transitions;
     let rollout = mbpo.rollout_mut();
     let model_err = |e: mbpo_model::PredictError| TrainError::Config(e.to_string());
     let mse = rollout
@@ -322,7 +348,7 @@ fn model_check(
         holdout_mse,
         on_policy_mse,
         on_policy_over_holdout: holdout_mse.map(|h| on_policy_mse / h),
-        open_loop_obs_mse: Vec::new(),
+        open_loop_obs_mse: open_loop_errors(mbpo, played, OPEN_LOOP_HORIZON)?,
         termination_disagreements,
         transitions: n,
     })

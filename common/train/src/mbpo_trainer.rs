@@ -280,6 +280,37 @@ impl Mbpo {
         checkpoint::mark_complete(dir, t, &names)
     }
 
+    /// The run `run` (config `cfg`) as it was at its complete checkpoint after `at` env steps,
+    /// and its run book, for tools that continue or inspect it (`mbpo bench breakdown`,
+    /// `mbpo bench diagnose`). Nothing is written to the run. No such checkpoint is an error
+    /// naming the kept ones and how to keep more.
+    pub fn from_kept_checkpoint(
+        cfg: &ExperimentConfig,
+        run: &Path,
+        at: u64,
+    ) -> Result<(Self, RunBook), TrainError> {
+        let dir = checkpoint::dir_for(run, at);
+        if !dir.join(checkpoint::COMPLETE).is_file() {
+            let kept = checkpoint::complete_steps(run);
+            let kept = match kept.is_empty() {
+                true => "none".to_string(),
+                false => kept
+                    .iter()
+                    .map(u64::to_string)
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            };
+            return Err(TrainError::Config(format!(
+                "{}: no complete checkpoint at {at} env steps (kept: {kept}). Run with \
+                 `--set checkpoint.keep_every=N` to keep one every N env steps",
+                run.display()
+            )));
+        }
+        let mut mbpo = Self::new(cfg)?;
+        let (_, book) = mbpo.restore_checkpoint(&dir, at)?;
+        Ok((mbpo, book))
+    }
+
     /// Restore every role from the checkpoint directory `dir` (after `t` env steps), written
     /// by this trainer or by a one-actor `mbpo run`; returns the evaluator's stream and the
     /// run book.

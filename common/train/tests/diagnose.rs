@@ -110,7 +110,7 @@ fn a_step_without_a_kept_checkpoint_is_a_clear_error() {
     train_mbpo(&cfg, &dir).unwrap();
     let e = diagnose_at(&cfg, &dir, 150, 1).unwrap_err().to_string();
     assert!(
-        e.contains("no complete checkpoint at 150") && e.contains("[100, 200]"),
+        e.contains("no complete checkpoint at 150") && e.contains("kept: 100, 200"),
         "{e}"
     );
     let _ = std::fs::remove_dir_all(dir);

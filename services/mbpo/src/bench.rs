@@ -172,16 +172,27 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
-    use mbpo_train::breakdown::{breakdown_at, projected_seconds};
-    let config = args.run.join("config.toml");
-    let cfg = mbpo_train::ExperimentConfig::resolve(Some(&config), &args.overrides)?;
+/// The config of the MBPO run `run` (its config.toml) with `overrides`, for a bench that
+/// continues or inspects it (`bench` names it in the error for another algorithm).
+fn mbpo_run_config(
+    run: &std::path::Path,
+    overrides: &[String],
+    bench: &str,
+) -> anyhow::Result<mbpo_train::ExperimentConfig> {
+    let config = run.join("config.toml");
+    let cfg = mbpo_train::ExperimentConfig::resolve(Some(&config), overrides)?;
     anyhow::ensure!(
         cfg.algo == mbpo_train::Algo::MBPO,
-        "{}: algo is {}; the breakdown is of MBPO runs",
+        "{}: algo is {}; the {bench} is of MBPO runs",
         config.display(),
         cfg.algo.name()
     );
+    Ok(cfg)
+}
+
+fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
+    use mbpo_train::breakdown::{breakdown_at, projected_seconds};
+    let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
     let mut pipelines = Vec::new();
     for &at in &args.at {
@@ -245,14 +256,7 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
 /// all of them in `<out>/diagnose-<run>.json`.
 fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
     use mbpo_train::diagnose::diagnose_at;
-    let config = args.run.join("config.toml");
-    let cfg = mbpo_train::ExperimentConfig::resolve(Some(&config), &args.overrides)?;
-    anyhow::ensure!(
-        cfg.algo == mbpo_train::Algo::MBPO,
-        "{}: algo is {}; the diagnosis is of MBPO runs",
-        config.display(),
-        cfg.algo.name()
-    );
+    let cfg = mbpo_run_config(&args.run, &args.overrides, "diagnosis")?;
     let at = match args.at.is_empty() {
         true => mbpo_train::checkpoint::complete_steps(&args.run),
         false => args.at.clone(),
@@ -265,36 +269,8 @@ fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
     let mut points = Vec::new();
     for &at in &at {
         let d = diagnose_at(&cfg, &args.run, at, args.episodes)?;
-        let (v, m, i) = (&d.value, &d.model, &d.imagined);
-        eprintln!(
-            "at {:>6}: return {:7.1} ({:5.0} steps) | Q {:7.1} vs soft return {:7.1} (bias {:+.0} %) \
-             | model MSE on-policy {:.4} vs holdout {}, open loop h=1..{} {} | imagined: terminal \
-             {:.3} (real {:.3}), \
-             outside real box {:.4}, Q {:.1} (real {:.1}), TD error {:.2} (real {:.2}) | k {} alpha {:.3}",
-            at,
-            v.mean_return,
-            v.mean_length,
-            v.q_mean,
-            v.soft_return_mean,
-            100.0 * v.relative_bias,
-            m.on_policy_mse,
-            m.holdout_mse.map_or("-".into(), |h| format!("{h:.4}")),
-            m.open_loop_obs_mse.len(),
-            m.open_loop_obs_mse
-                .iter()
-                .map(|e| format!("{e:.3}"))
-                .collect::<Vec<_>>()
-                .join(" "),
-            i.terminal_rate,
-            d.real.terminal_rate,
-            i.outside_real_box,
-            i.q_mean,
-            d.real.q_mean,
-            i.td_error_rms,
-            d.real.td_error_rms,
-            d.rollout_length,
-            d.alpha
-        );
+        eprintln!("{}", d.summary_line());
+        let m = &d.model;
         if m.termination_disagreements > 0 {
             tracing::warn!(
                 "at {at}: the rollouts' termination rule disagrees with the environment on {} of \
