@@ -342,7 +342,8 @@ fn learning_bench_continues_and_reuses_its_runs() {
     let run = |out: &std::path::Path| out.join("runs/mbpo-Pendulum-v1-s0");
 
     // 300 steps, then the same command for 500: the second continues the first run, here with
-    // another model thread count (a machine setting that changes no bit of the result) and
+    // another model thread count (a machine setting; 4 members on 1 or 2 threads train whole
+    // members, the same bits) and
     // another target return (neither does that: the first run counts every evaluation as at
     // its target of -1e9, the continued one must recount for -200).
     let low_target = ["--set", "eval.target_return=-1e9"];

@@ -53,11 +53,14 @@ pub struct ModelConfig {
     /// Coefficient of the bound regulariser `c · (Σ max_logvar − Σ min_logvar)` (0.01).
     pub logvar_bound_penalty: f32,
     /// Threads a training call runs on (1). Members are independent until the shared bounds
-    /// and Adam, so each thread takes a contiguous block of members; every sum keeps member
-    /// order, so the result is bit-identical for any thread count; threads beyond the number of
-    /// members would have no block and are not started. Not a hyper-parameter of
-    /// MBPO: a machine setting (the pipeline's model trainer can use a core the learner
-    /// leaves idle).
+    /// and Adam, so each thread takes a contiguous block of members, or of half minibatches
+    /// when the threads do not divide the members (7 members on 2 threads: 7 halves each
+    /// instead of 4 and 3 members). Every sum keeps member order, so the result is
+    /// bit-identical for every thread count that cuts the same way (1 and the divisors of the
+    /// members train whole members, every other count halves); the two ways differ in f32
+    /// rounding only. Threads beyond the units of work would have none and are not started.
+    /// Not a hyper-parameter of MBPO: a machine setting (the pipeline's model trainer can use
+    /// a core the learner leaves idle).
     pub threads: usize,
     /// Learn the termination rule of model rollouts with the model (a
     /// [`crate::TerminationClassifier`] trained after the ensemble on the same data). Not a key

@@ -2,11 +2,9 @@
 
 use crate::config::{ModelConfig, ModelConfigError};
 use crate::error::{ParamsError, PredictError};
-use crate::network::{
-    member_forward, member_loss_and_grad, members_mse, InferBuffers, Net, TrainBuffers, INFER_CHUNK,
-};
+use crate::network::{member_forward, members_mse, InferBuffers, Net, INFER_CHUNK};
 use crate::normalizer::InputNormalizer;
-use crate::parallel::{sum_bound_slots, MemberThreads};
+use crate::parallel::{members_loss_and_grads, MemberThreads};
 use crate::rollout::RolloutBuffers;
 use crate::simd::{dispatch, fill_standard_normal};
 use crate::termination::{TerminationClassifier, TerminationWeights};
@@ -74,15 +72,13 @@ pub struct ModelState {
 /// Scratch memory (not model state: cloning or loading weights never depends on it).
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Workspace {
-    /// Activations of [`ProbabilisticEnsemble::loss_and_gradient`].
-    pub(crate) train: TrainBuffers,
     pub(crate) infer: InferBuffers,
     /// Standardised inputs of one inference chunk.
     pub(crate) input: InputChunk,
     /// The threads of training calls, with their own minibatch and activation buffers.
     pub(crate) threads: MemberThreads,
-    /// Per-member bound gradients of [`ProbabilisticEnsemble::loss_and_gradient`].
-    pub(crate) bound_slots: Vec<f32>,
+    /// Row indices of [`ProbabilisticEnsemble::loss_and_gradient`]'s minibatches.
+    pub(crate) rows: Vec<u32>,
     pub(crate) grads: Vec<f32>,
     /// Standardised inputs and targets of a whole data set (training call, evaluation).
     pub(crate) x_all: Vec<f32>,
@@ -406,26 +402,24 @@ impl ProbabilisticEnsemble {
         check_len("inputs", e_n * batch * in_dim, inputs.len())?;
         check_len("targets", e_n * batch * d, targets.len())?;
         check_len("grads", self.theta.len(), grads.len())?;
-        let (g_net, g_bounds) = grads.split_at_mut(self.net.num_net_params());
-        let slots = &mut self.ws.bound_slots;
-        slots.resize(e_n * 2 * d, 0.0);
-        let mut loss = 0.0;
-        let members = g_net.chunks_mut(g_net.len() / e_n);
-        for ((e, g), slot) in members.enumerate().zip(slots.chunks_mut(2 * d)) {
-            slot.fill(0.0);
-            loss += member_loss_and_grad(
-                &self.net,
-                &self.theta,
-                e,
-                &inputs[e * batch * in_dim..(e + 1) * batch * in_dim],
-                &targets[e * batch * d..(e + 1) * batch * d],
-                batch,
-                &mut self.ws.train,
-                g,
-                slot,
-            );
-        }
-        sum_bound_slots(slots, g_bounds);
+        // The training step's own code (`parallel.rs`), on rows e·batch .. (e + 1)·batch.
+        let ws = &mut self.ws;
+        ws.threads.ensure(self.config.threads, &self.net, batch);
+        ws.rows.clear();
+        ws.rows.extend(0..(e_n * batch) as u32);
+        let mut losses = vec![0.0; e_n];
+        let rows = &ws.rows;
+        members_loss_and_grads(
+            &mut ws.threads,
+            &self.net,
+            &self.theta,
+            inputs,
+            targets,
+            |e| &rows[e * batch..(e + 1) * batch],
+            grads,
+            &mut losses,
+        );
+        let loss: f64 = losses.iter().map(|l| l / batch as f64).sum();
         Ok(loss + self.finish_bound_grads(grads))
     }
 

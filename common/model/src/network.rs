@@ -156,13 +156,15 @@ fn layer_grads<'g>(mlp: &Mlp, grads: &'g mut [f32], l: usize) -> (&'g mut [f32],
 /// backward pass (see the module docs).
 ///
 /// * `theta`: all parameters; `e`: the member; `x`: standardised inputs (`batch x in`);
-///   `targets`: `[reward, Δobs]` rows (`batch x d`).
+///   `targets`: `[reward, Δobs]` rows (`batch x d`); `mean_over`: the rows the loss is a
+///   mean over (`batch`, or the whole minibatch when these rows are a part of it).
 /// * `g_member`: member e's MLP gradient (its range of θ), overwritten.
 /// * `g_bounds`: `[∂/∂max_logvar | ∂/∂min_logvar]` (`2d`), *added to*: the bounds are shared
 ///   by all members, and callers give each member its own zeroed slot and add the slots in
 ///   member order, so the sum does not depend on how members are spread over threads.
 ///
-/// Returns this member's loss `mean((μ − y)²·e^(−lv)) + mean(lv)` (means over rows and dims).
+/// Returns this member's loss `mean((μ − y)²·e^(−lv)) + mean(lv)` (means over `mean_over`
+/// rows and the dims).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn member_loss_and_grad(
     net: &Net,
@@ -171,6 +173,7 @@ pub(crate) fn member_loss_and_grad(
     x: &[f32],
     targets: &[f32],
     batch: usize,
+    mean_over: usize,
     buf: &mut TrainBuffers,
     g_member: &mut [f32],
     g_bounds: &mut [f32],
@@ -230,7 +233,7 @@ pub(crate) fn member_loss_and_grad(
     );
 
     // Loss and ∂L/∂(output), ∂L/∂b_out, ∂L/∂bounds in one pass.
-    let scale = 1.0 / (batch * d) as f32;
+    let scale = 1.0 / (mean_over * d) as f32;
     let (gw_out, gb_out) = layer_grads(mlp, g_member, out);
     let mut acc = NllAccumulators {
         db: gb_out,

@@ -1,24 +1,26 @@
-//! A training call on several threads ([`crate::ModelConfig::threads`]): members in blocks,
-//! one block per thread.
+//! A training call on several threads ([`crate::ModelConfig::threads`]): members, or halves
+//! of their minibatches, in blocks, one block per thread.
 //!
 //! The members of the ensemble are independent networks except in two places: the
 //! log-variance bounds, shared by all members, whose gradient is a sum over members; and Adam,
 //! which is element-wise over θ. So one gradient step runs as
 //!
-//! 1. every thread computes the loss gradient of its block of members (a contiguous range of
-//!    θ, which is member-major), each member's bound gradient into that member's own slot
-//!    ([`members_loss_and_grads`]);
-//! 2. the caller adds the slots in member order ([`sum_bound_slots`]);
+//! 1. every thread computes the loss gradient of its block of units ([`members_loss_and_grads`]).
+//!    A unit is a whole member when the threads divide the members; otherwise every member's
+//!    minibatch is cut into two halves of rows ([`parts_per_member`], [`part_rows`]), so that 7
+//!    members on 2 threads are 7 : 7 halves instead of 4 : 3 members. A first half (or a whole
+//!    member) writes the member's range of the gradient, a second half the member's range of
+//!    a second buffer; each unit's bound gradient goes into its own slot;
+//! 2. each member's second half is added to its first: by the thread that computed both,
+//!    right after the second, or once both threads are done for a member cut between two
+//!    blocks; the caller adds the bound slots in member and part order ([`sum_bound_slots`]);
 //! 3. Adam, cut into one equal range of θ per thread ([`adam_step`]).
 //!
-//! The holdout MSE of an epoch is per member as well ([`holdout_mse`]). Every floating-point
-//! sum has the same operands in the same order whatever the number of threads, so a training
-//! call gives bit-identical weights for any `threads` (`tests/training.rs` checks it); with 1
-//! thread everything runs inline on the caller.
-//!
-//! Load balance is by members: 7 members on 2 threads are blocks of 4 and 3, so the second
-//! thread idles for one member's work per step (about 1.75x on two cores: the gradient work
-//! splits 4 : 3, Adam and the holdout pass split evenly).
+//! The holdout MSE of an epoch is per member ([`holdout_mse`]). Every floating-point sum has
+//! the same operands in the same order for any number of threads that cuts members the same
+//! way, so a training call gives bit-identical weights for them (`tests/training.rs` checks
+//! it): one thread and any thread count that divides the members train whole members; every
+//! other count trains halves. With 1 thread everything runs inline on the caller.
 
 use crate::config::MAX_THREADS;
 use crate::network::{member_loss_and_grad, member_mse, InferBuffers, Net, TrainBuffers};
@@ -46,8 +48,14 @@ struct MemberWorker {
 pub(crate) struct MemberThreads {
     pool: Option<WorkerPool>,
     workers: Vec<MemberWorker>,
-    /// Each member's `[∂/∂max_logvar | ∂/∂min_logvar]` of the current step (`members x 2d`).
+    /// Parts per member's minibatch: 1 (whole members) or 2 (halves).
+    parts: usize,
+    /// Each part's `[∂/∂max_logvar | ∂/∂min_logvar]` of the current step (`parts·members x 2d`).
     bound_slots: Vec<f32>,
+    /// The MLP gradients of the members' second halves (θ-shaped like the MLP part of θ).
+    second_halves: Vec<f32>,
+    /// Each part's share of its member's mean loss (`parts·members`).
+    half_losses: Vec<f64>,
 }
 
 impl Clone for MemberThreads {
@@ -65,9 +73,12 @@ impl std::fmt::Debug for MemberThreads {
 }
 
 impl MemberThreads {
-    /// Make sure there are `min(threads, members)` threads with buffers for `batch` rows.
+    /// Make sure there are `min(threads, parts·members)` threads with buffers for `batch` rows,
+    /// where `parts` ([`parts_per_member`]) is how many parts each member's minibatch is cut into.
     pub(crate) fn ensure(&mut self, threads: usize, net: &Net, batch: usize) {
-        let threads = threads.clamp(1, MAX_THREADS).min(net.members());
+        let threads = threads.clamp(1, MAX_THREADS);
+        self.parts = parts_per_member(net.members(), threads);
+        let threads = threads.min(self.parts * net.members());
         if self.pool.as_ref().is_none_or(|p| p.threads() != threads) {
             self.pool = Some(WorkerPool::new(threads));
         }
@@ -78,14 +89,23 @@ impl MemberThreads {
             w.x_chunk.resize(batch * net.in_dim(), 0.0);
             w.t_chunk.resize(batch * net.d(), 0.0);
         }
-        self.bound_slots.resize(net.members() * 2 * net.d(), 0.0);
+        self.bound_slots
+            .resize(self.parts * net.members() * 2 * net.d(), 0.0);
+        let second_halves = if self.parts == 2 {
+            net.num_net_params()
+        } else {
+            0
+        };
+        self.second_halves.resize(second_halves, 0.0);
+        self.half_losses.resize(self.parts * net.members(), 0.0);
     }
 
     fn threads(&self) -> usize {
         self.workers.len()
     }
 
-    /// Members per thread: thread i takes `i·block .. min((i + 1)·block, members)`.
+    /// Members per thread (the holdout pass): thread i takes `i·block .. min((i + 1)·block,
+    /// members)`.
     fn block(&self, members: usize) -> usize {
         members.div_ceil(self.threads().max(1))
     }
@@ -100,12 +120,45 @@ impl MemberThreads {
     }
 }
 
-/// One thread's share of step 1: its members, their gradient range of θ, their bound slots and
-/// losses.
-struct MemberBlock<'a> {
+/// How many parts each member's minibatch is cut into on `threads` threads: whole members
+/// (1) when the threads divide the members, as one thread always does; halves (2) otherwise,
+/// so that no thread idles for a member's work (7 members on 2 threads: 14 halves, 7 each,
+/// instead of members 4 : 3). Halves are not the default because a 128-row GEMM runs about
+/// 3 % below a 256-row one and the halves' sum is one more pass: one thread is about 6 %
+/// slower on halves (`mbpo bench model-train`, results/measurements.md session 18).
+fn parts_per_member(members: usize, threads: usize) -> usize {
+    if members.is_multiple_of(threads) {
+        1
+    } else {
+        2
+    }
+}
+
+/// Rows of part `h` of a minibatch of `rows` cut into `parts`: the first part takes the odd
+/// row.
+pub(crate) fn part_rows(rows: usize, h: usize, parts: usize) -> Range<usize> {
+    let cut = |h: usize| (h * rows).div_ceil(parts);
+    cut(h)..cut(h + 1)
+}
+
+/// The members whose part `h` is among `units` (unit u is member u / parts, part u % parts).
+fn members_with_part(units: &Range<usize>, h: usize, parts: usize) -> Range<usize> {
+    if h >= parts {
+        return 0..0;
+    }
+    let first = |u: usize| (u + parts - 1 - h) / parts;
+    first(units.start)..first(units.end)
+}
+
+/// One thread's share of step 1: its units, the gradient buffers they write, their bound
+/// slots and losses.
+struct UnitBlock<'a> {
     worker: &'a mut MemberWorker,
-    members: Range<usize>,
-    grads: &'a mut [f32],
+    units: Range<usize>,
+    /// MLP gradients of the members in `members_with_part(units, 0, parts)`.
+    first_halves: &'a mut [f32],
+    /// Second-half gradients of the members in `members_with_part(units, 1, parts)`.
+    second_halves: &'a mut [f32],
     bound_slots: &'a mut [f32],
     losses: &'a mut [f64],
 }
@@ -126,62 +179,156 @@ pub(crate) fn members_loss_and_grads<'r>(
     losses: &mut [f64],
 ) {
     let (members, in_dim, d) = (net.members(), net.in_dim(), net.d());
-    let block = threads.block(members);
+    let parts = threads.parts;
+    let units = parts * members;
+    let block = units.div_ceil(threads.threads().max(1));
     let per_member = net.ensemble().mlp().num_params();
     let (g_net, g_bounds) = grads.split_at_mut(net.num_net_params());
-    let (pool, workers, bound_slots) = threads.parts();
-    let mut items: [Option<MemberBlock>; MAX_THREADS] = std::array::from_fn(|_| None);
-    let blocks = workers
-        .iter_mut()
-        .zip(g_net.chunks_mut(block * per_member))
-        .zip(bound_slots.chunks_mut(block * 2 * d))
-        .zip(losses.chunks_mut(block))
-        .enumerate();
+    let MemberThreads {
+        pool,
+        workers,
+        parts: _,
+        bound_slots,
+        second_halves,
+        half_losses,
+    } = threads;
+    let pool = pool
+        .as_mut()
+        .expect("MemberThreads::ensure runs before any training step");
+    let mut items: [Option<UnitBlock>; MAX_THREADS] = std::array::from_fn(|_| None);
+    let (mut firsts, mut seconds) = (&mut g_net[..], &mut second_halves[..]);
+    let mut slots = bound_slots.chunks_mut(block * 2 * d);
+    let mut unit_losses = half_losses.chunks_mut(block);
     let mut used = 0;
-    for (slot, (i, (((worker, grads), bound_slots), losses))) in items.iter_mut().zip(blocks) {
-        let start = i * block;
-        *slot = Some(MemberBlock {
+    for (i, (slot, worker)) in items.iter_mut().zip(workers.iter_mut()).enumerate() {
+        let units = i * block..((i + 1) * block).min(units);
+        if units.is_empty() {
+            break;
+        }
+        let first_len = members_with_part(&units, 0, parts).len() * per_member;
+        let second_len = members_with_part(&units, 1, parts).len() * per_member;
+        let (first_halves, rest) = std::mem::take(&mut firsts).split_at_mut(first_len);
+        firsts = rest;
+        let (second, rest) = std::mem::take(&mut seconds).split_at_mut(second_len);
+        seconds = rest;
+        *slot = Some(UnitBlock {
             worker,
-            members: start..start + losses.len(),
-            grads,
-            bound_slots,
-            losses,
+            units,
+            first_halves,
+            second_halves: second,
+            bound_slots: slots.next().expect("a slot block per thread"),
+            losses: unit_losses.next().expect("a loss block per thread"),
         });
         used += 1;
     }
     pool.for_each_mut(&mut items[..used], |_, item| {
         let Some(b) = item.take() else { return };
         let w = b.worker;
-        let grads = b.grads.chunks_mut(per_member);
+        let first_members = members_with_part(&b.units, 0, parts);
+        let second_members = members_with_part(&b.units, 1, parts);
         let slots = b.bound_slots.chunks_mut(2 * d);
-        for (((e, g), slot), loss) in b.members.zip(grads).zip(slots).zip(b.losses.iter_mut()) {
-            let idx = rows_of(e);
-            let rows = idx.len();
+        for ((u, slot), loss) in b.units.zip(slots).zip(b.losses.iter_mut()) {
+            let (e, h) = (u / parts, u % parts);
+            let g = if h == 0 {
+                let k = e - first_members.start;
+                &mut b.first_halves[k * per_member..(k + 1) * per_member]
+            } else {
+                let k = e - second_members.start;
+                &mut b.second_halves[k * per_member..(k + 1) * per_member]
+            };
+            let member_rows = rows_of(e);
+            let idx = &member_rows[part_rows(member_rows.len(), h, parts)];
             for (r, &i) in idx.iter().enumerate() {
                 let i = i as usize;
                 w.x_chunk[r * in_dim..(r + 1) * in_dim]
                     .copy_from_slice(&x_all[i * in_dim..(i + 1) * in_dim]);
                 w.t_chunk[r * d..(r + 1) * d].copy_from_slice(&t_all[i * d..(i + 1) * d]);
             }
-            slot.fill(0.0);
-            let member_loss = member_loss_and_grad(
+            *loss = half_loss_and_grad(
                 net,
                 theta,
                 e,
-                &w.x_chunk,
-                &w.t_chunk,
-                rows,
+                (&w.x_chunk, &w.t_chunk, idx.len()),
+                member_rows.len(),
                 &mut w.train,
                 g,
                 slot,
             );
-            *loss += member_loss * rows as f64;
+            // A member whose halves are both in this block: its sum now, while it is in cache.
+            if h == 1 && first_members.contains(&e) {
+                let (k1, k2) = (e - first_members.start, e - second_members.start);
+                let first = &mut b.first_halves[k1 * per_member..(k1 + 1) * per_member];
+                let second = &b.second_halves[k2 * per_member..(k2 + 1) * per_member];
+                add_into(first, second);
+            }
         }
     });
     sum_bound_slots(bound_slots, g_bounds);
+    // The members cut between two blocks (a block boundary at an odd unit).
+    for t in 1..used {
+        let boundary = t * block;
+        if boundary % parts == 1 {
+            let member = (boundary / parts) * per_member..(boundary / parts + 1) * per_member;
+            add_second_halves(pool, &mut g_net[member.clone()], &second_halves[member]);
+        }
+    }
+    for (e, loss) in losses.iter_mut().enumerate() {
+        let member_loss: f64 = half_losses[parts * e..parts * (e + 1)].iter().sum();
+        *loss += member_loss * rows_of(e).len() as f64;
+    }
 }
 
-/// Step 2: `g_bounds` = the members' bound gradients added in member order.
+/// One half of member e's minibatch (`x`, `targets` with `rows` rows) whose loss is a mean over
+/// `mean_over` rows: its MLP gradient into `g` (overwritten), its bound gradient into `slot`
+/// (overwritten); returns its share of the member's loss. An empty half (a minibatch of one
+/// row) contributes zeros.
+#[allow(clippy::too_many_arguments)]
+fn half_loss_and_grad(
+    net: &Net,
+    theta: &[f32],
+    e: usize,
+    (x, targets, rows): (&[f32], &[f32], usize),
+    mean_over: usize,
+    buf: &mut TrainBuffers,
+    g: &mut [f32],
+    slot: &mut [f32],
+) -> f64 {
+    slot.fill(0.0);
+    if rows == 0 {
+        g.fill(0.0);
+        return 0.0;
+    }
+    member_loss_and_grad(net, theta, e, x, targets, rows, mean_over, buf, g, slot)
+}
+
+/// `first += second` element-wise: a member's second-half gradient added to its first half's.
+/// The one rule for the sum, wherever it runs (the f32 adds are the same on any thread).
+fn add_into(first: &mut [f32], second: &[f32]) {
+    first.iter_mut().zip(second).for_each(|(f, &s)| *f += s);
+}
+
+/// Step 2b for a member whose halves ran on two threads: [`add_into`], one equal range per
+/// thread.
+fn add_second_halves(pool: &mut WorkerPool, first: &mut [f32], second: &[f32]) {
+    let parts = pool.threads();
+    let len = first.len().div_ceil(parts);
+    let mut items: [Option<(&mut [f32], &[f32])>; MAX_THREADS] = std::array::from_fn(|_| None);
+    let mut used = 0;
+    for (slot, pair) in items
+        .iter_mut()
+        .zip(first.chunks_mut(len).zip(second.chunks(len)))
+    {
+        *slot = Some(pair);
+        used += 1;
+    }
+    pool.for_each_mut(&mut items[..used], |_, item| {
+        if let Some((f, s)) = item.take() {
+            add_into(f, s);
+        }
+    });
+}
+
+/// Step 2: `g_bounds` = the halves' bound gradients added in member and half order.
 pub(crate) fn sum_bound_slots(slots: &[f32], g_bounds: &mut [f32]) {
     g_bounds.fill(0.0);
     for slot in slots.chunks_exact(g_bounds.len()) {
@@ -244,4 +391,69 @@ pub(crate) fn holdout_mse(
             *m = member_mse(net, theta, first + k, x, targets, n, &mut worker.infer);
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_cover_every_row_once_and_the_first_takes_the_odd_row() {
+        assert_eq!(
+            (part_rows(256, 0, 2), part_rows(256, 1, 2)),
+            (0..128, 128..256)
+        );
+        assert_eq!((part_rows(7, 0, 2), part_rows(7, 1, 2)), (0..4, 4..7));
+        assert_eq!((part_rows(1, 0, 2), part_rows(1, 1, 2)), (0..1, 1..1));
+        assert_eq!((part_rows(0, 0, 2), part_rows(0, 1, 2)), (0..0, 0..0));
+        assert_eq!(part_rows(7, 0, 1), 0..7);
+        assert_eq!(
+            members_with_part(&(0..7), 1, 1),
+            0..0,
+            "whole members have no second half"
+        );
+    }
+
+    #[test]
+    fn members_are_halved_only_when_the_threads_do_not_divide_them() {
+        assert_eq!(parts_per_member(7, 1), 1);
+        assert_eq!(parts_per_member(7, 7), 1);
+        assert_eq!(parts_per_member(8, 4), 1);
+        assert_eq!(parts_per_member(7, 2), 2);
+        assert_eq!(parts_per_member(7, 4), 2);
+        assert_eq!(parts_per_member(7, 8), 2);
+    }
+
+    /// The blocks of `members_loss_and_grads` hand every member's every part to exactly one
+    /// thread, in member order, for any member and thread count.
+    #[test]
+    fn blocks_give_each_part_of_each_member_to_one_thread() {
+        for members in 1..=9 {
+            for threads in 1..=16 {
+                let parts = parts_per_member(members, threads);
+                let units = parts * members;
+                let threads = threads.min(units);
+                let block = units.div_ceil(threads);
+                for h in 0..parts {
+                    let mut next = 0;
+                    for t in 0..threads {
+                        let mine = t * block..((t + 1) * block).min(units);
+                        if mine.is_empty() {
+                            break;
+                        }
+                        let owned = members_with_part(&mine, h, parts);
+                        assert_eq!(owned.start, next, "{members} members, {threads} threads");
+                        for e in owned.clone() {
+                            assert!(mine.contains(&(parts * e + h)));
+                        }
+                        next = owned.end.max(next);
+                    }
+                    assert_eq!(
+                        next, members,
+                        "{members} members, {threads} threads, part {h}"
+                    );
+                }
+            }
+        }
+    }
 }

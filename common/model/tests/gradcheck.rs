@@ -15,9 +15,12 @@ const ACT: usize = 1;
 const D: usize = OBS + 1;
 const BATCH: usize = 5;
 
-fn small_model() -> ProbabilisticEnsemble {
+/// `threads` decides how a training step cuts the work: 1 trains whole members; 4 (which does
+/// not divide the 2 members) trains halves of 3 and 2 rows, each on its own thread.
+fn small_model_on(threads: usize) -> ProbabilisticEnsemble {
     let cfg = ModelConfig {
         members: 2,
+        threads,
         elites: 1,
         hidden: vec![6, 5],
         weight_decay: vec![0.0; 3],
@@ -103,9 +106,22 @@ fn reference_loss(m: &ProbabilisticEnsemble, params: &[f32], x: &[f32], y: &[f32
     total + 0.01 * (max_lv.iter().sum::<f64>() - min_lv.iter().sum::<f64>())
 }
 
+fn small_model() -> ProbabilisticEnsemble {
+    small_model_on(1)
+}
+
 #[test]
 fn gaussian_nll_with_bounded_logvar_matches_finite_differences() {
-    let mut m = small_model();
+    check_against_finite_differences(1);
+}
+
+#[test]
+fn the_gradient_of_half_minibatches_matches_finite_differences() {
+    check_against_finite_differences(4);
+}
+
+fn check_against_finite_differences(threads: usize) {
+    let mut m = small_model_on(threads);
     let x = randn(m.members() * BATCH * (OBS + ACT), 2);
     let y = randn(m.members() * BATCH * D, 3);
     let params = m.params().to_vec();

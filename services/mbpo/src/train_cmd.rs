@@ -205,8 +205,9 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         })?;
         let steps_before = before.steps;
         before.steps = cfg.steps;
-        // The model's thread count changes no bit of the result (members train in blocks,
-        // every sum in member order): a benchmark may continue with the cores it has now.
+        // The model's thread count changes the result in f32 rounding at most (the same bits
+        // for counts that cut members the same way, `model.threads`): a benchmark may
+        // continue with the cores it has now.
         before.model.threads = cfg.model.threads;
         // Nor does the target return (the benchmark reads steps-to-target off the curve).
         before.eval.target_return = cfg.eval.target_return;
