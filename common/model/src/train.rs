@@ -82,6 +82,39 @@ impl TrainReport {
     }
 }
 
+/// The elite holdout MSE ([`TrainReport::elite_holdout_mse`]) that `report`'s training would
+/// have ended with had `model.max_epochs` stopped it after `cap` epochs: MBPO's snapshot rule
+/// ([`EarlyStopping`], `threshold` = `model.improvement_threshold`) replayed on the recorded
+/// holdout MSEs of the first `cap` epochs, then the restore and the elites as a training does
+/// them. Exact, not an estimate: up to its cap a capped training takes the same steps as an
+/// uncapped one (`tests/training.rs`). What `mbpo bench breakdown` reports an epoch cap would
+/// cost in model quality, against what it saves in epochs. NaN for a cap of 0.
+pub fn elite_holdout_mse_if_capped(
+    report: &TrainReport,
+    cap: usize,
+    elites: usize,
+    threshold: f32,
+) -> f64 {
+    let epochs = &report.holdout_mse[..cap.min(report.epochs)];
+    let Some(last) = epochs.last() else {
+        return f64::NAN;
+    };
+    let members = last.len();
+    let mut stopper = EarlyStopping::new(members, usize::MAX, threshold);
+    let mut improved = vec![false; members];
+    for mse in epochs {
+        stopper.update(mse, &mut improved);
+    }
+    let restored: Vec<f32> = (0..members)
+        .map(|e| match stopper.best_epoch()[e] {
+            Some(epoch) => epochs[epoch][e],
+            None => last[e],
+        })
+        .collect();
+    let elites = select_elites(&restored, elites);
+    elites.iter().map(|&e| restored[e] as f64).sum::<f64>() / elites.len().max(1) as f64
+}
+
 /// Why a training call ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum StopReason {

@@ -4,7 +4,9 @@ mod common;
 
 use common::{pendulum_data, small_config};
 use mbpo_core::{stream, Batch};
-use mbpo_model::{ModelConfig, ProbabilisticEnsemble, StopReason, TrainError};
+use mbpo_model::{
+    elite_holdout_mse_if_capped, ModelConfig, ProbabilisticEnsemble, StopReason, TrainError,
+};
 
 fn elite_mean(m: &ProbabilisticEnsemble, mse: &[f32]) -> f32 {
     m.elites().iter().map(|&e| mse[e]).sum::<f32>() / m.elites().len() as f32
@@ -88,6 +90,41 @@ fn epoch_cap_and_snapshot_restore() {
         second.holdout_mse[0],
         r.holdout_mse[0]
     );
+}
+
+/// `elite_holdout_mse_if_capped` is what a training capped at c epochs ends with: a capped
+/// training of the same model with the same draws reports exactly that elite holdout MSE.
+#[test]
+fn the_capped_replay_equals_a_capped_training() {
+    let data = pendulum_data(1500, 6);
+    let train = |max_epochs| {
+        let cfg = ModelConfig {
+            max_epochs,
+            max_epochs_since_update: 2,
+            ..small_config(5, 3, &[32, 32])
+        };
+        let mut model =
+            ProbabilisticEnsemble::new(3, 1, cfg, &mut stream(0, "test.model", 3)).unwrap();
+        model.train(&data, &mut stream(0, "test.train", 3)).unwrap()
+    };
+    let full = train(None);
+    assert_eq!(full.stop, StopReason::NoImprovement);
+    assert!(full.epochs >= 6, "{} epochs", full.epochs);
+    let threshold = ModelConfig::default().improvement_threshold;
+    let replay = |cap| elite_holdout_mse_if_capped(&full, cap, 3, threshold);
+    let e = full.epochs;
+    for cap in [1, 2, 3, e / 2, e - 1] {
+        let capped = train(Some(cap));
+        assert_eq!(capped.epochs, cap);
+        assert_eq!(replay(cap), capped.elite_holdout_mse(), "cap {cap} of {e}");
+    }
+    assert_eq!(replay(e), full.elite_holdout_mse());
+    assert_eq!(replay(e + 5), full.elite_holdout_mse());
+    assert!(
+        replay(1) > full.elite_holdout_mse(),
+        "one epoch should cost something"
+    );
+    assert!(replay(0).is_nan());
 }
 
 #[test]

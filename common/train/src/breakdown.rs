@@ -8,12 +8,18 @@
 //! env step. A projection integrates those per-step costs over a whole run, piecewise linear in
 //! N between the measured points (each phase's cost per step is close to linear in N or
 //! constant), so a run too long for one session still gets a figure.
+//!
+//! Model training dominates at MuJoCo scale, and its one lever that changes results is an epoch
+//! cap (`model.max_epochs`). Each point therefore also reports, for a few caps, what the
+//! window's trainings would have saved in epochs and lost in elite holdout MSE, replayed
+//! exactly from the epochs they ran ([`mbpo_model::elite_holdout_mse_if_capped`]).
 
 use crate::config::ExperimentConfig;
 use crate::phase_times::{MsPerStep, PhaseTimes};
 use crate::sac_trainer::TrainError;
 use crate::schedule::Schedule;
 use crate::Mbpo;
+use mbpo_model::TrainReport;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -33,11 +39,57 @@ pub struct BreakdownPoint {
     pub phases: PhaseTimes,
     /// Milliseconds per env step, by phase (the table's row).
     pub ms_per_step: MsPerStep,
+    /// Epochs each model training of the window ran (the paper's early-stopping rule).
+    pub training_epochs: Vec<usize>,
+    /// What capping those trainings' epochs would have saved and cost, for [`EPOCH_CAPS`].
+    pub epoch_caps: Vec<EpochCap>,
+}
+
+/// The epoch caps each breakdown point reports on.
+pub const EPOCH_CAPS: [usize; 5] = [5, 10, 15, 20, 30];
+
+/// One epoch cap (`model.max_epochs`) applied to a window's model trainings.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct EpochCap {
+    /// The cap.
+    pub cap: usize,
+    /// Epochs the trainings would have run under the cap, over the epochs they ran: the share
+    /// of model-training time left (every epoch costs the same within a training).
+    pub epochs_fraction: f64,
+    /// Mean over the trainings of (capped elite holdout MSE) / (elite holdout MSE they ended
+    /// with): 1.0 costs nothing, 1.10 is a model 10 % worse on held-out transitions.
+    pub holdout_ratio: f64,
+}
+
+impl EpochCap {
+    /// The cap applied to `reports` (a model with `elites` elites and improvement threshold
+    /// `threshold`).
+    pub fn of(cap: usize, reports: &[TrainReport], elites: usize, threshold: f32) -> Self {
+        let ran: usize = reports.iter().map(|r| r.epochs).sum();
+        let capped: usize = reports.iter().map(|r| r.epochs.min(cap)).sum();
+        let ratio = |r: &TrainReport| {
+            mbpo_model::elite_holdout_mse_if_capped(r, cap, elites, threshold)
+                / r.elite_holdout_mse()
+        };
+        let n = reports.len().max(1) as f64;
+        Self {
+            cap,
+            epochs_fraction: capped as f64 / ran.max(1) as f64,
+            holdout_ratio: reports.iter().map(ratio).sum::<f64>() / n,
+        }
+    }
 }
 
 impl BreakdownPoint {
-    fn new(at: u64, rollout_length: usize, wall_seconds: f64, phases: PhaseTimes) -> Self {
+    fn new(
+        at: u64,
+        rollout_length: usize,
+        wall_seconds: f64,
+        phases: PhaseTimes,
+        trainings: (&[TrainReport], usize, f32),
+    ) -> Self {
         let ms_per_step = phases.ms_per_step(wall_seconds);
+        let (reports, elites, threshold) = trainings;
         Self {
             at,
             window: phases.steps,
@@ -45,6 +97,11 @@ impl BreakdownPoint {
             wall_seconds,
             phases,
             ms_per_step,
+            training_epochs: reports.iter().map(|r| r.epochs).collect(),
+            epoch_caps: EPOCH_CAPS
+                .iter()
+                .map(|&cap| EpochCap::of(cap, reports, elites, threshold))
+                .collect(),
         }
     }
 }
@@ -62,6 +119,7 @@ pub fn breakdown_at(
     let schedule = Schedule::of(cfg);
     let epoch = (at + 1..=at + window).find_map(|t| schedule.train_point(t));
     let k = mbpo_model::rollout_length(epoch.unwrap_or(0), cfg.mbpo.rollout_schedule);
+    let mut reports = Vec::new();
     let started = Instant::now();
     for t in at + 1..=at + window {
         if schedule.is_warm_up(t) {
@@ -71,10 +129,21 @@ pub fn breakdown_at(
                 cfg.mbpo.init_random_steps
             )));
         }
+        let trainings = mbpo.phases.model_trainings;
         mbpo.step_unless(t, || false)?;
+        if mbpo.phases.model_trainings > trainings {
+            reports.extend(mbpo.last_model_report.clone());
+        }
     }
     let wall = started.elapsed().as_secs_f64();
-    Ok(BreakdownPoint::new(at, k, wall, mbpo.phases))
+    let model = (cfg.model.elites, cfg.model.improvement_threshold);
+    Ok(BreakdownPoint::new(
+        at,
+        k,
+        wall,
+        mbpo.phases,
+        (&reports, model.0, model.1),
+    ))
 }
 
 /// Seconds a run of `steps` env steps would take, from per-step costs measured at `points`:
@@ -87,10 +156,33 @@ pub fn projected_seconds(
     init_random_steps: u64,
     steps: u64,
 ) -> Option<f64> {
-    let mut pts: Vec<(f64, f64)> = points
-        .iter()
-        .map(|p| (p.at as f64, p.ms_per_step.total / 1e3))
-        .collect();
+    let per_step = points.iter().map(|p| (p.at, p.ms_per_step.total / 1e3));
+    project(per_step.collect(), init_random_steps, steps)
+}
+
+/// [`projected_seconds`] with every model training capped at `cap` epochs: each point's
+/// model-training time scaled by its [`EpochCap::epochs_fraction`] for that cap. The same
+/// trainings, shortened; a capped run's later data would differ. `None` as there, or when
+/// `cap` is not one of [`EPOCH_CAPS`].
+pub fn projected_seconds_capped(
+    points: &[BreakdownPoint],
+    init_random_steps: u64,
+    steps: u64,
+    cap: usize,
+) -> Option<f64> {
+    let mut per_step = Vec::new();
+    for p in points {
+        let fraction = p.epoch_caps.iter().find(|c| c.cap == cap)?.epochs_fraction;
+        let m = &p.ms_per_step;
+        let saved = m.model_training * (1.0 - fraction);
+        per_step.push((p.at, (m.total - saved) / 1e3));
+    }
+    project(per_step, init_random_steps, steps)
+}
+
+/// Seconds over `init_random_steps..steps` of a per-step cost given at points `(N, s/step)`.
+fn project(points: Vec<(u64, f64)>, init_random_steps: u64, steps: u64) -> Option<f64> {
+    let mut pts: Vec<(f64, f64)> = points.iter().map(|&(n, s)| (n as f64, s)).collect();
     pts.sort_by(|a, b| a.0.total_cmp(&b.0));
     pts.dedup_by(|a, b| a.0 == b.0);
     if pts.len() < 2 {
@@ -129,7 +221,7 @@ mod tests {
             steps: 1000,
             ..Default::default()
         };
-        BreakdownPoint::new(at, 1, ms_total, phases)
+        BreakdownPoint::new(at, 1, ms_total, phases, (&[], 5, 0.01))
     }
 
     #[test]
@@ -152,6 +244,73 @@ mod tests {
     }
 
     #[test]
+    fn a_capped_projection_scales_model_training_by_the_epochs_left() {
+        // 1 and 3 ms/step at 10k and 30k, of which model training 0.5 and 2 ms; capped at 10
+        // epochs the trainings would run half their epochs: 0.75 and 2 ms/step, 27.5 s.
+        let capped = |at, total, model, fraction| {
+            let mut p = point(at, total);
+            p.ms_per_step.model_training = model;
+            p.epoch_caps = vec![EpochCap {
+                cap: 10,
+                epochs_fraction: fraction,
+                holdout_ratio: 1.1,
+            }];
+            p
+        };
+        let pts = [capped(10_000, 1.0, 0.5, 0.5), capped(30_000, 3.0, 2.0, 0.5)];
+        let s = projected_seconds_capped(&pts, 10_000, 30_000, 10).unwrap();
+        assert!((s - 27.5).abs() < 1e-9, "{s}");
+        assert_eq!(projected_seconds_capped(&pts, 10_000, 30_000, 20), None);
+    }
+
+    fn report(
+        holdout_mse: Vec<Vec<f32>>,
+        final_holdout_mse: Vec<f32>,
+        elite: usize,
+    ) -> TrainReport {
+        TrainReport {
+            n_train: 100,
+            n_holdout: 20,
+            epochs: holdout_mse.len(),
+            gradient_steps: 0,
+            train_loss: vec![],
+            holdout_mse,
+            best_epoch: vec![],
+            final_holdout_mse,
+            elites: vec![elite],
+            stop: mbpo_model::StopReason::NoImprovement,
+            seconds: 0.0,
+            holdout_seconds: 0.0,
+            termination: None,
+        }
+    }
+
+    #[test]
+    fn epoch_caps_count_the_epochs_saved_and_the_holdout_lost() {
+        // Member 0 improves 50 %, 10 %, then 0.2 % (under the 1 % threshold: restored at
+        // epoch 2, 0.45); member 1 ends at 0.9. One elite: member 0, 0.45. Capped after two
+        // epochs member 0 has 0.5 and is still the elite.
+        let four = report(
+            vec![
+                vec![1.0, 2.0],
+                vec![0.5, 2.0],
+                vec![0.45, 1.0],
+                vec![0.449, 0.9],
+            ],
+            vec![0.45, 0.9],
+            0,
+        );
+        // A one-epoch training no cap shortens.
+        let one = report(vec![vec![0.3, 0.2]], vec![0.3, 0.2], 1);
+        let two = EpochCap::of(2, &[four.clone(), one.clone()], 1, 0.01);
+        assert_eq!(two.epochs_fraction, 3.0 / 5.0);
+        let lost = (0.5f32 as f64 / 0.45f32 as f64 + 1.0) / 2.0;
+        assert!((two.holdout_ratio - lost).abs() < 1e-12, "{two:?}");
+        let none = EpochCap::of(5, &[four, one], 1, 0.01);
+        assert_eq!((none.epochs_fraction, none.holdout_ratio), (1.0, 1.0));
+    }
+
+    #[test]
     fn per_step_figures_divide_by_steps_trainings_and_updates() {
         let phases = PhaseTimes {
             steps: 500,
@@ -165,7 +324,7 @@ mod tests {
             sac_updates: 10_000,
             act_seconds: 0.5,
         };
-        let p = BreakdownPoint::new(10_000, 3, 40.0, phases);
+        let p = BreakdownPoint::new(10_000, 3, 40.0, phases, (&[], 5, 0.01));
         let m = p.ms_per_step;
         assert_eq!(m.model_training, 30.0);
         assert_eq!(m.model_holdout, 2.0);

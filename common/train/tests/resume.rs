@@ -319,6 +319,20 @@ fn a_kept_checkpoint_is_continued_and_every_phase_is_counted() {
     }
     assert!(ph.model_holdout_seconds < ph.model_train_seconds);
     assert!(ph.total_seconds() <= p.wall_seconds);
+    // Each training's epochs are kept, and the epoch caps replay them: a cap never gives a
+    // better model (snapshots only ever improve), one above every training changes nothing.
+    assert_eq!(p.training_epochs.len(), 2);
+    assert_eq!(
+        p.training_epochs.iter().sum::<usize>() as u64,
+        ph.model_epochs
+    );
+    let most = *p.training_epochs.iter().max().unwrap();
+    for c in &p.epoch_caps {
+        assert!(c.holdout_ratio >= 1.0, "{c:?}");
+        if c.cap >= most {
+            assert_eq!((c.epochs_fraction, c.holdout_ratio), (1.0, 1.0), "{c:?}");
+        }
+    }
 
     // A step with no kept checkpoint is named with what is kept and how to keep more.
     let err = breakdown_at(&cfg, &run, 300, 100).unwrap_err().to_string();

@@ -191,7 +191,9 @@ fn mbpo_run_config(
 }
 
 fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
-    use mbpo_train::breakdown::{breakdown_at, projected_seconds};
+    use mbpo_train::breakdown::{
+        breakdown_at, projected_seconds, projected_seconds_capped, EPOCH_CAPS,
+    };
     let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
     let mut pipelines = Vec::new();
@@ -215,6 +217,21 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
             m.acting,
             m.other
         );
+        let caps: Vec<String> = p
+            .epoch_caps
+            .iter()
+            .map(|c| {
+                format!(
+                    "{}: {:.2} of the epochs, holdout x{:.3}",
+                    c.cap, c.epochs_fraction, c.holdout_ratio
+                )
+            })
+            .collect();
+        eprintln!(
+            "at {at:>6}: trainings ran {:?} epochs; model.max_epochs = {}",
+            p.training_epochs,
+            caps.join("; ")
+        );
         println!("{}", serde_json::to_string(&p)?);
         if let Some(mode) = args.pipeline {
             let ipc = pipeline_ipc(&cfg, &args.run, at, args.window, mode)?;
@@ -225,6 +242,15 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
     }
     let hours =
         projected_seconds(&points, cfg.mbpo.init_random_steps, args.project).map(|s| s / 3600.0);
+    let capped: Vec<_> = EPOCH_CAPS
+        .iter()
+        .map(|&cap| {
+            let h =
+                projected_seconds_capped(&points, cfg.mbpo.init_random_steps, args.project, cap)
+                    .map(|s| s / 3600.0);
+            json!({"max_epochs": cap, "hours": h})
+        })
+        .collect();
     let report = json!({
         "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
         "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
@@ -232,7 +258,11 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         "pipeline": args.pipeline.map(|m| json!({"mode": m.name(), "points": pipelines})),
         "projection": {"env_steps": args.project, "hours": hours,
                        "note": "per-step cost piecewise linear in env steps between the points \
-                                (null with fewer than two), warm-up left out"},
+                                (null with fewer than two), warm-up left out",
+                       "capped": capped,
+                       "capped_note": "the same trainings cut at model.max_epochs (a result-\
+                                       changing option): model-training time scaled by the \
+                                       epochs left; the holdout cost is in each point's epoch_caps"},
     });
     match hours {
         Some(h) => eprintln!(
@@ -240,6 +270,14 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
             args.project, cfg.model.threads, cfg.sac.threads
         ),
         None => eprintln!("no projection: it needs points at two or more steps"),
+    }
+    for c in &capped {
+        if let Some(h) = c["hours"].as_f64() {
+            eprintln!(
+                "  the same trainings capped at model.max_epochs = {}: {h:.2} h",
+                c["max_epochs"]
+            );
+        }
     }
     if args.out.as_os_str() != "-" {
         std::fs::create_dir_all(&args.out)?;
