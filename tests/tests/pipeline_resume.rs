@@ -210,7 +210,14 @@ fn a_finished_lockstep_run_extends_from_its_last_step() {
         metrics_without_timing(&run),
         metrics_without_timing(&dir.join("sequential"))
     );
-    assert_eq!(checkpoints(&run), [400, 600]);
+    // keep = 2: the last step's checkpoint and the one before it, which is 400 or, when the
+    // coordinator heard of a step past 500 while the roles still ran, that periodic one (see
+    // `finished_lockstep_run`; CI saw 503).
+    let kept = checkpoints(&run);
+    assert!(
+        kept.len() == 2 && (400..600).contains(&kept[0]) && kept[1] == 600,
+        "{kept:?}"
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 
