@@ -170,12 +170,54 @@ pub fn projected_seconds_capped(
     steps: u64,
     cap: usize,
 ) -> Option<f64> {
+    projected_with_model_scaled(points, init_random_steps, steps, |p| {
+        Some(p.epoch_caps.iter().find(|c| c.cap == cap)?.epochs_fraction)
+    })
+}
+
+/// [`projected_seconds`] at `epochs` epochs per model training instead of each window's own:
+/// each point's model-training time scaled by `epochs` / its epochs per training. The early-
+/// stopping rule's epoch count varies a lot from one training to the next (4 trainings of one
+/// window ran 15 to 50 epochs), so a window of a few trainings says little about it, while
+/// the seconds per epoch are steady; a run's whole log gives the epochs
+/// ([`logged_epochs_per_training`]).
+pub fn projected_seconds_at_epochs(
+    points: &[BreakdownPoint],
+    init_random_steps: u64,
+    steps: u64,
+    epochs: f64,
+) -> Option<f64> {
+    projected_with_model_scaled(points, init_random_steps, steps, |p| {
+        let own = p.ms_per_step.epochs_per_training;
+        (own > 0.0).then(|| epochs / own)
+    })
+}
+
+/// Epochs per model training over everything a run logged (`logs/train.log`: the per-window
+/// lines of [`PhaseTimes::per_step_line`]), with the number of trainings; `None` without
+/// any.
+pub fn logged_epochs_per_training(run: &Path) -> Option<(f64, u64)> {
+    let log = std::fs::read_to_string(run.join("logs").join("train.log")).ok()?;
+    let (trainings, epochs) = log
+        .lines()
+        .filter_map(PhaseTimes::trainings_and_epochs_of_line)
+        .fold((0, 0), |(t, e), (dt, de)| (t + dt, e + de));
+    (trainings > 0).then(|| (epochs as f64 / trainings as f64, trainings))
+}
+
+/// [`projected_seconds`] with each point's model-training time multiplied by `scale(point)`
+/// (`None` from any point: no projection).
+fn projected_with_model_scaled(
+    points: &[BreakdownPoint],
+    init_random_steps: u64,
+    steps: u64,
+    scale: impl Fn(&BreakdownPoint) -> Option<f64>,
+) -> Option<f64> {
     let mut per_step = Vec::new();
     for p in points {
-        let fraction = p.epoch_caps.iter().find(|c| c.cap == cap)?.epochs_fraction;
         let m = &p.ms_per_step;
-        let saved = m.model_training * (1.0 - fraction);
-        per_step.push((p.at, (m.total - saved) / 1e3));
+        let model = m.model_training * scale(p)?;
+        per_step.push((p.at, (m.total - m.model_training + model) / 1e3));
     }
     project(per_step, init_random_steps, steps)
 }
@@ -261,6 +303,48 @@ mod tests {
         let s = projected_seconds_capped(&pts, 10_000, 30_000, 10).unwrap();
         assert!((s - 27.5).abs() < 1e-9, "{s}");
         assert_eq!(projected_seconds_capped(&pts, 10_000, 30_000, 20), None);
+    }
+
+    #[test]
+    fn a_runs_epochs_per_training_are_summed_over_its_log() {
+        let run = std::env::temp_dir().join(format!("mbpo-logged-epochs-{}", std::process::id()));
+        std::fs::create_dir_all(run.join("logs")).unwrap();
+        assert_eq!(logged_epochs_per_training(&run), None, "no log");
+        let window = |trainings, epochs| PhaseTimes {
+            steps: 1000,
+            model_trainings: trainings,
+            model_epochs: epochs,
+            ..Default::default()
+        };
+        let log = format!(
+            "INFO a: {}\nINFO seed 0: step 2000 eval 10.0\nINFO b: {}\n",
+            window(1, 160).per_step_line(),
+            window(4, 80).per_step_line()
+        );
+        std::fs::write(run.join("logs").join("train.log"), log).unwrap();
+        assert_eq!(logged_epochs_per_training(&run), Some((48.0, 5)));
+        std::fs::remove_dir_all(&run).unwrap();
+    }
+
+    #[test]
+    fn a_projection_at_other_epochs_scales_model_training_by_their_ratio() {
+        // The same points at 20 epochs per training where the windows ran 10: model training
+        // doubles, 2 and 5 ms/step at 10k and 30k, 70 s.
+        let at = |n, total, model| {
+            let mut p = point(n, total);
+            p.ms_per_step.model_training = model;
+            p.ms_per_step.epochs_per_training = 10.0;
+            p
+        };
+        let pts = [at(10_000, 1.0, 1.0), at(30_000, 3.0, 2.0)];
+        let s = projected_seconds_at_epochs(&pts, 10_000, 30_000, 20.0).unwrap();
+        assert!((s - 70.0).abs() < 1e-9, "{s}");
+        let mut none = pts.clone();
+        none[0].ms_per_step.epochs_per_training = 0.0;
+        assert_eq!(
+            projected_seconds_at_epochs(&none, 10_000, 30_000, 20.0),
+            None
+        );
     }
 
     fn report(

@@ -107,6 +107,18 @@ impl PhaseTimes {
         }
     }
 
+    /// The model trainings and their epochs in a [`PhaseTimes::per_step_line`] (read back from a
+    /// run's `train.log`; the format is written and read only here).
+    pub fn trainings_and_epochs_of_line(line: &str) -> Option<(u64, u64)> {
+        let rest = line.split("ms per env step over ").nth(1)?;
+        let counts = rest.split("model training ").nth(1)?.split('(').nth(1)?;
+        let mut words = counts.split(' ');
+        let trainings = words.next()?.parse().ok()?;
+        (words.next()? == "trainings,").then_some(())?;
+        let epochs = words.next()?.parse().ok()?;
+        (words.next()? == "epochs,").then_some((trainings, epochs))
+    }
+
     /// One log line: milliseconds per env step of each phase, with the counts that explain them.
     pub fn per_step_line(&self) -> String {
         let m = self.ms_per_step(self.total_seconds());
@@ -128,5 +140,37 @@ impl PhaseTimes {
             m.acting,
             m.total,
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trainings_and_epochs_are_read_back_from_the_log_line() {
+        let times = PhaseTimes {
+            steps: 1000,
+            model_trainings: 4,
+            model_epochs: 87,
+            model_train_seconds: 30.0,
+            ..Default::default()
+        };
+        let line = format!("2026-11-26T06:56:41Z INFO mbpo: {}", times.per_step_line());
+        assert_eq!(
+            PhaseTimes::trainings_and_epochs_of_line(&line),
+            Some((4, 87))
+        );
+        for other in [
+            "seed 0: step 28000 eval 1032.8",
+            "ms per env step over 1000 steps: model training 1.0 (x trainings, 3 epochs, ",
+            "",
+        ] {
+            assert_eq!(
+                PhaseTimes::trainings_and_epochs_of_line(other),
+                None,
+                "{other}"
+            );
+        }
     }
 }

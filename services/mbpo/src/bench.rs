@@ -192,7 +192,8 @@ fn mbpo_run_config(
 
 fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
     use mbpo_train::breakdown::{
-        breakdown_at, projected_seconds, projected_seconds_capped, EPOCH_CAPS,
+        breakdown_at, logged_epochs_per_training, projected_seconds, projected_seconds_at_epochs,
+        projected_seconds_capped, EPOCH_CAPS,
     };
     let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
@@ -251,6 +252,13 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
             json!({"max_epochs": cap, "hours": h})
         })
         .collect();
+    // The windows' few trainings say little about the early-stopping rule's epoch count; the
+    // run's whole log says more.
+    let logged = logged_epochs_per_training(&args.run);
+    let at_logged = logged.and_then(|(epochs, _)| {
+        projected_seconds_at_epochs(&points, cfg.mbpo.init_random_steps, args.project, epochs)
+            .map(|s| s / 3600.0)
+    });
     let report = json!({
         "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
         "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
@@ -259,6 +267,11 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         "projection": {"env_steps": args.project, "hours": hours,
                        "note": "per-step cost piecewise linear in env steps between the points \
                                 (null with fewer than two), warm-up left out",
+                       "at_logged_epochs": logged.map(|(epochs, trainings)| json!({
+                           "epochs_per_training": epochs, "trainings": trainings,
+                           "hours": at_logged,
+                           "note": "each point's model training scaled to the run's mean epochs \
+                                    per training over its logs/train.log"})),
                        "capped": capped,
                        "capped_note": "the same trainings cut at model.max_epochs (a result-\
                                        changing option): model-training time scaled by the \
@@ -270,6 +283,12 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
             args.project, cfg.model.threads, cfg.sac.threads
         ),
         None => eprintln!("no projection: it needs points at two or more steps"),
+    }
+    if let (Some((epochs, trainings)), Some(h)) = (logged, at_logged) {
+        eprintln!(
+            "  at the run's own {epochs:.1} epochs per training ({trainings} trainings in its \
+             logs/train.log): {h:.2} h"
+        );
     }
     for c in &capped {
         if let Some(h) = c["hours"].as_f64() {
