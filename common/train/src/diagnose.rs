@@ -118,12 +118,39 @@ pub struct DataCheck {
     /// Fraction of rows whose next state leaves, in some dimension, the [min, max] box of
     /// every next state in D_env.
     pub outside_real_box: f64,
+    /// Per observation dimension, the fraction of rows whose next state leaves the box in that
+    /// dimension: which coordinates the model invents (a joint angle at its limit, where any
+    /// sample noise crosses, or a velocity).
+    pub outside_real_box_by_dim: Vec<f64>,
     /// Mean min(Q₁, Q₂)(s, a).
     pub q_mean: f64,
     /// Mean soft TD target y = r + γ(1 − d)(min Q̄(s', a') − α log π(a'|s')).
     pub td_target_mean: f64,
     /// Root mean square of min(Q₁, Q₂)(s, a) − y.
     pub td_error_rms: f64,
+}
+
+impl DataCheck {
+    /// The `n` dimensions most often outside the real box, as `obs[j] share`, most first
+    /// (none outside: "-").
+    pub fn most_outside_dims(&self, n: usize) -> String {
+        let mut dims: Vec<(usize, f64)> = self
+            .outside_real_box_by_dim
+            .iter()
+            .copied()
+            .enumerate()
+            .filter(|&(_, share)| share > 0.0)
+            .collect();
+        dims.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        if dims.is_empty() {
+            return "-".into();
+        }
+        dims.iter()
+            .take(n)
+            .map(|(j, share)| format!("obs[{j}] {share:.3}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
 }
 
 impl Diagnosis {
@@ -138,8 +165,8 @@ impl Diagnosis {
         format!(
             "at {:>6}: return {:7.1} ({:5.0} steps) | Q {:7.1} vs soft return {:7.1} (bias {:+.0} %) \
              | model MSE on-policy {:.4} vs holdout {}, open loop h=1..{} {} | imagined: terminal \
-             {:.3} (real {:.3}), outside real box {:.4}, Q {:.1} (real {:.1}), TD error {:.2} \
-             (real {:.2}) | k {} alpha {:.3}",
+             {:.3} (real {:.3}), outside real box {:.4} (most: {}), Q {:.1} (real {:.1}), TD \
+             error {:.2} (real {:.2}) | k {} alpha {:.3}",
             self.at,
             v.mean_return,
             v.mean_length,
@@ -153,6 +180,7 @@ impl Diagnosis {
             i.terminal_rate,
             r.terminal_rate,
             i.outside_real_box,
+            i.most_outside_dims(3),
             i.q_mean,
             r.q_mean,
             i.td_error_rms,
@@ -437,11 +465,17 @@ impl NextStateBox {
         b
     }
 
-    fn contains(&self, state: &[f32]) -> bool {
-        state
-            .iter()
-            .zip(self.low.iter().zip(&self.high))
-            .all(|(&x, (&lo, &hi))| lo <= x && x <= hi)
+    /// Add 1 to `counts[j]` for every dimension j in which `state` is outside (NaN counts);
+    /// returns whether it is outside in any.
+    fn count_outside(&self, state: &[f32], counts: &mut [usize]) -> bool {
+        let mut any = false;
+        for (((&x, &lo), &hi), c) in state.iter().zip(&self.low).zip(&self.high).zip(counts) {
+            if !(lo <= x && x <= hi) {
+                *c += 1;
+                any = true;
+            }
+        }
+        any
     }
 }
 
@@ -455,6 +489,7 @@ fn data_check(
     let (o, a, b) = (buffer.obs_dim(), buffer.act_dim(), sac.config.batch_size);
     let mut batch = Batch::new(o, a, b);
     let (mut reward, mut terminal, mut outside) = (0.0, 0.0, 0usize);
+    let mut outside_by_dim = vec![0usize; o];
     let (mut q_sum, mut y_sum, mut err2) = (0.0, 0.0, 0.0);
     let batches = if buffer.is_empty() {
         0
@@ -468,7 +503,7 @@ fn data_check(
         outside += batch
             .next_obs
             .chunks_exact(o)
-            .filter(|s| !box_.contains(s))
+            .filter(|s| box_.count_outside(s, &mut outside_by_dim))
             .count();
         let q = q_min(sac, &batch.obs, &batch.act, b);
         let y = sac.td_targets(&batch, alpha, rng);
@@ -485,6 +520,7 @@ fn data_check(
         reward_mean: per(reward),
         terminal_rate: per(terminal),
         outside_real_box: per(outside as f64),
+        outside_real_box_by_dim: outside_by_dim.iter().map(|&c| per(c as f64)).collect(),
         q_mean: per(q_sum),
         td_target_mean: per(y_sum),
         td_error_rms: per(err2).sqrt(),
@@ -548,8 +584,35 @@ mod tests {
         d_env.push(&[0.0, 0.0], &[0.0], 0.0, &[-1.0, 5.0], false);
         d_env.push(&[0.0, 0.0], &[0.0], 0.0, &[2.0, 3.0], false);
         let b = NextStateBox::of(&d_env);
-        assert!(b.contains(&[-1.0, 5.0]) && b.contains(&[2.0, 3.0]) && b.contains(&[0.0, 4.0]));
-        assert!(!b.contains(&[2.1, 4.0]) && !b.contains(&[0.0, 2.9]));
-        assert!(!b.contains(&[f32::NAN, 4.0]));
+        let outside = |s: &[f32]| {
+            let mut counts = vec![0; 2];
+            let any = b.count_outside(s, &mut counts);
+            (any, counts)
+        };
+        for inside in [[-1.0, 5.0], [2.0, 3.0], [0.0, 4.0]] {
+            assert_eq!(outside(&inside), (false, vec![0, 0]), "{inside:?}");
+        }
+        assert_eq!(outside(&[2.1, 4.0]), (true, vec![1, 0]));
+        assert_eq!(outside(&[0.0, 2.9]), (true, vec![0, 1]));
+        assert_eq!(outside(&[f32::NAN, 9.0]), (true, vec![1, 1]));
+    }
+
+    #[test]
+    fn the_dimensions_most_outside_are_named_most_first() {
+        let check = |by_dim: Vec<f64>| DataCheck {
+            rows: 10,
+            reward_mean: 0.0,
+            terminal_rate: 0.0,
+            outside_real_box: 0.5,
+            outside_real_box_by_dim: by_dim,
+            q_mean: 0.0,
+            td_target_mean: 0.0,
+            td_error_rms: 0.0,
+        };
+        assert_eq!(
+            check(vec![0.0, 0.3, 0.1, 0.3, 0.05]).most_outside_dims(3),
+            "obs[1] 0.300, obs[3] 0.300, obs[2] 0.100"
+        );
+        assert_eq!(check(vec![0.0, 0.0]).most_outside_dims(3), "-");
     }
 }

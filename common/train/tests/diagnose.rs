@@ -98,6 +98,24 @@ fn a_kept_checkpoint_is_diagnosed_reproducibly_without_touching_the_run() {
     assert_eq!(d.real.rows, BUFFER_ROWS / 32 * 32);
     assert_eq!(d.imagined.rows, d.real.rows);
     assert_eq!(d.real.outside_real_box, 0.0);
+    assert_eq!(
+        d.real.outside_real_box_by_dim,
+        vec![0.0; 3],
+        "Pendulum's 3 dimensions"
+    );
+    // A row outside in some dimension is outside overall: the overall share is at least each
+    // dimension's and at most their sum.
+    let by_dim = &d.imagined.outside_real_box_by_dim;
+    assert_eq!(by_dim.len(), 3);
+    let (most, sum) = (
+        by_dim.iter().cloned().fold(0.0, f64::max),
+        by_dim.iter().sum::<f64>(),
+    );
+    assert!(
+        most <= d.imagined.outside_real_box && d.imagined.outside_real_box <= sum + 1e-12,
+        "{:?}",
+        d.imagined
+    );
     assert_eq!((d.real.terminal_rate, d.imagined.terminal_rate), (0.0, 0.0));
     assert!(d.imagined.td_error_rms.is_finite() && d.imagined.td_error_rms > 0.0);
     let _ = std::fs::remove_dir_all(dir);
