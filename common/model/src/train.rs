@@ -74,12 +74,25 @@ impl TrainReport {
     /// Mean holdout MSE of the elites (the `model_holdout_mse` metrics column), summed in
     /// elite order: every command computes it here, so their rows agree bit for bit.
     pub fn elite_holdout_mse(&self) -> f64 {
-        self.elites
-            .iter()
-            .map(|&e| self.final_holdout_mse[e] as f64)
-            .sum::<f64>()
-            / self.elites.len().max(1) as f64
+        elite_mean(&self.final_holdout_mse, &self.elites)
     }
+}
+
+/// Mean of `mse` over `elites`, summed in elite order.
+fn elite_mean(mse: &[f32], elites: &[usize]) -> f64 {
+    elites.iter().map(|&e| mse[e] as f64).sum::<f64>() / elites.len().max(1) as f64
+}
+
+/// Each member's holdout MSE after step 6's restore, from the MSEs recorded per epoch: its
+/// snapshot epoch's, or its last epoch's when it never improved (kept as is). At least one
+/// epoch is recorded.
+fn restored_holdout_mse(best_epoch: &[Option<usize>], holdout_mse: &[Vec<f32>]) -> Vec<f32> {
+    let last = holdout_mse.len() - 1;
+    best_epoch
+        .iter()
+        .enumerate()
+        .map(|(e, best)| holdout_mse[best.unwrap_or(last)][e])
+        .collect()
 }
 
 /// The elite holdout MSE ([`TrainReport::elite_holdout_mse`]) that `report`'s training would
@@ -105,14 +118,8 @@ pub fn elite_holdout_mse_if_capped(
     for mse in epochs {
         stopper.update(mse, &mut improved);
     }
-    let restored: Vec<f32> = (0..members)
-        .map(|e| match stopper.best_epoch()[e] {
-            Some(epoch) => epochs[epoch][e],
-            None => last[e],
-        })
-        .collect();
-    let elites = select_elites(&restored, elites);
-    elites.iter().map(|&e| restored[e] as f64).sum::<f64>() / elites.len().max(1) as f64
+    let restored = restored_holdout_mse(stopper.best_epoch(), epochs);
+    elite_mean(&restored, &select_elites(&restored, elites))
 }
 
 /// Why a training call ended.
@@ -376,12 +383,12 @@ impl ProbabilisticEnsemble {
         // recorded at its snapshot epoch, and a member never snapshotted keeps its last one.
         report.best_epoch = stopper.best_epoch().to_vec();
         for (e, best) in report.best_epoch.iter().enumerate() {
-            if let Some(epoch) = *best {
+            if best.is_some() {
                 let r = self.net.ensemble().member_range(e);
                 self.theta[r.clone()].copy_from_slice(&snapshot[r]);
-                mse[e] = report.holdout_mse[epoch][e];
             }
         }
+        let mse = restored_holdout_mse(&report.best_epoch, &report.holdout_mse);
         self.elites = select_elites(&mse, cfg.elites);
         report.final_holdout_mse = mse;
         report.elites = self.elites.clone();

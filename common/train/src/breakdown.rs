@@ -71,11 +71,18 @@ impl EpochCap {
             mbpo_model::elite_holdout_mse_if_capped(r, cap, elites, threshold)
                 / r.elite_holdout_mse()
         };
-        let n = reports.len().max(1) as f64;
+        // A window without trainings has nothing to cut and nothing to lose.
+        if reports.is_empty() {
+            return Self {
+                cap,
+                epochs_fraction: 1.0,
+                holdout_ratio: 1.0,
+            };
+        }
         Self {
             cap,
             epochs_fraction: capped as f64 / ran.max(1) as f64,
-            holdout_ratio: reports.iter().map(ratio).sum::<f64>() / n,
+            holdout_ratio: reports.iter().map(ratio).sum::<f64>() / reports.len() as f64,
         }
     }
 }
@@ -203,6 +210,165 @@ pub fn logged_epochs_per_training(run: &Path) -> Option<(f64, u64)> {
         .filter_map(PhaseTimes::trainings_and_epochs_of_line)
         .fold((0, 0), |(t, e), (dt, de)| (t + dt, e + de));
     (trainings > 0).then(|| (epochs as f64 / trainings as f64, trainings))
+}
+
+/// A whole run's projected hours from breakdown points: at the windows' own epochs per
+/// training, at the run's mean over its log, and with each epoch cap (the JSON `projection`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Projection {
+    /// Env steps of the projected run.
+    pub env_steps: u64,
+    /// Hours at each window's own costs ([`projected_seconds`]).
+    pub hours: Option<f64>,
+    /// How `hours` is computed (for a reader of the JSON).
+    pub note: &'static str,
+    /// Hours at the run's mean epochs per training ([`projected_seconds_at_epochs`]).
+    pub at_logged_epochs: Option<LoggedEpochs>,
+    /// Hours with every training capped, for each of [`EPOCH_CAPS`]
+    /// ([`projected_seconds_capped`]).
+    pub capped: Vec<CappedProjection>,
+    /// How `capped` is computed.
+    pub capped_note: &'static str,
+}
+
+/// [`Projection::at_logged_epochs`].
+#[derive(Debug, Clone, Serialize)]
+pub struct LoggedEpochs {
+    /// Mean epochs per training over the run's log.
+    pub epochs_per_training: f64,
+    /// Trainings in the run's log.
+    pub trainings: u64,
+    /// Projected hours at `epochs_per_training`.
+    pub hours: Option<f64>,
+    /// How `hours` is computed.
+    pub note: &'static str,
+}
+
+/// One entry of [`Projection::capped`].
+#[derive(Debug, Clone, Serialize)]
+pub struct CappedProjection {
+    /// The cap.
+    pub max_epochs: usize,
+    /// Projected hours with every training capped at it.
+    pub hours: Option<f64>,
+}
+
+impl Projection {
+    /// The projections of a run of `steps` env steps (warm-up `init_random_steps` left out)
+    /// from `points` measured on `run`.
+    pub fn of(points: &[BreakdownPoint], run: &Path, init_random_steps: u64, steps: u64) -> Self {
+        let hours = |s: Option<f64>| s.map(|s| s / 3600.0);
+        // The windows' few trainings say little about the early-stopping rule's epoch count;
+        // the run's whole log says more.
+        let at_logged_epochs =
+            logged_epochs_per_training(run).map(|(epochs, trainings)| LoggedEpochs {
+                epochs_per_training: epochs,
+                trainings,
+                hours: hours(projected_seconds_at_epochs(
+                    points,
+                    init_random_steps,
+                    steps,
+                    epochs,
+                )),
+                note: "each point's model training scaled to the run's mean epochs per training \
+                       over its logs/train.log",
+            });
+        Self {
+            env_steps: steps,
+            hours: hours(projected_seconds(points, init_random_steps, steps)),
+            note: "per-step cost piecewise linear in env steps between the points (null with \
+                   fewer than two), warm-up left out",
+            at_logged_epochs,
+            capped: EPOCH_CAPS
+                .iter()
+                .map(|&cap| CappedProjection {
+                    max_epochs: cap,
+                    hours: hours(projected_seconds_capped(
+                        points,
+                        init_random_steps,
+                        steps,
+                        cap,
+                    )),
+                })
+                .collect(),
+            capped_note: "the same trainings cut at model.max_epochs (a result-changing \
+                          option): model-training time scaled by the epochs left; the holdout \
+                          cost is in each point's epoch_caps",
+        }
+    }
+
+    /// Terminal lines: the projection, at the run's own epochs, with each cap.
+    pub fn lines(&self) -> Vec<String> {
+        let mut lines = vec![match self.hours {
+            Some(h) => format!("projected: {h:.2} h for {} env steps", self.env_steps),
+            None => "no projection: it needs points at two or more steps".into(),
+        }];
+        if let Some(LoggedEpochs {
+            epochs_per_training,
+            trainings,
+            hours: Some(h),
+            ..
+        }) = &self.at_logged_epochs
+        {
+            lines.push(format!(
+                "  at the run's own {epochs_per_training:.1} epochs per training ({trainings} \
+                 trainings in its logs/train.log): {h:.2} h"
+            ));
+        }
+        for c in &self.capped {
+            if let Some(h) = c.hours {
+                lines.push(format!(
+                    "  the same trainings capped at model.max_epochs = {}: {h:.2} h",
+                    c.max_epochs
+                ));
+            }
+        }
+        lines
+    }
+}
+
+impl BreakdownPoint {
+    /// One terminal line of the point's milliseconds per env step by phase.
+    pub fn summary_line(&self) -> String {
+        let m = &self.ms_per_step;
+        format!(
+            "at {:>6}: {:7.1} ms/step = model training {:6.1} ({:4.1} epochs x {:.2} s, holdout \
+             {:4.1}) + rollouts {:5.1} (k = {}) + SAC {:5.1} ({:.2} ms/update) + acting {:4.2} + \
+             other {:4.2}",
+            self.at,
+            m.total,
+            m.model_training,
+            m.epochs_per_training,
+            m.seconds_per_epoch,
+            m.model_holdout,
+            m.rollouts,
+            self.rollout_length,
+            m.sac,
+            m.ms_per_sac_update,
+            m.acting,
+            m.other
+        )
+    }
+
+    /// One terminal line of the window's trainings and what each epoch cap would do to them.
+    pub fn epoch_caps_line(&self) -> String {
+        let caps: Vec<String> = self
+            .epoch_caps
+            .iter()
+            .map(|c| {
+                format!(
+                    "{}: {:.2} of the epochs, holdout x{:.3}",
+                    c.cap, c.epochs_fraction, c.holdout_ratio
+                )
+            })
+            .collect();
+        format!(
+            "at {:>6}: trainings ran {:?} epochs; model.max_epochs = {}",
+            self.at,
+            self.training_epochs,
+            caps.join("; ")
+        )
+    }
 }
 
 /// [`projected_seconds`] with each point's model-training time multiplied by `scale(point)`
@@ -345,6 +511,41 @@ mod tests {
             projected_seconds_at_epochs(&none, 10_000, 30_000, 20.0),
             None
         );
+    }
+
+    #[test]
+    fn a_projection_serialises_and_prints_each_way_it_was_computed() {
+        let pts = [point(10_000, 1.0), point(30_000, 3.0)];
+        let none = Projection::of(&pts, Path::new("/nonexistent-run"), 10_000, 30_000);
+        assert_eq!(
+            none.hours,
+            projected_seconds(&pts, 10_000, 30_000).map(|s| s / 3600.0)
+        );
+        assert!(none.at_logged_epochs.is_none(), "no log, no figure");
+        // The windows held no trainings: a cap cuts nothing.
+        assert_eq!(none.capped.len(), EPOCH_CAPS.len());
+        assert!(
+            none.capped.iter().all(|c| c.hours == none.hours),
+            "{none:?}"
+        );
+        let lines = none.lines();
+        assert_eq!(lines[0], "projected: 0.01 h for 30000 env steps");
+        assert_eq!(lines.len(), 1 + EPOCH_CAPS.len());
+        assert!(
+            lines[1].contains("capped at model.max_epochs = 5: 0.01 h"),
+            "{lines:?}"
+        );
+        let json = serde_json::to_value(&none).unwrap();
+        for key in [
+            "env_steps",
+            "hours",
+            "note",
+            "at_logged_epochs",
+            "capped",
+            "capped_note",
+        ] {
+            assert!(json.get(key).is_some(), "{key} in {json}");
+        }
     }
 
     fn report(

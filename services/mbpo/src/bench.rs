@@ -191,48 +191,14 @@ fn mbpo_run_config(
 }
 
 fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
-    use mbpo_train::breakdown::{
-        breakdown_at, logged_epochs_per_training, projected_seconds, projected_seconds_at_epochs,
-        projected_seconds_capped, EPOCH_CAPS,
-    };
+    use mbpo_train::breakdown::{breakdown_at, Projection};
     let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
     let mut pipelines = Vec::new();
     for &at in &args.at {
         let p = breakdown_at(&cfg, &args.run, at, args.window)?;
-        let m = &p.ms_per_step;
-        eprintln!(
-            "at {:>6}: {:7.1} ms/step = model training {:6.1} ({:4.1} epochs x {:.2} s, holdout \
-             {:4.1}) + rollouts {:5.1} (k = {}) + SAC {:5.1} ({:.2} ms/update) + acting {:4.2} + \
-             other {:4.2}",
-            at,
-            m.total,
-            m.model_training,
-            m.epochs_per_training,
-            m.seconds_per_epoch,
-            m.model_holdout,
-            m.rollouts,
-            p.rollout_length,
-            m.sac,
-            m.ms_per_sac_update,
-            m.acting,
-            m.other
-        );
-        let caps: Vec<String> = p
-            .epoch_caps
-            .iter()
-            .map(|c| {
-                format!(
-                    "{}: {:.2} of the epochs, holdout x{:.3}",
-                    c.cap, c.epochs_fraction, c.holdout_ratio
-                )
-            })
-            .collect();
-        eprintln!(
-            "at {at:>6}: trainings ran {:?} epochs; model.max_epochs = {}",
-            p.training_epochs,
-            caps.join("; ")
-        );
+        eprintln!("{}", p.summary_line());
+        eprintln!("{}", p.epoch_caps_line());
         println!("{}", serde_json::to_string(&p)?);
         if let Some(mode) = args.pipeline {
             let ipc = pipeline_ipc(&cfg, &args.run, at, args.window, mode)?;
@@ -241,63 +207,19 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         }
         points.push(p);
     }
-    let hours =
-        projected_seconds(&points, cfg.mbpo.init_random_steps, args.project).map(|s| s / 3600.0);
-    let capped: Vec<_> = EPOCH_CAPS
-        .iter()
-        .map(|&cap| {
-            let h =
-                projected_seconds_capped(&points, cfg.mbpo.init_random_steps, args.project, cap)
-                    .map(|s| s / 3600.0);
-            json!({"max_epochs": cap, "hours": h})
-        })
-        .collect();
-    // The windows' few trainings say little about the early-stopping rule's epoch count; the
-    // run's whole log says more.
-    let logged = logged_epochs_per_training(&args.run);
-    let at_logged = logged.and_then(|(epochs, _)| {
-        projected_seconds_at_epochs(&points, cfg.mbpo.init_random_steps, args.project, epochs)
-            .map(|s| s / 3600.0)
-    });
+    let projection = Projection::of(&points, &args.run, cfg.mbpo.init_random_steps, args.project);
     let report = json!({
         "bench": "breakdown", "env": cfg.env, "run": args.run, "window": args.window,
         "model_threads": cfg.model.threads, "sac_threads": cfg.sac.threads,
         "points": points,
         "pipeline": args.pipeline.map(|m| json!({"mode": m.name(), "points": pipelines})),
-        "projection": {"env_steps": args.project, "hours": hours,
-                       "note": "per-step cost piecewise linear in env steps between the points \
-                                (null with fewer than two), warm-up left out",
-                       "at_logged_epochs": logged.map(|(epochs, trainings)| json!({
-                           "epochs_per_training": epochs, "trainings": trainings,
-                           "hours": at_logged,
-                           "note": "each point's model training scaled to the run's mean epochs \
-                                    per training over its logs/train.log"})),
-                       "capped": capped,
-                       "capped_note": "the same trainings cut at model.max_epochs (a result-\
-                                       changing option): model-training time scaled by the \
-                                       epochs left; the holdout cost is in each point's epoch_caps"},
+        "projection": projection,
     });
-    match hours {
-        Some(h) => eprintln!(
-            "projected: {h:.2} h for {} env steps (model.threads {}, sac.threads {})",
-            args.project, cfg.model.threads, cfg.sac.threads
-        ),
-        None => eprintln!("no projection: it needs points at two or more steps"),
-    }
-    if let (Some((epochs, trainings)), Some(h)) = (logged, at_logged) {
-        eprintln!(
-            "  at the run's own {epochs:.1} epochs per training ({trainings} trainings in its \
-             logs/train.log): {h:.2} h"
-        );
-    }
-    for c in &capped {
-        if let Some(h) = c["hours"].as_f64() {
-            eprintln!(
-                "  the same trainings capped at model.max_epochs = {}: {h:.2} h",
-                c["max_epochs"]
-            );
-        }
-    }
+    eprintln!(
+        "model.threads {}, sac.threads {}:",
+        cfg.model.threads, cfg.sac.threads
+    );
+    projection.lines().iter().for_each(|l| eprintln!("{l}"));
     if args.out.as_os_str() != "-" {
         std::fs::create_dir_all(&args.out)?;
         let file = args
