@@ -13,7 +13,10 @@
 #
 # Hours per seed: it is meant to run niced in the background across sessions. Ctrl-C (or
 # SIGTERM to the process group) checkpoints the seeds under way and stops; the same command
-# continues each seed from its checkpoint and reuses the seeds already completed. Results:
+# continues each seed from its checkpoint and reuses the seeds already completed. When the lanes
+# stop (done or Ctrl-C), deploy/park_runs.sh packs each run's curve and newest checkpoint into
+# results/parked/ -- commit that, so a fresh checkout continues too: this script restores from it
+# at the start whatever results/runs/ does not hold. Results:
 # results/learning-<env>.json, results/learning-<env>.png (+ -losses.png), runs in
 # results/runs/mbpo-<env>-s<seed>, each lane's log in results/runs/lane-<n>.log.
 set -euo pipefail
@@ -26,9 +29,12 @@ bash deploy/setup_mujoco.sh >&2
 cargo build --release --locked -p mbpo --features mujoco >&2
 mbpo=./target/release/mbpo
 mkdir -p results/runs
+bash deploy/park_runs.sh --restore
 
 # Learn every task named, seeds one after another on one core, and plot each.
 lane() {
+    # A stop signal is for the benchmark, which checkpoints; the lane waits for it to exit.
+    trap 'true' INT TERM
     for task in "$@"; do
         local config=deploy/configs/$task.toml
         "$mbpo" bench learning --config "$config" --steps "$steps" --seeds 3 --threads 1 \
@@ -42,12 +48,24 @@ lane() {
     done
 }
 
+# Wait for lane `$1` to exit and return its status. A signal to this script interrupts `wait`
+# (the trap below), not the lane: its benchmark checkpoints first, so wait again until it is gone.
+wait_for() {
+    local status=0
+    while true; do
+        wait "$1" && return 0 || status=$?
+        kill -0 "$1" 2>/dev/null || return "$status"
+    done
+}
+
 lane hopper halfcheetah > results/runs/lane-1.log 2>&1 &
 first=$!
 lane walker2d ant > results/runs/lane-2.log 2>&1 &
 second=$!
+trap 'echo "stopping: the seeds under way checkpoint, then they are parked" >&2' INT TERM
 status=0
-wait "$first" || status=$?
-wait "$second" || status=$?
+wait_for "$first" || status=$?
+wait_for "$second" || status=$?
+bash deploy/park_runs.sh
 [ "$status" = 0 ] || echo "a lane stopped (exit $status): see results/runs/lane-*.log; rerun to continue" >&2
 exit "$status"
