@@ -7,6 +7,7 @@
 //! * [`replay`]: the FIFO transition buffer used for real data and for MBPO's model buffer.
 //! * [`policy`]: the batched-policy interface (SAC actor, planners, uniform warm-up).
 //! * [`rate_limit`]: Reverb-style limiters that hold the algorithm's ratios in a pipeline.
+//! * [`state_box`]: the box of the real states seen, which imagined states can be clipped to.
 //! * [`alloc_count`]: the counting allocator of the no-allocation tests.
 #![warn(missing_docs)]
 
@@ -15,6 +16,7 @@ pub mod policy;
 pub mod rate_limit;
 pub mod replay;
 pub mod rng;
+pub mod state_box;
 
 pub use policy::{BatchPolicy, UniformPolicy};
 pub use replay::{
@@ -22,3 +24,4 @@ pub use replay::{
     TransitionSink,
 };
 pub use rng::{stream, Rng};
+pub use state_box::StateBox;

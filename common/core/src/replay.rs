@@ -224,6 +224,16 @@ impl ReplayBuffer {
         }
     }
 
+    /// Every state and then every next state held, one slice each, in slot order (the
+    /// order [`crate::StateBox`] does not need).
+    pub fn held_states(&self) -> impl Iterator<Item = &[f32]> {
+        let held = self.len * self.obs_dim;
+        // Slots 0..len are exactly the held transitions whether or not the ring wrapped.
+        self.obs[..held]
+            .chunks_exact(self.obs_dim)
+            .chain(self.next_obs[..held].chunks_exact(self.obs_dim))
+    }
+
     /// All held transitions, oldest first, as one batch (allocates; for model training).
     pub fn to_batch(&self) -> Batch {
         let mut b = Batch::new(self.obs_dim, self.act_dim, self.len);

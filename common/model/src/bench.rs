@@ -230,6 +230,7 @@ pub fn model_rollout(
                 &mut policy,
                 1,
                 RolloutTermination::Rule(&never),
+                None,
                 rng,
                 &mut pool,
             )

@@ -39,7 +39,7 @@
 //! let mut policy = UniformPolicy { low: vec![-1.0], high: vec![1.0] };
 //! let mut pool = ReplayBuffer::new(2, 1, 100);
 //! let never = |_: &[f32], _: &[f32], _: &[f32]| false;
-//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, RolloutTermination::Rule(&never), &mut rng, &mut pool).unwrap();
+//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, RolloutTermination::Rule(&never), None, &mut rng, &mut pool).unwrap();
 //! assert_eq!((stats.transitions, pool.len()), (30, 30));
 //! ```
 #![warn(missing_docs)]

@@ -7,10 +7,14 @@
 //! reward are drawn from that member's Gaussian (`μ + σ·ε`), `done` comes from the task's
 //! hand-written termination function (or, here, the model's learned one), every transition is
 //! pushed to the model buffer, and terminated samples are dropped before the next step.
+//!
+//! One addition, off unless asked for (`mbpo.clip_imagined_states`): each predicted next state
+//! can be clamped into the box of the real states seen ([`StateBox`]) before the termination
+//! rule and the buffer see it.
 
 use crate::error::RolloutError;
 use crate::model::ProbabilisticEnsemble;
-use mbpo_core::{BatchPolicy, ReplayBuffer, Rng};
+use mbpo_core::{BatchPolicy, ReplayBuffer, Rng, StateBox};
 use serde::{Deserialize, Serialize};
 
 /// A termination predicate `done(obs, act, next_obs)` (see `mbpo_envs::termination_fn`).
@@ -114,7 +118,8 @@ pub(crate) struct RolloutBuffers {
 impl ProbabilisticEnsemble {
     /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
     /// `policy`, pushing every transition into `out` (the model buffer D_model); `termination`
-    /// decides which transitions end their rollout.
+    /// decides which transitions end their rollout; `clip`, when given, clamps every predicted
+    /// next state into its box first.
     ///
     /// Random draws come from `rng` in a fixed order (per step: the policy's actions, one elite
     /// per sample, then the Gaussian noise), so a seed fixes the result.
@@ -126,6 +131,7 @@ impl ProbabilisticEnsemble {
         policy: &mut dyn BatchPolicy,
         k: usize,
         mut termination: RolloutTermination,
+        clip: Option<&StateBox>,
         rng: &mut Rng,
         out: &mut ReplayBuffer,
     ) -> Result<RolloutStats, RolloutError> {
@@ -186,6 +192,11 @@ impl ProbabilisticEnsemble {
                 &mut buf.reward[..alive],
                 &mut buf.next_obs[..alive * o],
             );
+            if let Some(state_box) = clip {
+                for next in buf.next_obs[..alive * o].chunks_exact_mut(o) {
+                    state_box.clip(next);
+                }
+            }
             let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
             match (&mut termination, self.termination.as_mut()) {
                 (RolloutTermination::Learned, Some(learned)) => {

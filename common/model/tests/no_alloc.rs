@@ -93,6 +93,7 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
                 &mut policy,
                 k,
                 RolloutTermination::Rule(&never),
+                None,
                 &mut rrng,
                 &mut pool,
             )

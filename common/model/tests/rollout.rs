@@ -1,10 +1,10 @@
 //! Model rollouts and predictions: termination, dropping terminated samples, elites only,
-//! grouping by member, sampling statistics, reproducibility.
+//! grouping by member, sampling statistics, reproducibility, clipping into the real box.
 
 mod common;
 
 use common::small_config;
-use mbpo_core::{stream, ReplayBuffer, Rng, UniformPolicy};
+use mbpo_core::{stream, ReplayBuffer, Rng, StateBox, UniformPolicy};
 use mbpo_envs::termination_fn;
 use mbpo_model::{
     ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutStats,
@@ -131,6 +131,7 @@ fn mountain_car_rollouts_stop_at_the_goal() {
             &mut uniform(1),
             5,
             RolloutTermination::Rule(&done),
+            None,
             &mut stream(0, "r", 0),
             &mut out,
         )
@@ -167,6 +168,7 @@ fn everything_terminating_ends_the_rollout_after_one_step() {
             &mut uniform(1),
             7,
             RolloutTermination::Rule(&always),
+            None,
             &mut stream(0, "r", 1),
             &mut out,
         )
@@ -176,6 +178,70 @@ fn everything_terminating_ends_the_rollout_after_one_step() {
         (1, 10, 10)
     );
     assert_eq!(out.len(), 10);
+}
+
+#[test]
+fn clipped_rollouts_keep_every_imagined_state_in_the_real_box() {
+    // Every member drifts +0.5 in dim 0 and −0.5 in dim 1 per step; the real states seen span
+    // [−1, 1] in both. The rule ends a rollout whose next state passes 1 in dim 0, which only
+    // an unclipped state can.
+    let mut model = scripted_model(2, 1, &[0.0], &[vec![0.5, -0.5]], &[0]);
+    let mut real = ReplayBuffer::new(2, 1, 4);
+    real.push(&[-1.0, 1.0], &[0.0], 0.0, &[1.0, -1.0], false);
+    let real_box = StateBox::of(&real);
+    let past_one = |_: &[f32], _: &[f32], s2: &[f32]| s2[0] > 1.0;
+    let run = |model: &mut ProbabilisticEnsemble, clip: Option<&StateBox>| {
+        let mut out = ReplayBuffer::new(2, 1, 100);
+        let stats = model
+            .rollout(
+                &[0.8, 0.0, -0.6, 0.9],
+                2,
+                &mut uniform(1),
+                3,
+                RolloutTermination::Rule(&past_one),
+                clip,
+                &mut stream(0, "r", 2),
+                &mut out,
+            )
+            .unwrap();
+        (stats, out.to_batch())
+    };
+    let (stats, b) = run(&mut model, Some(&real_box));
+    assert_eq!(
+        stats.alive_per_step,
+        vec![2, 2, 2],
+        "nothing passes 1 once clipped"
+    );
+    // Row order: step 1 of both rollouts, then step 2, then step 3; each step starts from the
+    // clipped state before it.
+    let expected = [
+        [1.0, -0.5],
+        [-0.1, 0.4],
+        [1.0, -1.0],
+        [0.4, -0.1],
+        [1.0, -1.0],
+        [0.9, -0.6],
+    ];
+    for (r, want) in expected.iter().enumerate() {
+        let got = &b.next_obs[2 * r..2 * r + 2];
+        assert!(
+            got.iter().zip(want).all(|(g, w)| (g - w).abs() < 1e-4),
+            "row {r}: {got:?}, expected {want:?}"
+        );
+        assert!(
+            got.iter().all(|x| (-1.0..=1.0).contains(x)),
+            "row {r} leaves the box: {got:?}"
+        );
+    }
+    assert_eq!(
+        &b.obs[4..8],
+        &b.next_obs[0..4],
+        "step 2 starts from the clipped states"
+    );
+    // Without the box the same model leaves it at once and the rule ends that rollout.
+    let (stats, b) = run(&mut model, None);
+    assert_eq!(stats.alive_per_step, vec![2, 1, 1]);
+    assert!((b.next_obs[0] - 1.3).abs() < 1e-4, "{:?}", &b.next_obs[..2]);
 }
 
 fn random_start(n: usize, obs_dim: usize, rng: &mut Rng) -> Vec<f32> {
@@ -202,6 +268,7 @@ fn stochastic_rollouts_drop_terminated_samples() {
             &mut uniform(2),
             4,
             RolloutTermination::Rule(&fake_done),
+            None,
             &mut rng,
             &mut out,
         )
@@ -229,6 +296,7 @@ fn rollouts_are_bit_reproducible() {
                 &mut uniform(2),
                 3,
                 RolloutTermination::Rule(&fake_done),
+                None,
                 &mut rng,
                 &mut out,
             )
@@ -252,6 +320,7 @@ fn rollouts_use_only_elites() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
+            None,
             &mut stream(5, "r", 0),
             &mut out,
         )
@@ -340,6 +409,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
+            None,
             &mut rng,
             &mut out,
         )
@@ -363,6 +433,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
+            None,
             &mut rng,
             &mut wrong,
         )

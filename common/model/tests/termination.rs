@@ -144,6 +144,7 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
             &mut policy,
             5,
             RolloutTermination::Learned,
+            None,
             &mut rng,
             &mut out,
         )
@@ -167,6 +168,7 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
             &mut policy,
             1,
             RolloutTermination::Learned,
+            None,
             &mut rng,
             &mut out,
         )

@@ -150,6 +150,24 @@ pub struct MbpoConfig {
     pub updates_per_step: usize,
     /// Capacity of the real-data buffer D_env.
     pub replay_capacity: usize,
+    /// Clamp imagined next states into the box of the real states seen (not in the paper; off
+    /// by default).
+    pub clip_imagined_states: ImaginedStateClip,
+}
+
+/// What happens to an imagined next state outside every range the real states were seen in
+/// (`mbpo.clip_imagined_states`). The paper's code keeps it; on Walker2d-v5, 45-55 % of one-step
+/// imagined states leave the real box, mostly in joint velocities the environment clips to
+/// [−10, 10] in its observation (`mbpo bench diagnose`, results/diagnose-mbpo-Walker2d-v5-s2.json).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImaginedStateClip {
+    /// Keep the model's prediction (the paper).
+    #[default]
+    Off,
+    /// Clamp each dimension into [min, max] of the real states and next states in D_env when
+    /// the rollouts are branched (`mbpo_core::StateBox`).
+    RealBox,
 }
 
 impl Default for MbpoConfig {
@@ -164,6 +182,7 @@ impl Default for MbpoConfig {
             real_ratio: 0.05,
             updates_per_step: 20,
             replay_capacity: 1_000_000,
+            clip_imagined_states: ImaginedStateClip::Off,
         }
     }
 }

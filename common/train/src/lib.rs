@@ -46,7 +46,7 @@ pub mod schedule;
 pub mod tensorboard;
 pub mod termination_bench;
 
-pub use config::{Algo, ConfigError, ExperimentConfig, MpcConfig, PlanReward};
+pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};
 pub use mpc::{train_mpc, train_mpc_with};
 pub use run_control::RunOptions;

@@ -15,12 +15,13 @@
 //! | [`LearnerRole`] | real transitions, [`ImaginedBatch`] | [`PolicySnapshot`] | `sac.init`, `learner.sample`, `learner.update` |
 
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
-use crate::config::ExperimentConfig;
+use crate::config::{ExperimentConfig, ImaginedStateClip};
 use crate::env_config::RolloutRule;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{
-    sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng, TransitionSink,
+    sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng, StateBox,
+    TransitionSink,
 };
 use mbpo_envs::EnvError;
 use mbpo_model::{
@@ -364,6 +365,8 @@ pub struct RolloutRole {
     /// How rollouts end: the task's rule, the model's learned one or a Python function.
     termination: RolloutRule,
     schedule: [usize; 4],
+    /// Whether imagined next states are clamped into the real box (`mbpo.clip_imagined_states`).
+    clip: ImaginedStateClip,
     starts: Batch,
     staged: ReplayBuffer,
     rng: Rng,
@@ -398,6 +401,7 @@ impl RolloutRole {
             policy_version: 0,
             termination,
             schedule: cfg.mbpo.rollout_schedule,
+            clip: cfg.mbpo.clip_imagined_states,
             starts: Batch::new(obs_dim, act_dim, n),
             staged: ReplayBuffer::new(obs_dim, act_dim, 1),
             rng: stream(cfg.seed, "rollout", 0),
@@ -511,10 +515,15 @@ impl RolloutRole {
             self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
         }
         self.d_env.sample_into(&mut self.rng, &mut self.starts);
+        // The box of what D_env holds now: one pass over it per branch (every 250 steps).
+        let real_box = match self.clip {
+            ImaginedStateClip::Off => None,
+            ImaginedStateClip::RealBox => Some(StateBox::of(&self.d_env)),
+        };
         let (model, policy, rng) = (&mut self.model, &mut self.policy, &mut self.rng);
         let (starts, staged) = (&self.starts.obs, &mut self.staged);
         self.termination
-            .with(|rule| model.rollout(starts, n, policy, k, rule, rng, staged))
+            .with(|rule| model.rollout(starts, n, policy, k, rule, real_box.as_ref(), rng, staged))
             .map_err(|e| TrainError::Config(e.to_string()))?;
         let rows = self.staged.to_batch();
         self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);

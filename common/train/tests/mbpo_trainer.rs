@@ -1,7 +1,8 @@
 //! The sequential MBPO reference at a scale CI affords.
 
+use mbpo_core::StateBox;
 use mbpo_train::run_dir::read_eval_curve;
-use mbpo_train::{train_mbpo, Algo, ExperimentConfig, Mbpo};
+use mbpo_train::{train_mbpo, Algo, ExperimentConfig, ImaginedStateClip, Mbpo};
 
 mod support;
 use support::temp_dir;
@@ -88,6 +89,66 @@ fn model_buffer_keeps_retain_epochs_of_rollouts_across_retrains() {
         mbpo.model_buffer_len(),
         10_000,
         "FIFO: the oldest rollouts make room"
+    );
+}
+
+/// Every imagined next state in D_model, and how many leave the box of D_env's states.
+fn imagined_outside_the_real_box(mbpo: &mut Mbpo) -> (usize, usize) {
+    let (_, d_env, d_model) = mbpo.learner_mut().sac_and_buffers();
+    let real_box = StateBox::of(d_env);
+    let imagined = d_model.to_batch();
+    let o = imagined.obs_dim;
+    let mut counts = vec![0; o];
+    let outside = imagined
+        .next_obs
+        .chunks_exact(o)
+        .filter(|s| real_box.count_outside(s, &mut counts))
+        .count();
+    (imagined.len, outside)
+}
+
+#[test]
+fn clip_imagined_states_keeps_the_model_buffer_in_the_real_box() {
+    // A model trained on 60 warm-up steps, rolled out 5 steps: it extrapolates past the real
+    // states unless `mbpo.clip_imagined_states = "real_box"` clamps its predictions.
+    let outside_with = |clip: ImaginedStateClip| {
+        let mut cfg = small_config(1000);
+        cfg.mbpo.rollout_schedule = [0, 1, 5, 5];
+        cfg.mbpo.clip_imagined_states = clip;
+        let mut mbpo = Mbpo::new(&cfg).unwrap();
+        for _ in 0..60 {
+            mbpo.warm_up_step().unwrap();
+        }
+        mbpo.train_model().unwrap();
+        mbpo.branch_rollouts(5).unwrap();
+        imagined_outside_the_real_box(&mut mbpo)
+    };
+    let (rows, outside) = outside_with(ImaginedStateClip::Off);
+    assert_eq!(rows, 5 * 5000, "5-step rollouts of 50 x 100 starts");
+    assert!(
+        outside > 0,
+        "the paper's rollouts leave the box ({outside} of {rows})"
+    );
+    assert_eq!(outside_with(ImaginedStateClip::RealBox), (rows, 0));
+}
+
+#[test]
+fn clip_imagined_states_is_read_from_the_config_and_checked() {
+    let set = |value: &str| {
+        ExperimentConfig::resolve(None, &[format!("mbpo.clip_imagined_states={value}")])
+    };
+    let clip = |value: &str| set(value).unwrap().mbpo.clip_imagined_states;
+    assert_eq!(clip("real_box"), ImaginedStateClip::RealBox);
+    assert_eq!(clip("off"), ImaginedStateClip::Off);
+    assert_eq!(
+        ExperimentConfig::default().mbpo.clip_imagined_states,
+        ImaginedStateClip::Off,
+        "the paper's rollouts unless asked"
+    );
+    let err = set("box").unwrap_err().to_string();
+    assert!(
+        err.contains("mbpo.clip_imagined_states=box") && err.contains("real_box"),
+        "{err}"
     );
 }
 
