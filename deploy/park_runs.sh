@@ -2,26 +2,37 @@
 # Keep long benchmark runs across fresh checkouts (issue 23's learning lanes run for days).
 #
 # results/runs/ is not in git: a run directory holds checkpoints of tens of MB, rewritten every
-# 1000 env steps. A new checkout of the repository therefore starts without it, and every seed under
-# way would start again from step 0 (session 19 lost 5 seeds, about 30 core-hours, that way). So:
+# 1000 env steps. A new checkout of the repository therefore starts without it (session 19 found
+# it gone: 5 seeds, about 30 core-hours, and every curve behind the README's per-seed figures).
 #
-#   bash deploy/park_runs.sh            pack results/runs/<run>/ into results/parked/<run>/
-#   bash deploy/park_runs.sh --restore  unpack every parked run that results/runs/ does not hold
+#   bash deploy/park_runs.sh [--with-checkpoints]
+#       pack results/runs/<run>/ into results/parked/runs/<run>/ (and results/<variant>/runs/<run>/,
+#       a benchmark's --out, into results/parked/<variant>/runs/<run>/)
+#   bash deploy/park_runs.sh --restore
+#       unpack every parked run whose run directory does not exist
 #
-# A parked run is what `mbpo bench learning` and `mbpo plot` need to go on: config.toml,
-# metrics.csv, summary.json and policy.ckpt (once completed) and logs/train.log (gzip; `bench breakdown` reads its
-# trainings from it) -- and, for a run not yet completed, its newest complete checkpoint as
-# checkpoint.tar.zst (zstd -19: a Hopper checkpoint at 5000 steps packs from 16 MB into 4.6 MB), so
-# the same benchmark command continues it exactly where it was. The TensorBoard file and the
-# older checkpoints (the `checkpoint.keep_every` ones `bench breakdown`/`diagnose` start from)
-# stay behind: they would make the repository grow by far more than the curves are worth.
+# A parked run is what `mbpo bench learning` and `mbpo plot` read: config.toml, metrics.csv,
+# summary.json and policy.ckpt (once completed) and logs/train.log (gzip; `bench breakdown` reads
+# its trainings from it). So a completed seed is reused, never rerun, and its curve is in git. A
+# seed under way restored without a checkpoint starts again from step 0 (and, deterministic,
+# retraces its parked curve).
 #
-# Restoring never touches a run directory that exists: the live one is always at least as new.
-# Commit results/parked/ after parking; `deploy/learning_mujoco.sh` parks when it stops and
-# restores when it starts.
+# --with-checkpoints also packs each unfinished run's newest complete checkpoint
+# (checkpoint.tar.zst, zstd -19), so the benchmark continues it exactly where it was. It is not
+# the default because the checkpoint holds the model buffer, whose floats barely compress:
+# measured 4.6 MB for Hopper at 5000 steps, 37 MB at 11,000, 51 MB for Walker2d at 13,000 (41 MB of
+# it the learner's 400k imagined transitions), and Hopper's grows with its rollout length to
+# about 100 MB near 50k. Commit such a file only when the compute it saves is worth the
+# repository's growth. The TensorBoard file and the older checkpoints (the
+# `checkpoint.keep_every` ones `bench breakdown`/`diagnose` start from) are never parked.
+#
+# Parking without --with-checkpoints keeps a checkpoint parked before (older than the run, it
+# still saves its steps; a completed run drops it). Restoring never touches a run directory that
+# exists: the live one is always at least as new.
+# Commit results/parked/ after parking; `deploy/learning_mujoco.sh` parks (curves only) when it
+# stops and restores when it starts.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-runs=results/runs
 parked=results/parked
 
 # The newest checkpoint directory holding COMPLETE (checkpoint::latest's rule), or nothing.
@@ -40,13 +51,14 @@ completed() {
 }
 
 park() {
-    local run=$1 name dest ckpt file
-    name=$(basename "$run")
-    dest=$parked/$name
+    local run=$1 dest ckpt file
+    dest=$parked/${run#results/}
+    mkdir -p "$(dirname "$dest")"
     if ! [ -f "$run/config.toml" ] || ! [ -f "$run/metrics.csv" ]; then
         echo "skipping $run: no config.toml and metrics.csv, not a run directory" >&2
         return
     fi
+    rm -rf "$dest.tmp"
     mkdir -p "$dest.tmp"
     cp "$run/config.toml" "$run/metrics.csv" "$dest.tmp/"
     for file in summary.json policy.ckpt; do
@@ -56,17 +68,25 @@ park() {
         gzip -9 -n -c "$run/logs/train.log" > "$dest.tmp/train.log.gz"
     fi
     if completed "$run"; then
-        echo "parked $name: completed" >&2
+        echo "parked $run: completed" >&2
+    elif [ "$with_checkpoints" = 0 ]; then
+        # A checkpoint parked before stays: older than the run, it still saves its steps.
+        if [ -f "$dest/checkpoint.tar.zst" ]; then
+            mv "$dest/checkpoint.tar.zst" "$dest.tmp/"
+            echo "parked $run: its curve so far and the checkpoint parked before" >&2
+        else
+            echo "parked $run: its curve so far (--with-checkpoints to continue it, not restart it)" >&2
+        fi
     else
         ckpt=$(newest_complete "$run")
         if [ -n "$ckpt" ]; then
             # The directory's name is its env steps; the tar keeps it so restoring recreates it.
             tar -C "$run/checkpoints" -cf - "$(basename "$ckpt")" |
                 zstd -19 -T1 -q -c > "$dest.tmp/checkpoint.tar.zst"
-            echo "parked $name: checkpoint $(basename "$ckpt")" \
+            echo "parked $run: checkpoint $(basename "$ckpt")" \
                 "($(du -h "$dest.tmp/checkpoint.tar.zst" | cut -f1))" >&2
         else
-            echo "parked $name: no complete checkpoint yet, it would start again" >&2
+            echo "parked $run: no complete checkpoint yet, it would start again" >&2
         fi
     fi
     rm -rf "$dest"
@@ -74,13 +94,14 @@ park() {
 }
 
 restore() {
-    local src=$1 name run file
-    name=$(basename "$src")
-    run=$runs/$name
+    local src=$1 run file
+    run=results/${src#"$parked"/}
+    mkdir -p "$(dirname "$run")"
     if [ -e "$run" ]; then
         echo "keeping $run: it exists (a live run is at least as new as its parked copy)" >&2
         return
     fi
+    rm -rf "$run.tmp"
     mkdir -p "$run.tmp/logs" "$run.tmp/checkpoints"
     cp "$src/config.toml" "$src/metrics.csv" "$run.tmp/"
     for file in summary.json policy.ckpt; do
@@ -96,14 +117,25 @@ restore() {
     echo "restored $run" >&2
 }
 
+# results/runs/<run> and results/<variant>/runs/<run> (a benchmark's --out), as parked under
+# results/parked/runs/ and results/parked/<variant>/runs/.
+with_checkpoints=0
+case "${1:-}" in
+    "" | --restore) ;;
+    --with-checkpoints) with_checkpoints=1 ;;
+    *)
+        echo "unknown argument $1: expected --with-checkpoints or --restore" >&2
+        exit 2
+        ;;
+esac
 if [ "${1:-}" = "--restore" ]; then
-    mkdir -p "$runs"
-    for src in "$parked"/*/; do
+    for src in "$parked"/runs/*/ "$parked"/*/runs/*/; do
+        case "$src" in *.tmp/) continue ;; esac # a park that did not finish
         if [ -d "$src" ]; then restore "${src%/}"; fi
     done
 else
-    mkdir -p "$parked"
-    for run in "$runs"/*/; do
+    for run in results/runs/*/ results/*/runs/*/; do
+        case "$run" in "$parked"/* | *.tmp/) continue ;; esac
         if [ -d "$run" ]; then park "${run%/}"; fi
     done
 fi
