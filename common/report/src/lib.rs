@@ -136,11 +136,21 @@ pub struct GroupCurve {
     pub points: Vec<BandPoint>,
 }
 
-/// The runs of each group, in group-name order.
+/// The runs of each group, in group-name order. A group is one [`group_name`] in one directory:
+/// `results/runs/mbpo-Hopper-v5-s2` and `results/clip-real-box/runs/mbpo-Hopper-v5-s2` are two
+/// experiments, not two seeds of one. When the runs come from more than one directory, each
+/// group's name says which (`results/clip-real-box/runs/mbpo-Hopper-v5`).
 fn group_runs(runs: &[PathBuf]) -> BTreeMap<String, Vec<PathBuf>> {
+    let parent = |run: &PathBuf| run.parent().map(Path::to_path_buf).unwrap_or_default();
+    let one_directory = runs.windows(2).all(|w| parent(&w[0]) == parent(&w[1]));
     let mut groups: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
     for run in runs {
-        groups.entry(group_name(run)).or_default().push(run.clone());
+        let name = if one_directory {
+            group_name(run)
+        } else {
+            parent(run).join(group_name(run)).display().to_string()
+        };
+        groups.entry(name).or_default().push(run.clone());
     }
     groups
 }
@@ -485,7 +495,7 @@ fn report(out: &Path, curves: &[GroupCurve], panels: &[(&str, &[GroupCurve])]) -
     }
 }
 
-/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`], to a PNG.
+/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`] and directory, to a PNG.
 pub fn plot_runs(
     runs: &[PathBuf],
     column: &str,
@@ -593,6 +603,30 @@ mod tests {
             "mbpo-Pendulum-v1"
         );
         assert_eq!(group_name(Path::new("runs/a-s3-x")), "a-s3-x");
+    }
+
+    #[test]
+    fn runs_of_one_name_in_two_directories_are_two_groups() {
+        let runs: Vec<PathBuf> = [
+            "results/runs/mbpo-Hopper-v5-s1",
+            "results/runs/mbpo-Hopper-v5-s2",
+            "results/clip-real-box/runs/mbpo-Hopper-v5-s2",
+        ]
+        .iter()
+        .map(PathBuf::from)
+        .collect();
+        let groups = group_runs(&runs);
+        let sizes: Vec<(&str, usize)> = groups.iter().map(|(n, r)| (n.as_str(), r.len())).collect();
+        assert_eq!(
+            sizes,
+            [
+                ("results/clip-real-box/runs/mbpo-Hopper-v5", 1),
+                ("results/runs/mbpo-Hopper-v5", 2)
+            ]
+        );
+        // One directory: the short names, as before.
+        let one = group_runs(&runs[..2]);
+        assert_eq!(one.keys().collect::<Vec<_>>(), ["mbpo-Hopper-v5"]);
     }
 
     #[test]
