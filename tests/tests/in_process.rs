@@ -7,7 +7,7 @@ use std::time::Duration;
 use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
-use mbpo_train::{train_mbpo, train_mpc, Algo};
+use mbpo_train::{train_mbpo, train_mpc, Algo, ImaginedStateClip};
 
 fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessRun {
     InProcessRun {
@@ -53,6 +53,33 @@ fn in_process_lockstep_mbpo_equals_sequential() {
         s.real_transitions.spilled
     );
     assert_eq!(s.ratios.rollout_batches, 3, "train points 201, 301, 401");
+}
+
+#[test]
+fn in_process_lockstep_mbpo_with_clipped_imagined_states_equals_sequential() {
+    // The option lives in the rollout role both paths share; this shows it reaches the
+    // pipeline's rollout generator and keeps lockstep equal to the reference.
+    let mut cfg = tiny_config(400);
+    cfg.mbpo.rollout_schedule = [0, 1, 3, 3];
+    let dir = scratch("in-process-clip");
+    let paper = train_mbpo(&cfg, &dir.join("paper")).unwrap();
+    cfg.mbpo.clip_imagined_states = ImaginedStateClip::RealBox;
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    assert_ne!(
+        seq.policy_sha256, paper.policy_sha256,
+        "clipping changed no imagined state: the test would not see it missing"
+    );
+    let run = how(&dir, "clipped-lockstep", Mode::Lockstep, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(s.summary.status, "completed");
+    assert_eq!(
+        s.summary.policy_sha256, seq.policy_sha256,
+        "lockstep != sequential with clipped imagined states"
+    );
+    assert_eq!(
+        metrics_without_timing(&run.out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
 }
 
 #[test]
