@@ -36,13 +36,17 @@ impl StateBox {
     }
 
     /// Clamp `state` into the box, dimension by dimension (NaN stays NaN, as `f32::clamp`
-    /// keeps it). An empty box (no real state yet) leaves `state` as it is.
-    pub fn clip(&self, state: &mut [f32]) {
+    /// keeps it), and say whether any value moved. An empty box (no real state yet) leaves
+    /// `state` as it is.
+    pub fn clip(&self, state: &mut [f32]) -> bool {
+        let mut moved = false;
         for ((x, &low), &high) in state.iter_mut().zip(&self.low).zip(&self.high) {
-            if low <= high {
+            if low <= high && (*x < low || *x > high) {
                 *x = x.clamp(low, high);
+                moved = true;
             }
         }
+        moved
     }
 
     /// Add 1 to `counts[j]` for every dimension j in which `state` is outside the box (NaN
@@ -89,13 +93,13 @@ mod tests {
     fn clipping_clamps_each_dimension_into_the_box() {
         let b = StateBox::of(&buffer(&[([0.0, -1.0], [2.0, 1.0])], 4));
         let mut s = [3.0, -1.5];
-        b.clip(&mut s);
+        assert!(b.clip(&mut s));
         assert_eq!(s, [2.0, -1.0]);
         let mut inside = [1.0, 0.25];
-        b.clip(&mut inside);
+        assert!(!b.clip(&mut inside));
         assert_eq!(inside, [1.0, 0.25]);
         let mut nan = [f32::NAN, 7.0];
-        b.clip(&mut nan);
+        assert!(b.clip(&mut nan));
         assert!(nan[0].is_nan() && nan[1] == 1.0, "{nan:?}");
     }
 
@@ -103,7 +107,7 @@ mod tests {
     fn an_empty_box_holds_nothing_and_clips_nothing() {
         let b = StateBox::of(&ReplayBuffer::new(2, 1, 4));
         let mut s = [3.0, -1.5];
-        b.clip(&mut s);
+        assert!(!b.clip(&mut s));
         assert_eq!(s, [3.0, -1.5]);
         let mut counts = [0; 2];
         assert!(b.count_outside(&[0.0, 0.0], &mut counts));

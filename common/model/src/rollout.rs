@@ -103,6 +103,8 @@ pub struct RolloutStats {
     pub alive_per_step: Vec<usize>,
     /// Mean model reward over the pushed transitions.
     pub mean_reward: f64,
+    /// Transitions whose predicted next state was clamped into the real box (0 without one).
+    pub clipped: usize,
 }
 
 /// Rollout buffers, taken out of the model's workspace for the duration of a call.
@@ -161,6 +163,7 @@ impl ProbabilisticEnsemble {
             terminated: 0,
             alive_per_step: Vec::with_capacity(k),
             mean_reward: 0.0,
+            clipped: 0,
         };
         let mut buf = std::mem::take(&mut self.ws.rollout);
         buf.obs.clear();
@@ -194,7 +197,7 @@ impl ProbabilisticEnsemble {
             );
             if let Some(state_box) = clip {
                 for next in buf.next_obs[..alive * o].chunks_exact_mut(o) {
-                    state_box.clip(next);
+                    stats.clipped += usize::from(state_box.clip(next));
                 }
             }
             let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);

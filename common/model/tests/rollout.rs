@@ -212,6 +212,8 @@ fn clipped_rollouts_keep_every_imagined_state_in_the_real_box() {
         vec![2, 2, 2],
         "nothing passes 1 once clipped"
     );
+    // Rollout 1 is clamped at each of its 3 steps; rollout 2 stays inside.
+    assert_eq!(stats.clipped, 3);
     // Row order: step 1 of both rollouts, then step 2, then step 3; each step starts from the
     // clipped state before it.
     let expected = [
@@ -241,6 +243,7 @@ fn clipped_rollouts_keep_every_imagined_state_in_the_real_box() {
     // Without the box the same model leaves it at once and the rule ends that rollout.
     let (stats, b) = run(&mut model, None);
     assert_eq!(stats.alive_per_step, vec![2, 1, 1]);
+    assert_eq!(stats.clipped, 0);
     assert!((b.next_obs[0] - 1.3).abs() < 1e-4, "{:?}", &b.next_obs[..2]);
 }
 

@@ -522,9 +522,20 @@ impl RolloutRole {
         };
         let (model, policy, rng) = (&mut self.model, &mut self.policy, &mut self.rng);
         let (starts, staged) = (&self.starts.obs, &mut self.staged);
-        self.termination
+        let stats = self
+            .termination
             .with(|rule| model.rollout(starts, n, policy, k, rule, real_box.as_ref(), rng, staged))
             .map_err(|e| TrainError::Config(e.to_string()))?;
+        if real_box.is_some() {
+            tracing::info!(
+                "branched {n} rollouts of k = {k} with model {}: {} of {} imagined next states \
+                 ({:.2} %) clamped into the real box",
+                self.model_version,
+                stats.clipped,
+                stats.transitions,
+                100.0 * stats.clipped as f64 / stats.transitions.max(1) as f64
+            );
+        }
         let rows = self.staged.to_batch();
         self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
         Ok(ImaginedBatch {
