@@ -24,6 +24,21 @@ fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessR
     }
 }
 
+/// The lockstep run at `run` ended as the sequential reference at `sequential` did: the same
+/// final policy and the same metrics rows (timing columns aside).
+fn assert_lockstep_equals(
+    lockstep: &str,
+    sequential: &str,
+    run: &std::path::Path,
+    reference: &std::path::Path,
+) {
+    assert_eq!(lockstep, sequential, "lockstep != sequential");
+    assert_eq!(
+        metrics_without_timing(run),
+        metrics_without_timing(reference)
+    );
+}
+
 #[test]
 fn in_process_lockstep_mbpo_equals_sequential() {
     let cfg = tiny_config(500);
@@ -32,15 +47,13 @@ fn in_process_lockstep_mbpo_equals_sequential() {
     let run = how(&dir, "lockstep", Mode::Lockstep, 1);
     let s = run_in_process(&cfg, &run).unwrap();
     assert_eq!(s.summary.status, "completed");
-    assert_eq!(
-        s.summary.policy_sha256, seq.policy_sha256,
-        "lockstep != sequential"
+    assert_lockstep_equals(
+        &s.summary.policy_sha256,
+        &seq.policy_sha256,
+        &run.out,
+        &dir.join("sequential"),
     );
     assert_eq!(s.summary.sac_updates, seq.sac_updates);
-    assert_eq!(
-        metrics_without_timing(&run.out),
-        metrics_without_timing(&dir.join("sequential"))
-    );
     assert_eq!(s.real_transitions.produced, 500);
     for consumer in ["model-trainer", "rollout-generator", "learner"] {
         assert_eq!(s.real_transitions.received[consumer], 500, "{consumer}");
@@ -72,13 +85,11 @@ fn in_process_lockstep_mbpo_with_clipped_imagined_states_equals_sequential() {
     let run = how(&dir, "clipped-lockstep", Mode::Lockstep, 1);
     let s = run_in_process(&cfg, &run).unwrap();
     assert_eq!(s.summary.status, "completed");
-    assert_eq!(
-        s.summary.policy_sha256, seq.policy_sha256,
-        "lockstep != sequential with clipped imagined states"
-    );
-    assert_eq!(
-        metrics_without_timing(&run.out),
-        metrics_without_timing(&dir.join("sequential"))
+    assert_lockstep_equals(
+        &s.summary.policy_sha256,
+        &seq.policy_sha256,
+        &run.out,
+        &dir.join("sequential"),
     );
 }
 
@@ -89,13 +100,11 @@ fn in_process_lockstep_mpc_equals_sequential() {
     let seq = train_mpc(&cfg, &dir.join("sequential")).unwrap();
     let run = how(&dir, "lockstep", Mode::Lockstep, 1);
     let s = run_in_process(&cfg, &run).unwrap();
-    assert_eq!(
-        s.summary.policy_sha256, seq.policy_sha256,
-        "lockstep != sequential"
-    );
-    assert_eq!(
-        metrics_without_timing(&run.out),
-        metrics_without_timing(&dir.join("sequential"))
+    assert_lockstep_equals(
+        &s.summary.policy_sha256,
+        &seq.policy_sha256,
+        &run.out,
+        &dir.join("sequential"),
     );
     assert_last_step_checkpointed(&run.out, Algo::MPC, 1, cfg.steps);
 }

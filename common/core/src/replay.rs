@@ -224,8 +224,8 @@ impl ReplayBuffer {
         }
     }
 
-    /// Every state and then every next state held, one slice each, in slot order (the
-    /// order [`crate::StateBox`] does not need).
+    /// Every state and then every next state held, one slice each, in slot order (not age
+    /// order: for [`crate::StateBox`], which only needs each of them once).
     pub fn held_states(&self) -> impl Iterator<Item = &[f32]> {
         let held = self.len * self.obs_dim;
         // Slots 0..len are exactly the held transitions whether or not the ring wrapped.
