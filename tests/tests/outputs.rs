@@ -70,6 +70,7 @@ fn train_writes_log_and_tensorboard_files_and_plot_writes_both_pngs() {
         .args(&runs)
         .arg("--out")
         .arg(&out)
+        .args(["--table-every", "200"])
         .output()
         .unwrap();
     assert!(
@@ -85,5 +86,27 @@ fn train_writes_log_and_tensorboard_files_and_plot_writes_both_pngs() {
         let bytes = std::fs::read(png).unwrap();
         assert_eq!(&bytes[1..4], b"PNG", "{}", png.display());
     }
+    // ... and the eval returns as a markdown table: each seed's row holds its metrics.csv
+    // returns; these runs are not MBPO on a task with a paper curve, so there is none.
+    let table = dir.join("curves.md");
+    assert_eq!(report["table"], table.display().to_string());
+    assert_eq!(report["reference"], serde_json::Value::Null);
+    let table = std::fs::read_to_string(&table).unwrap();
+    let curve = read_eval_curve(&runs[0].join("metrics.csv")).unwrap();
+    let [(s1, r1), (s2, r2)] = curve[..] else {
+        panic!("two evaluations expected: {curve:?}")
+    };
+    assert_eq!(
+        (s1, s2),
+        (200, 400),
+        "--table-every 200 puts a column at each"
+    );
+    let (best, best_at) = if r2 > r1 { (r2, s2) } else { (r1, s1) };
+    let row = format!(
+        "| seed 0 | {r1:.0} | {r2:.0} | {:.0} (200-400) | {best:.0} ({best_at}) |",
+        (r1 + r2) / 2.0
+    );
+    assert!(table.contains(&row), "{row} not in\n{table}");
+    assert!(table.contains("| median |"), "{table}");
     std::fs::remove_dir_all(dir).unwrap();
 }

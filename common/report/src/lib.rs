@@ -8,7 +8,15 @@
 //! * [`plot_runs`]: one column (default `eval_return`) against env steps.
 //! * [`plot_losses`]: the training diagnostics ([`LOSS_PANELS`]: critic loss, actor loss, α,
 //!   model holdout MSE), one panel each, one shared legend.
+//! * [`learning_table`]: the eval returns as a markdown table, seed by seed, with the median and
+//!   the paper's curve ([`mbpo_paper_curve`]) at the same env steps.
 #![warn(missing_docs)]
+
+mod paper_curve;
+mod table;
+
+pub use paper_curve::{mbpo_paper_curve, PaperCurve};
+pub use table::learning_table;
 
 use plotters::prelude::*;
 use std::collections::BTreeMap;
@@ -140,7 +148,7 @@ pub struct GroupCurve {
 /// `results/runs/mbpo-Hopper-v5-s2` and `results/clip-real-box/runs/mbpo-Hopper-v5-s2` are two
 /// experiments, not two seeds of one. When the runs come from more than one directory, each
 /// group's name says which (`results/clip-real-box/runs/mbpo-Hopper-v5`).
-fn group_runs(runs: &[PathBuf]) -> BTreeMap<String, Vec<PathBuf>> {
+pub(crate) fn group_runs(runs: &[PathBuf]) -> BTreeMap<String, Vec<PathBuf>> {
     let parent = |run: &PathBuf| run.parent().map(Path::to_path_buf).unwrap_or_default();
     let one_directory = runs.windows(2).all(|w| parent(&w[0]) == parent(&w[1]));
     let mut groups: BTreeMap<String, Vec<PathBuf>> = BTreeMap::new();
@@ -360,7 +368,25 @@ impl Ranged for TickedAxis {
     }
 }
 
-/// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot.
+/// The part of `reference` over the env steps `x0..=x1`, ends interpolated (empty where the
+/// curve has no points in that range).
+fn reference_within(reference: &PaperCurve, x0: f64, x1: f64) -> Vec<(f64, f64)> {
+    let end = |x: f64| reference.at(x as u64).map(|y| (x, y));
+    end(x0)
+        .into_iter()
+        .chain(
+            reference
+                .points
+                .iter()
+                .map(|&(s, y)| (s as f64, y))
+                .filter(|&(s, _)| x0 < s && s < x1),
+        )
+        .chain(end(x1))
+        .collect()
+}
+
+/// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot. A
+/// `reference` curve is drawn dashed over the env steps the runs cover.
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     curves: &[GroupCurve],
@@ -368,6 +394,7 @@ fn draw_panel(
     y_desc: &str,
     scale: Scale,
     legend_inside: bool,
+    reference: Option<&PaperCurve>,
 ) -> Result<(), String> {
     let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
     let series: Vec<(usize, &GroupCurve)> = curves
@@ -403,6 +430,10 @@ fn draw_panel(
         for &(x, _, lo, hi) in &c.points {
             (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(tf(lo)), y1.max(tf(hi)));
         }
+    }
+    let reference_points = reference.map(|r| reference_within(r, x0, x1));
+    for &(_, y) in reference_points.iter().flatten() {
+        (y0, y1) = (y0.min(tf(y)), y1.max(tf(y)));
     }
     let pad = ((y1 - y0) * 0.05).max(if log { 0.05 } else { 1e-6 });
     let y_desc = if log {
@@ -461,6 +492,21 @@ fn draw_panel(
             });
         }
     }
+    if let (Some(reference), Some(points)) = (reference, reference_points) {
+        let style = BLACK.stroke_width(2);
+        let line = chart
+            .draw_series(DashedLineSeries::new(
+                points.into_iter().map(|(x, y)| (x, tf(y))),
+                8,
+                6,
+                style,
+            ))
+            .map_err(e)?;
+        if legend_inside {
+            line.label(reference.label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
+        }
+    }
     if legend_inside {
         chart
             .configure_series_labels()
@@ -495,12 +541,14 @@ fn report(out: &Path, curves: &[GroupCurve], panels: &[(&str, &[GroupCurve])]) -
     }
 }
 
-/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`] and directory, to a PNG.
+/// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`] and directory, to a
+/// PNG, with a `reference` curve (e.g. [`mbpo_paper_curve`]) dashed next to them.
 pub fn plot_runs(
     runs: &[PathBuf],
     column: &str,
     title: &str,
     out: &Path,
+    reference: Option<&PaperCurve>,
 ) -> Result<PlotReport, PlotError> {
     let curves = group_curves(runs, column)?;
     if curves.iter().all(|c| c.points.is_empty()) {
@@ -513,7 +561,16 @@ pub fn plot_runs(
     };
     let root = BitMapBackend::new(out, (960, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| draw_err(e.to_string()))?;
-    draw_panel(&root, &curves, title, column, Scale::Linear, true).map_err(draw_err)?;
+    draw_panel(
+        &root,
+        &curves,
+        title,
+        column,
+        Scale::Linear,
+        true,
+        reference,
+    )
+    .map_err(draw_err)?;
     root.present().map_err(|e| draw_err(e.to_string()))?;
     Ok(report(out, &curves, &[(column, &curves)]))
 }
@@ -563,8 +620,16 @@ pub fn plot_losses(runs: &[PathBuf], title: &str, out: &Path) -> Result<PlotRepo
         .map_err(de)?;
     }
     for (area, (panel, curves)) in grid.split_evenly((2, 2)).iter().zip(&panels) {
-        draw_panel(area, curves, panel.title, panel.column, panel.scale, false)
-            .map_err(draw_err)?;
+        draw_panel(
+            area,
+            curves,
+            panel.title,
+            panel.column,
+            panel.scale,
+            false,
+            None,
+        )
+        .map_err(draw_err)?;
     }
     root.present().map_err(de)?;
     let with_data: Vec<(&str, &[GroupCurve])> = panels
@@ -643,6 +708,35 @@ mod tests {
     }
 
     #[test]
+    fn the_reference_is_drawn_over_the_runs_steps_with_interpolated_ends() {
+        const POINTS: &[(u64, f64)] = &[(0, 0.0), (2000, 200.0), (3000, 100.0), (10_000, 800.0)];
+        let r = PaperCurve {
+            label: "paper",
+            points: POINTS,
+        };
+        assert_eq!(
+            reference_within(&r, 1000.0, 4000.0),
+            vec![
+                (1000.0, 100.0),
+                (2000.0, 200.0),
+                (3000.0, 100.0),
+                (4000.0, 200.0)
+            ]
+        );
+        // Runs beyond the curve: it ends where its points do.
+        assert_eq!(
+            reference_within(&r, 3000.0, 20_000.0),
+            vec![(3000.0, 100.0), (10_000.0, 800.0)]
+        );
+        let dir = std::env::temp_dir().join(format!("mbpo-plot-ref-{}", std::process::id()));
+        let runs = vec![write_run(&dir, "mbpo-Hopper-v5-s0", &[100.0, 900.0, 400.0])];
+        let out = dir.join("curves.png");
+        plot_runs(&runs, "eval_return", "test", &out, Some(&r)).unwrap();
+        assert!(std::fs::metadata(&out).unwrap().len() > 1000);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
     fn plots_a_png_and_names_a_missing_column() {
         let dir = std::env::temp_dir().join(format!("mbpo-plot-{}", std::process::id()));
         let runs = vec![
@@ -651,7 +745,7 @@ mod tests {
             write_run(&dir, "mbpo-P-s0", &[-1500.0, -150.0, -140.0]),
         ];
         let out = dir.join("curves.png");
-        let r = plot_runs(&runs, "eval_return", "test", &out).unwrap();
+        let r = plot_runs(&runs, "eval_return", "test", &out, None).unwrap();
         assert_eq!(
             r.groups,
             vec![("mbpo-P".to_string(), 1), ("sac-P".to_string(), 2)]
@@ -659,7 +753,7 @@ mod tests {
         let bytes = std::fs::read(&out).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         assert!(bytes.len() > 5000, "a real picture, not an empty canvas");
-        let err = plot_runs(&runs, "critic_loss", "t", &out)
+        let err = plot_runs(&runs, "critic_loss", "t", &out, None)
             .unwrap_err()
             .to_string();
         assert!(
@@ -745,7 +839,14 @@ mod tests {
         std::fs::create_dir_all(&empty).unwrap();
         let out = dir.join("x.png");
         for err in [
-            plot_runs(&[good.clone(), empty.clone()], "eval_return", "t", &out).unwrap_err(),
+            plot_runs(
+                &[good.clone(), empty.clone()],
+                "eval_return",
+                "t",
+                &out,
+                None,
+            )
+            .unwrap_err(),
             plot_losses(&[good.clone(), empty.clone()], "t", &out).unwrap_err(),
         ] {
             let msg = err.to_string();

@@ -383,6 +383,10 @@ pub struct PlotArgs {
     /// Plot title.
     #[arg(long, default_value = "learning curves")]
     pub title: String,
+    /// Env steps between the columns of the markdown table of eval returns written next to the
+    /// PNG (`<stem>.md`: each seed, the median, the MBPO paper's curve where there is one).
+    #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(1..))]
+    pub table_every: u64,
 }
 
 /// How a crashed service process is handled.

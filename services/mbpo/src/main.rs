@@ -43,15 +43,30 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Plot(args) => {
-            let curves = mbpo_report::plot_runs(&args.runs, &args.column, &args.title, &args.out)?;
+            let reference = (args.column == "eval_return")
+                .then(|| mbpo_paper_curve_of(&args.runs))
+                .flatten();
+            let curves = mbpo_report::plot_runs(
+                &args.runs,
+                &args.column,
+                &args.title,
+                &args.out,
+                reference.as_ref(),
+            )?;
             let losses = mbpo_report::companion_path(&args.out, "losses");
             let title = format!("{}: training losses", args.title);
             let losses = mbpo_report::plot_losses(&args.runs, &title, &losses)?;
+            let table = args.out.with_extension("md");
+            let text =
+                mbpo_report::learning_table(&args.runs, args.table_every, reference.as_ref())?;
+            std::fs::write(&table, format!("### {}\n\n{text}", args.title))?;
             println!(
                 "{}",
                 serde_json::json!({
                     "plot": curves.out,
                     "losses": losses.out,
+                    "table": table,
+                    "reference": reference.map(|r| r.label),
                     "runs": args.runs.len(),
                     "groups": curves.groups,
                     "loss_panels_with_data": losses.panels_with_data,
@@ -62,4 +77,17 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         cli::Command::Bench(cmd) => bench::run(cmd),
         cli::Command::Chaos(args) => chaos::run(&args),
     }
+}
+
+/// The MBPO paper's curve for `runs` when every one is an MBPO run of the same task that has
+/// one (read from each run's `config.toml`; a run without a readable config gets none).
+fn mbpo_paper_curve_of(runs: &[std::path::PathBuf]) -> Option<mbpo_report::PaperCurve> {
+    let mut envs = runs.iter().map(|run| {
+        let cfg = mbpo_train::ExperimentConfig::load(&run.join("config.toml")).ok()?;
+        (cfg.algo == mbpo_train::Algo::MBPO).then_some(cfg.env)
+    });
+    let first = envs.next()??;
+    envs.all(|env| env.as_deref() == Some(first.as_str()))
+        .then(|| mbpo_report::mbpo_paper_curve(&first))
+        .flatten()
 }
