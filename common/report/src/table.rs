@@ -3,7 +3,7 @@
 //! evaluation swings widely; a collapse shows in the mean) and its best, then the median over
 //! the group's runs and the paper's curve at the same env steps.
 
-use crate::{group_runs, read_curve, PaperCurve, PlotError};
+use crate::{group_name, group_runs, read_curve, PaperCurve, PlotError};
 use std::path::{Path, PathBuf};
 
 /// How many final evaluations the "mean of last" column averages.
@@ -29,17 +29,19 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
 }
 
-/// `seed 2` for a run directory named `<group>-s2`, else the directory's name.
+/// `seed 2` for a run directory named `<group>-s2` (`seed 2-1` for `<group>-s2-1`, see
+/// [`group_name`]), else the directory's name.
 fn run_label(run: &Path) -> String {
     let name = run
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| run.display().to_string());
-    match name.rsplit_once("-s") {
-        Some((_, seed)) if !seed.is_empty() && seed.chars().all(|c| c.is_ascii_digit()) => {
-            format!("seed {seed}")
-        }
-        _ => name,
+    match name
+        .strip_prefix(group_name(run).as_str())
+        .and_then(|rest| rest.strip_prefix("-s"))
+    {
+        Some(seed) => format!("seed {seed}"),
+        None => name,
     }
 }
 
@@ -114,21 +116,13 @@ fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) ->
         out += &line(cells);
     }
     if rows.len() > 1 {
+        let median_of = |value: &dyn Fn(&Row) -> Option<f64>| {
+            median_cell(rows.iter().filter_map(value).collect(), rows.len())
+        };
         let mut cells = vec!["median".to_string()];
-        for i in 0..columns.len() {
-            cells.push(median_cell(
-                rows.iter().filter_map(|r| r.at[i]).collect(),
-                rows.len(),
-            ));
-        }
-        cells.push(median_cell(
-            rows.iter().filter_map(|r| r.last.map(|l| l.0)).collect(),
-            rows.len(),
-        ));
-        cells.push(median_cell(
-            rows.iter().filter_map(|r| r.best.map(|b| b.0)).collect(),
-            rows.len(),
-        ));
+        cells.extend((0..columns.len()).map(|i| median_of(&|r| r.at[i])));
+        cells.push(median_of(&|r| r.last.map(|l| l.0)));
+        cells.push(median_of(&|r| r.best.map(|b| b.0)));
         out += &line(cells);
     }
     if let Some(reference) = reference {
@@ -243,6 +237,9 @@ mod tests {
         // Two directories: two groups, each named, neither with a median row.
         assert_eq!(table.matches("**").count(), 4, "{table}");
         assert!(!table.contains("median"), "{table}");
+        // The n-th run of a seed in one place keeps its number.
+        assert_eq!(run_label(Path::new("x/mbpo-Hopper-v5-s3-2")), "seed 3-2");
+        assert_eq!(run_label(Path::new("x/my-run")), "my-run");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
