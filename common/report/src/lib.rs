@@ -15,7 +15,7 @@
 mod paper_curve;
 mod table;
 
-pub use paper_curve::{mbpo_paper_curve, PaperCurve};
+pub use paper_curve::{mbpo_paper_curve, PaperCurve, PaperPoint};
 pub use table::learning_table;
 
 use plotters::prelude::*;
@@ -368,25 +368,25 @@ impl Ranged for TickedAxis {
     }
 }
 
-/// The part of `reference` over the env steps `x0..=x1`, ends interpolated (empty where the
-/// curve has no points in that range).
-fn reference_within(reference: &PaperCurve, x0: f64, x1: f64) -> Vec<(f64, f64)> {
-    let end = |x: f64| reference.at(x as u64).map(|y| (x, y));
+/// The part of `reference` over the env steps `x0..=x1` as (env steps, mean, std), ends
+/// interpolated (empty where the curve has no points in that range).
+fn reference_within(reference: &PaperCurve, x0: f64, x1: f64) -> Vec<(f64, f64, f64)> {
+    let end = |x: f64| reference.at(x as u64).map(|p| (x, p.mean, p.std));
     end(x0)
         .into_iter()
         .chain(
             reference
                 .points
                 .iter()
-                .map(|&(s, y)| (s as f64, y))
-                .filter(|&(s, _)| x0 < s && s < x1),
+                .map(|p| (p.env_steps as f64, p.mean, p.std))
+                .filter(|&(s, _, _)| x0 < s && s < x1),
         )
         .chain(end(x1))
         .collect()
 }
 
 /// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot. A
-/// `reference` curve is drawn dashed over the env steps the runs cover.
+/// `reference` curve is drawn dashed, in a grey ± std band, over the env steps the runs cover.
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     curves: &[GroupCurve],
@@ -432,8 +432,11 @@ fn draw_panel(
         }
     }
     let reference_points = reference.map(|r| reference_within(r, x0, x1));
-    for &(_, y) in reference_points.iter().flatten() {
-        (y0, y1) = (y0.min(tf(y)), y1.max(tf(y)));
+    // The reference's ± std band where the scale can show it (a log scale shows the mean only).
+    let spread = |std: f64| if log { 0.0 } else { std };
+    for &(_, mean, std) in reference_points.iter().flatten() {
+        let s = spread(std);
+        (y0, y1) = (y0.min(tf(mean - s)), y1.max(tf(mean + s)));
     }
     let pad = ((y1 - y0) * 0.05).max(if log { 0.05 } else { 1e-6 });
     let y_desc = if log {
@@ -494,16 +497,32 @@ fn draw_panel(
     }
     if let (Some(reference), Some(points)) = (reference, reference_points) {
         let style = BLACK.stroke_width(2);
+        let band: Vec<(f64, f64)> = points
+            .iter()
+            .map(|&(x, mean, std)| (x, tf(mean + spread(std))))
+            .chain(
+                points
+                    .iter()
+                    .rev()
+                    .map(|&(x, mean, std)| (x, tf(mean - spread(std)))),
+            )
+            .collect();
+        chart
+            .draw_series(std::iter::once(Polygon::new(
+                band,
+                BLACK.mix(0.07).filled(),
+            )))
+            .map_err(e)?;
         let line = chart
             .draw_series(DashedLineSeries::new(
-                points.into_iter().map(|(x, y)| (x, tf(y))),
+                points.into_iter().map(|(x, mean, _)| (x, tf(mean))),
                 8,
                 6,
                 style,
             ))
             .map_err(e)?;
         if legend_inside {
-            line.label(reference.label)
+            line.label(reference.label.as_str())
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
         }
     }
@@ -709,24 +728,20 @@ mod tests {
 
     #[test]
     fn the_reference_is_drawn_over_the_runs_steps_with_interpolated_ends() {
-        const POINTS: &[(u64, f64)] = &[(0, 0.0), (2000, 200.0), (3000, 100.0), (10_000, 800.0)];
-        let r = PaperCurve {
-            label: "paper",
-            points: POINTS,
-        };
+        let r = paper_curve::test_curve(&[(0, 0.0), (2000, 200.0), (3000, 100.0), (10_000, 800.0)]);
         assert_eq!(
             reference_within(&r, 1000.0, 4000.0),
             vec![
-                (1000.0, 100.0),
-                (2000.0, 200.0),
-                (3000.0, 100.0),
-                (4000.0, 200.0)
+                (1000.0, 100.0, 10.0),
+                (2000.0, 200.0, 20.0),
+                (3000.0, 100.0, 10.0),
+                (4000.0, 200.0, 20.0)
             ]
         );
         // Runs beyond the curve: it ends where its points do.
         assert_eq!(
             reference_within(&r, 3000.0, 20_000.0),
-            vec![(3000.0, 100.0), (10_000.0, 800.0)]
+            vec![(3000.0, 100.0, 10.0), (10_000.0, 800.0, 80.0)]
         );
         let dir = std::env::temp_dir().join(format!("mbpo-plot-ref-{}", std::process::id()));
         let runs = vec![write_run(&dir, "mbpo-Hopper-v5-s0", &[100.0, 900.0, 400.0])];

@@ -1,140 +1,109 @@
 //! The MBPO paper's own learning curves, to put next to ours at the same env steps.
 //!
-//! The authors shared their TensorFlow runs' curves (mean over seeds) as pickles behind a Drive
-//! link that is not reachable from here; Xingyu-Lin/mbpo_pytorch plots them as
-//! `results/hopper.png` and `results/walker2d.png` (`make_plot.py`: `data['y']`, the line in
-//! colour #1f77b4). The points below were read off those PNGs: at each env step, the mean row of
-//! the line's pixels in the columns around it, mapped through the axes' gridlines. One pixel is
-//! about 16 (Hopper) and 17 (Walker2d) in return, so read them as ±25. The authors ran the v2
-//! tasks on MuJoCo 1.5; ours are v5 on MuJoCo 3, whose simulator and task details differ, so
-//! the comparison is of shape and level, not to the unit. HalfCheetah and Ant have no such
-//! plot; they have no curve here.
+//! The authors shared their TensorFlow runs' curves of the paper's Figure 2 (mean and standard
+//! deviation over seeds, one deterministic evaluation episode per 1000-step epoch) as pickles;
+//! `deploy/paper_curves.py` turns them into `data/mbpo-authors-curves.csv`, embedded here, and
+//! says where the pickles are. The authors ran the v2 tasks on MuJoCo 1.5 (Ant as
+//! AntTruncatedObs-v2, without contact forces, like our Ant-v5 config); ours are v5 on
+//! MuJoCo 3, whose simulator and task details differ, so the comparison is of shape and level,
+//! not to the unit.
+
+/// The authors' curves: `task,source,env_steps,mean,std` after `#` comment lines.
+const AUTHORS_CURVES: &str = include_str!("../data/mbpo-authors-curves.csv");
+
+/// One point of a reference curve.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PaperPoint {
+    /// Real env steps.
+    pub env_steps: u64,
+    /// Mean eval return over the authors' seeds.
+    pub mean: f64,
+    /// Standard deviation over the authors' seeds.
+    pub std: f64,
+}
 
 /// A reference learning curve: eval return at env steps.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct PaperCurve {
     /// What the curve is, for legends and tables.
-    pub label: &'static str,
-    /// (env steps, eval return), sorted by env steps.
-    pub points: &'static [(u64, f64)],
+    pub label: String,
+    /// The points, sorted by env steps.
+    pub points: Vec<PaperPoint>,
 }
 
 impl PaperCurve {
-    /// The curve's return at `env_steps`, linearly interpolated between the read-off points;
-    /// `None` outside them (the curve says nothing there).
-    pub fn at(&self, env_steps: u64) -> Option<f64> {
-        let after = self.points.partition_point(|(s, _)| *s < env_steps);
-        let &(s1, r1) = self.points.get(after)?;
-        if s1 == env_steps {
-            return Some(r1);
+    /// The curve at `env_steps`, mean and std linearly interpolated between its points; `None`
+    /// outside them (the curve says nothing there).
+    pub fn at(&self, env_steps: u64) -> Option<PaperPoint> {
+        let after = self.points.partition_point(|p| p.env_steps < env_steps);
+        let p1 = *self.points.get(after)?;
+        if p1.env_steps == env_steps {
+            return Some(p1);
         }
-        let &(s0, r0) = self.points.get(after.checked_sub(1)?)?;
-        let t = (env_steps - s0) as f64 / (s1 - s0) as f64;
-        Some(r0 + t * (r1 - r0))
+        let p0 = *self.points.get(after.checked_sub(1)?)?;
+        let t = (env_steps - p0.env_steps) as f64 / (p1.env_steps - p0.env_steps) as f64;
+        Some(PaperPoint {
+            env_steps,
+            mean: p0.mean + t * (p1.mean - p0.mean),
+            std: p0.std + t * (p1.std - p0.std),
+        })
     }
 }
 
-/// Hopper-v2, the authors' TF runs, every 5000 env steps from 10k (the line starts at 5.5k).
-const HOPPER: &[(u64, f64)] = &[
-    (10_000, 356.0),
-    (15_000, 482.0),
-    (20_000, 552.0),
-    (25_000, 608.0),
-    (30_000, 713.0),
-    (35_000, 785.0),
-    (40_000, 921.0),
-    (45_000, 1301.0),
-    (50_000, 1753.0),
-    (55_000, 2242.0),
-    (60_000, 2666.0),
-    (65_000, 2942.0),
-    (70_000, 3102.0),
-    (75_000, 3052.0),
-    (80_000, 3131.0),
-    (85_000, 3259.0),
-    (90_000, 3215.0),
-    (95_000, 3223.0),
-    (100_000, 3331.0),
-    (105_000, 3359.0),
-    (110_000, 3339.0),
-    (115_000, 3409.0),
-    (120_000, 3371.0),
-];
-
-/// Walker2d-v2, the authors' TF runs, every 5000 env steps (15k is hidden under the PyTorch
-/// port's line in the plot).
-const WALKER2D: &[(u64, f64)] = &[
-    (5_000, 103.0),
-    (10_000, 247.0),
-    (20_000, 416.0),
-    (25_000, 445.0),
-    (30_000, 472.0),
-    (35_000, 559.0),
-    (40_000, 626.0),
-    (45_000, 729.0),
-    (50_000, 862.0),
-    (55_000, 1112.0),
-    (60_000, 1572.0),
-    (65_000, 1926.0),
-    (70_000, 2023.0),
-    (75_000, 1952.0),
-    (80_000, 2349.0),
-    (85_000, 2943.0),
-    (90_000, 3162.0),
-    (95_000, 3298.0),
-    (100_000, 3493.0),
-    (105_000, 3668.0),
-    (110_000, 3575.0),
-    (115_000, 3476.0),
-    (120_000, 3572.0),
-    (125_000, 3550.0),
-    (130_000, 3278.0),
-    (135_000, 2978.0),
-    (140_000, 3313.0),
-    (145_000, 3949.0),
-    (150_000, 4052.0),
-    (155_000, 3786.0),
-    (160_000, 3939.0),
-    (165_000, 4052.0),
-    (170_000, 3694.0),
-    (175_000, 3606.0),
-    (180_000, 4026.0),
-    (185_000, 4255.0),
-    (190_000, 4186.0),
-    (195_000, 3961.0),
-    (200_000, 4102.0),
-    (205_000, 4122.0),
-    (210_000, 3956.0),
-    (215_000, 4178.0),
-    (220_000, 4364.0),
-    (225_000, 4249.0),
-    (230_000, 4239.0),
-    (235_000, 4524.0),
-    (240_000, 4655.0),
-    (245_000, 4600.0),
-    (250_000, 4501.0),
-    (255_000, 4498.0),
-    (260_000, 4230.0),
-    (265_000, 4211.0),
-    (270_000, 4507.0),
-    (275_000, 4857.0),
-    (280_000, 4789.0),
-    (285_000, 4712.0),
-    (290_000, 4702.0),
-    (295_000, 4798.0),
-    (300_000, 4908.0),
-];
+/// The rows of `csv` for `task`: (source task name, point). A malformed row names its line.
+fn parse_task(csv: &str, task: &str) -> Result<(String, Vec<PaperPoint>), String> {
+    let mut source = String::new();
+    let mut points = Vec::new();
+    let rows = csv.lines().enumerate().filter(|(_, l)| !l.starts_with('#'));
+    for (i, line) in rows.skip(1) {
+        let bad = || format!("mbpo-authors-curves.csv line {}: {line:?}", i + 1);
+        let fields: Vec<&str> = line.split(',').collect();
+        let [name, src, steps, mean, std] = fields[..] else {
+            return Err(bad() + ": expected task,source,env_steps,mean,std");
+        };
+        if name != task {
+            continue;
+        }
+        source = src.to_string();
+        points.push(PaperPoint {
+            env_steps: steps.parse().map_err(|_| bad())?,
+            mean: mean.parse().map_err(|_| bad())?,
+            std: std.parse().map_err(|_| bad())?,
+        });
+    }
+    if !points.windows(2).all(|w| w[0].env_steps < w[1].env_steps) {
+        return Err(format!("{task}: env steps not increasing"));
+    }
+    Ok((source, points))
+}
 
 /// The paper's MBPO curve for `env` (a task id such as `Hopper-v5`, or with a prefix such as
-/// Gymnasium's `gym:Hopper-v5`), if the authors' data was plotted for it.
+/// Gymnasium's `gym:Hopper-v5`), if the authors' data has that task.
 pub fn mbpo_paper_curve(env: &str) -> Option<PaperCurve> {
     let task = env.rsplit_once(':').map_or(env, |(_, task)| task);
-    let (label, points) = match task.split_once("-v").map(|(name, _)| name)? {
-        "Hopper" => ("MBPO paper, Hopper-v2 (authors' runs, mean)", HOPPER),
-        "Walker2d" => ("MBPO paper, Walker2d-v2 (authors' runs, mean)", WALKER2D),
-        _ => return None,
-    };
-    Some(PaperCurve { label, points })
+    let name = task.split_once("-v").map(|(name, _)| name)?;
+    let (source, points) = parse_task(AUTHORS_CURVES, name)
+        .unwrap_or_else(|e| panic!("the embedded curves are checked by the tests: {e}"));
+    (!points.is_empty()).then(|| PaperCurve {
+        label: format!("MBPO paper, {source} (authors' runs, mean ± std)"),
+        points,
+    })
+}
+
+/// A curve of `(env steps, mean)` points with a std of a tenth of the mean, for tests.
+#[cfg(test)]
+pub(crate) fn test_curve(points: &[(u64, f64)]) -> PaperCurve {
+    PaperCurve {
+        label: "paper".into(),
+        points: points
+            .iter()
+            .map(|&(env_steps, mean)| PaperPoint {
+                env_steps,
+                mean,
+                std: mean / 10.0,
+            })
+            .collect(),
+    }
 }
 
 #[cfg(test)]
@@ -142,25 +111,60 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_curve_is_read_at_its_points_and_between_them_only() {
-        let hopper = mbpo_paper_curve("Hopper-v5").unwrap();
-        assert_eq!(hopper.at(50_000), Some(1753.0));
-        assert_eq!(hopper.at(52_500), Some((1753.0 + 2242.0) / 2.0));
-        assert_eq!(hopper.at(9_999), None);
-        assert_eq!(hopper.at(120_001), None);
-        assert_eq!(hopper.at(120_000), Some(3371.0));
-        // Walker2d has no point at 15k: halfway between 10k and 20k.
-        let walker = mbpo_paper_curve("gym:Walker2d-v5").unwrap();
-        assert_eq!(walker.at(15_000), Some((247.0 + 416.0) / 2.0));
+    fn the_authors_data_gives_the_four_tasks_at_the_papers_values() {
+        // Mean and std at 50k and 100k, as the pickles give them (read with numpy, interpolated).
+        let cases = [
+            ("Hopper-v5", "Hopper-v2", 1699.9, 799.1, 3315.1),
+            ("gym:Walker2d-v5", "Walker2d-v2", 835.7, 475.6, 3475.5),
+            ("HalfCheetah-v5", "HalfCheetah-v2", 7948.2, 590.8, 9563.2),
+            ("Ant-v5", "AntTruncatedObs-v2", 781.8, 229.2, 1455.8),
+        ];
+        for (env, source, mean_50k, std_50k, mean_100k) in cases {
+            let curve = mbpo_paper_curve(env).unwrap();
+            assert!(curve.label.contains(source), "{}", curve.label);
+            let at = curve.at(50_000).unwrap();
+            assert!((at.mean - mean_50k).abs() < 0.2, "{env}: {at:?}");
+            assert!((at.std - std_50k).abs() < 0.2, "{env}: {at:?}");
+            assert!(
+                (curve.at(100_000).unwrap().mean - mean_100k).abs() < 0.2,
+                "{env}"
+            );
+        }
     }
 
     #[test]
-    fn only_the_plotted_tasks_have_a_curve() {
-        for env in ["HalfCheetah-v5", "Ant-v5", "Pendulum-v1", "Hopper"] {
+    fn the_curve_is_read_at_its_points_and_between_them_only() {
+        let hopper = mbpo_paper_curve("Hopper-v5").unwrap();
+        let (first, last) = (hopper.points[0], *hopper.points.last().unwrap());
+        assert_eq!((first.env_steps, last.env_steps), (6019, 125_019));
+        assert_eq!(hopper.at(6019), Some(first));
+        assert_eq!(hopper.at(6018), None);
+        assert_eq!(hopper.at(125_020), None);
+        // Halfway between 49,019 (1590.6 ± 786.2) and 50,019 (1702.0 ± 799.4).
+        let mid = hopper.at(49_519).unwrap();
+        assert!((mid.mean - (1590.6 + 1702.0) / 2.0).abs() < 1e-9, "{mid:?}");
+        assert!((mid.std - (786.2 + 799.4) / 2.0).abs() < 1e-9, "{mid:?}");
+    }
+
+    #[test]
+    fn tasks_without_data_have_no_curve_and_bad_rows_are_named() {
+        for env in [
+            "Pendulum-v1",
+            "InvertedPendulum-v5",
+            "Humanoid-v5",
+            "Hopper",
+        ] {
             assert_eq!(mbpo_paper_curve(env), None, "{env}");
         }
-        for points in [HOPPER, WALKER2D] {
-            assert!(points.windows(2).all(|w| w[0].0 < w[1].0));
-        }
+        let csv = "# c\ntask,source,env_steps,mean,std\nHopper,H,1000,1.0\n";
+        let err = parse_task(csv, "Hopper").unwrap_err();
+        assert!(
+            err.contains("line 3") && err.contains("expected task,source"),
+            "{err}"
+        );
+        let csv = "task,source,env_steps,mean,std\nHopper,H,2000,1,0\nHopper,H,1000,1,0\n";
+        assert!(parse_task(csv, "Hopper")
+            .unwrap_err()
+            .contains("not increasing"));
     }
 }

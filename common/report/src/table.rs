@@ -130,7 +130,7 @@ fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) ->
         cells.extend(columns.iter().map(|&c| {
             reference
                 .at(c)
-                .map_or(String::new(), |v| format!("≈{v:.0}"))
+                .map_or(String::new(), |p| format!("{:.0} ± {:.0}", p.mean, p.std))
         }));
         cells.extend([String::new(), String::new()]);
         out += &line(cells);
@@ -199,11 +199,7 @@ mod tests {
             write_run(&dir, "mbpo-Hopper-v5-s1", &[100.0, 300.0, 200.0, 400.0]),
             write_run(&dir, "mbpo-Hopper-v5-s2", &[50.0, 60.0, 70.0]),
         ];
-        const POINTS: &[(u64, f64)] = &[(1000, 5.0), (3000, 25.0)];
-        let paper = PaperCurve {
-            label: "paper",
-            points: POINTS,
-        };
+        let paper = crate::paper_curve::test_curve(&[(1000, 5.0), (3000, 25.0)]);
         let table = learning_table(&runs, 2000, Some(&paper)).unwrap();
         let expected = "\
 | env steps | 2k | 4k | mean of last 10 | best |
@@ -212,7 +208,7 @@ mod tests {
 | seed 1 | 300 | 400 | 250 (1k-4k) | 400 (4k) |
 | seed 2 | 60 |  | 60 (1k-3k) | 70 (3k) |
 | median | 60 | 220 (2 of 3) | 60 | 70 |
-| paper | ≈15 |  |  |  |
+| paper | 15 ± 2 |  |  |  |
 
 ";
         assert_eq!(table, expected);
