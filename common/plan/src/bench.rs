@@ -126,7 +126,9 @@ pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanEr
             times.push(start.elapsed().as_secs_f64());
         }
     }
-    times.sort_by(f64::total_cmp);
+    // Sorts `times`, so `times[0]` is the best plan.
+    let median = mbpo_core::stats::median(&mut times)
+        .ok_or_else(|| PlanError::Dims("plan-latency: plans must be at least 1".into()))?;
     let p = &cfg.planner;
     let rows = p.candidates() * p.particles;
     let dims: Vec<usize> = std::iter::once(o + a)
@@ -156,7 +158,7 @@ pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanEr
         hidden: cfg.hidden.clone(),
         rows_per_model_step: rows,
         gflop_per_plan: (gflop * 1000.0).round() / 1000.0,
-        ms_per_plan_median: (times[times.len() / 2] * 1e5).round() / 100.0,
+        ms_per_plan_median: (median * 1e5).round() / 100.0,
         ms_per_plan_best: (best * 1e5).round() / 100.0,
         gflops: (gflop / best * 10.0).round() / 10.0,
         plans: cfg.plans,

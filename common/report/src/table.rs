@@ -4,6 +4,7 @@
 //! the group's runs and the paper's curve at the same env steps.
 
 use crate::{group_name, group_runs, read_curve, PaperCurve, PlotError};
+use mbpo_core::stats::median;
 use std::path::{Path, PathBuf};
 
 /// How many final evaluations the "mean of last" column averages.
@@ -15,17 +16,6 @@ fn steps_label(steps: u64) -> String {
         format!("{}k", steps / 1000)
     } else {
         steps.to_string()
-    }
-}
-
-/// The median; the mean of the two middle values for an even count.
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if !n.is_multiple_of(2) {
-        v[n / 2]
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) / 2.0
     }
 }
 
@@ -84,11 +74,12 @@ impl Row {
 }
 
 /// The median over `rows` of one column, with "(n of m)" when not every run has a value.
-fn median_cell(values: Vec<f64>, rows: usize) -> String {
-    match values.len() {
-        0 => String::new(),
-        n if n == rows => format!("{:.0}", median(values)),
-        n => format!("{:.0} ({n} of {rows})", median(values)),
+fn median_cell(mut values: Vec<f64>, rows: usize) -> String {
+    let n = values.len();
+    match median(&mut values) {
+        None => String::new(),
+        Some(m) if n == rows => format!("{m:.0}"),
+        Some(m) => format!("{m:.0} ({n} of {rows})"),
     }
 }
 

@@ -2,6 +2,7 @@
 
 use crate::{Sac, SacConfig};
 use mbpo_core::rng::{normal_f32, stream};
+use mbpo_core::stats::median;
 use mbpo_core::Batch;
 use serde::Serialize;
 use std::time::{Duration, Instant};
@@ -120,7 +121,7 @@ pub fn sac_update(
         cpu.push((process_cpu_seconds() - cpu_start) / n as f64);
         updates += n;
     }
-    let secs = median(&mut wall);
+    let secs = median(&mut wall).expect("at least one round");
     let flops = update_flops(&sac, batch) as f64;
     let roofline = mbpo_nn::bench::gemm_gflops(256, 256, 256, Duration::from_millis(500));
     let gflops = flops / secs / 1e9;
@@ -133,18 +134,13 @@ pub fn sac_update(
         threads: sac.threads(),
         updates,
         ms_per_update: secs * 1e3,
-        cpu_ms_per_update: median(&mut cpu) * 1e3,
+        cpu_ms_per_update: median(&mut cpu).expect("at least one round") * 1e3,
         gflop_per_update: flops / 1e9,
         gflop_executed: executed_flops(&sac, batch) as f64 / 1e9,
         gflops,
         roofline_gflops: roofline,
         fraction_of_roofline: gflops / (roofline * sac.threads() as f64),
     }
-}
-
-fn median(x: &mut [f64]) -> f64 {
-    x.sort_by(f64::total_cmp);
-    x[x.len() / 2]
 }
 
 /// CPU time of the whole process (every thread) in seconds.

@@ -332,14 +332,15 @@ impl BreakdownPoint {
     pub fn summary_line(&self) -> String {
         let m = &self.ms_per_step;
         format!(
-            "at {:>6}: {:7.1} ms/step = model training {:6.1} ({:4.1} epochs x {:.2} s, holdout \
-             {:4.1}) + rollouts {:5.1} (k = {}) + SAC {:5.1} ({:.2} ms/update) + acting {:4.2} + \
-             other {:4.2}",
+            "at {:>6}: {:7.1} ms/step = model training {:6.1} ({:4.1} epochs x {:.2} s, {:.2} \
+             ms/minibatch, holdout {:4.1}) + rollouts {:5.1} (k = {}) + SAC {:5.1} ({:.2} \
+             ms/update) + acting {:4.2} + other {:4.2}",
             self.at,
             m.total,
             m.model_training,
             m.epochs_per_training,
             m.seconds_per_epoch,
+            m.ms_per_model_step,
             m.model_holdout,
             m.rollouts,
             self.rollout_length,
@@ -601,6 +602,7 @@ mod tests {
             steps: 500,
             model_trainings: 2,
             model_epochs: 30,
+            model_gradient_steps: 2800,
             model_train_seconds: 15.0,
             model_holdout_seconds: 1.0,
             rollout_seconds: 2.0,
@@ -615,6 +617,8 @@ mod tests {
         assert_eq!(m.model_holdout, 2.0);
         assert_eq!(m.epochs_per_training, 15.0);
         assert_eq!(m.seconds_per_epoch, 0.5);
+        // 14 s of minibatches (15 less the holdout's 1) over 2800 Adam steps.
+        assert!((m.ms_per_model_step - 5.0).abs() < 1e-12);
         assert_eq!(m.rollouts, 4.0);
         assert_eq!(m.sac, 40.0);
         assert_eq!(m.ms_per_sac_update, 2.0);

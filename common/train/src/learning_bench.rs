@@ -15,6 +15,7 @@
 use crate::config::{Algo, ExperimentConfig};
 use crate::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
 use crate::sac_trainer::TrainError;
+use mbpo_core::stats::median;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -113,12 +114,6 @@ pub fn budget_points(
         .collect()
 }
 
-/// Median of a non-empty list (the lower middle for even lengths, as elsewhere in this file).
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[(v.len() - 1) / 2]
-}
-
 /// Summaries over seeds, one per budget.
 pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSummary> {
     budgets
@@ -131,16 +126,16 @@ pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSum
                 .filter(|p| p.eval_return.is_some())
                 .collect();
             let returns: Vec<f64> = points.iter().filter_map(|p| p.eval_return).collect();
-            let walls: Vec<f64> = points.iter().filter_map(|p| p.wall_seconds).collect();
-            let recent: Vec<f64> = points.iter().filter_map(|p| p.recent_mean_return).collect();
+            let mut walls: Vec<f64> = points.iter().filter_map(|p| p.wall_seconds).collect();
+            let mut recent: Vec<f64> = points.iter().filter_map(|p| p.recent_mean_return).collect();
             BudgetSummary {
                 env_steps: b,
                 seeds_reached: returns.len(),
-                median_eval_return: (!returns.is_empty()).then(|| median(returns.clone())),
+                median_eval_return: median(&mut returns.clone()),
                 mean_eval_return: (!returns.is_empty())
                     .then(|| returns.iter().sum::<f64>() / returns.len() as f64),
-                median_wall_seconds: (!walls.is_empty()).then(|| median(walls)),
-                median_recent_mean_return: (!recent.is_empty()).then(|| median(recent)),
+                median_wall_seconds: median(&mut walls),
+                median_recent_mean_return: median(&mut recent),
             }
         })
         .collect()
@@ -175,12 +170,16 @@ fn minus_200() -> Option<f64> {
     Some(-200.0)
 }
 
-/// Median of a sorted slice of options where `None` sorts last (+∞).
+/// Median env steps to a target over seeds, a seed that never reached it counting as +∞
+/// ([`median`]; `None` when the median is +∞, i.e. half the seeds or more never did).
 fn median_steps(values: &[Option<u64>]) -> Option<u64> {
-    let mut v: Vec<u64> = values.iter().map(|x| x.unwrap_or(u64::MAX)).collect();
-    v.sort_unstable();
-    let m = v[(v.len() - 1) / 2];
-    (m != u64::MAX).then_some(m)
+    let mut v: Vec<f64> = values
+        .iter()
+        .map(|x| x.map_or(f64::INFINITY, |s| s as f64))
+        .collect();
+    median(&mut v)
+        .filter(|m| m.is_finite())
+        .map(|m| m.round() as u64)
 }
 
 /// The entries of a results file (none if it does not exist yet).
@@ -286,11 +285,10 @@ pub fn learning_benchmark_at(
         .collect::<Result<Vec<_>, _>>()?;
     per_seed.sort_by_key(|r| r.seed);
     let mut finals: Vec<f64> = per_seed.iter().map(|r| r.final_return).collect();
-    finals.sort_by(f64::total_cmp);
     let entry = AlgoResult {
         config: config_name.to_string(),
         steps: cfg.steps,
-        median_final_return: finals[(finals.len() - 1) / 2],
+        median_final_return: median(&mut finals).expect("a benchmark runs at least one seed"),
         target_return: target,
         median_env_steps_to_target: median_steps(
             &per_seed

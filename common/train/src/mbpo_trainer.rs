@@ -448,9 +448,7 @@ pub fn train_mbpo_with(
         }
     }
     progress.finish();
-    let mut sorted = mbpo.book.step_seconds.clone();
-    sorted.sort_by(f64::total_cmp);
-    let median = sorted.get(sorted.len() / 2).copied();
+    let median = mbpo_core::stats::median(&mut mbpo.book.step_seconds.clone());
     let target = cfg.target_return();
     let target = (target, run.env_steps_to_target(target)?);
     let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median, target);

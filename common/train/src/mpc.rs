@@ -598,8 +598,6 @@ pub fn train_mpc_with(
         }
     }
     progress.finish();
-    let mut sorted = book.step_seconds.clone();
-    sorted.sort_by(f64::total_cmp);
     let target_return = cfg.target_return();
     let summary = Summary {
         algo: "mpc".into(),
@@ -613,7 +611,7 @@ pub fn train_mpc_with(
         env_steps_to_target: run.env_steps_to_target(target_return)?,
         policy_sha256: policy_sha256(&mpc.model_params),
         wall_seconds: started.elapsed().as_secs_f64(),
-        median_seconds_per_env_step: sorted.get(sorted.len() / 2).copied(),
+        median_seconds_per_env_step: mbpo_core::stats::median(&mut book.step_seconds.clone()),
         status: status.into(),
         episodes_cut_by_resume: mpc.actor.env_actor().episodes_cut,
         episodes_lost_to_env_exit: mpc.actor.env_actor().episodes_lost,

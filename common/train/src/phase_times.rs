@@ -17,6 +17,8 @@ pub struct PhaseTimes {
     pub model_trainings: u64,
     /// Training epochs over all model trainings.
     pub model_epochs: u64,
+    /// Adam steps (one minibatch per member each) over all model trainings.
+    pub model_gradient_steps: u64,
     /// Seconds of whole model trainings (epochs, holdout, split, termination rule).
     pub model_train_seconds: f64,
     /// Of those, seconds computing the holdout MSE after each epoch.
@@ -44,6 +46,10 @@ pub struct MsPerStep {
     pub epochs_per_training: f64,
     /// Seconds per model-training epoch.
     pub seconds_per_epoch: f64,
+    /// Milliseconds per model Adam step: a training's seconds without its holdout passes, per
+    /// minibatch. An epoch's cost grows with D_env; this one should not, so it is the figure
+    /// that shows the kernels' speed across a run.
+    pub ms_per_model_step: f64,
     /// Model rollouts.
     pub rollouts: f64,
     /// SAC updates.
@@ -63,6 +69,7 @@ impl PhaseTimes {
     pub fn add_training(&mut self, report: &TrainReport) {
         self.model_trainings += 1;
         self.model_epochs += report.epochs as u64;
+        self.model_gradient_steps += report.gradient_steps as u64;
         self.model_train_seconds += report.seconds;
         self.model_holdout_seconds += report.holdout_seconds;
     }
@@ -73,6 +80,7 @@ impl PhaseTimes {
             steps: self.steps - earlier.steps,
             model_trainings: self.model_trainings - earlier.model_trainings,
             model_epochs: self.model_epochs - earlier.model_epochs,
+            model_gradient_steps: self.model_gradient_steps - earlier.model_gradient_steps,
             model_train_seconds: self.model_train_seconds - earlier.model_train_seconds,
             model_holdout_seconds: self.model_holdout_seconds - earlier.model_holdout_seconds,
             rollout_seconds: self.rollout_seconds - earlier.rollout_seconds,
@@ -98,6 +106,11 @@ impl PhaseTimes {
             model_holdout: per_step(self.model_holdout_seconds),
             epochs_per_training: ratio(self.model_epochs as f64, self.model_trainings),
             seconds_per_epoch: ratio(self.model_train_seconds, self.model_epochs),
+            ms_per_model_step: 1e3
+                * ratio(
+                    self.model_train_seconds - self.model_holdout_seconds,
+                    self.model_gradient_steps,
+                ),
             rollouts: per_step(self.rollout_seconds),
             sac: per_step(self.sac_seconds),
             ms_per_sac_update: 1e3 * ratio(self.sac_seconds, self.sac_updates),
@@ -124,13 +137,14 @@ impl PhaseTimes {
         let m = self.ms_per_step(self.total_seconds());
         format!(
             "ms per env step over {} steps: model training {:.1} ({} trainings, {} epochs, \
-             {:.0} ms/epoch, holdout {:.1}), rollouts {:.1} ({} imagined), SAC {:.1} ({} updates, \
-             {:.2} ms each), acting {:.2}; total {:.1}",
+             {:.0} ms/epoch, {:.2} ms/minibatch, holdout {:.1}), rollouts {:.1} ({} imagined), \
+             SAC {:.1} ({} updates, {:.2} ms each), acting {:.2}; total {:.1}",
             self.steps,
             m.model_training,
             self.model_trainings,
             self.model_epochs,
             1e3 * m.seconds_per_epoch,
+            m.ms_per_model_step,
             m.model_holdout,
             m.rollouts,
             self.imagined,
@@ -172,5 +186,35 @@ mod tests {
                 "{other}"
             );
         }
+    }
+
+    #[test]
+    fn a_minibatch_costs_the_training_time_without_the_holdout_per_adam_step() {
+        let run = |epochs, steps, train: f64, holdout: f64| PhaseTimes {
+            steps: 1000,
+            model_trainings: 4,
+            model_epochs: epochs,
+            model_gradient_steps: steps,
+            model_train_seconds: train,
+            model_holdout_seconds: holdout,
+            ..Default::default()
+        };
+        // The same 2000 minibatches at 7 ms each, once in 10 epochs of a large D_env and once in
+        // 80 epochs of a small one: the epoch costs differ eightfold, the minibatch does not.
+        let large = run(10, 2000, 14.5, 0.5).ms_per_step(20.0);
+        let small = run(80, 2000, 15.0, 1.0).ms_per_step(20.0);
+        assert!((large.ms_per_model_step - 7.0).abs() < 1e-9);
+        assert!((small.ms_per_model_step - 7.0).abs() < 1e-9);
+        assert!((large.seconds_per_epoch - 1.45).abs() < 1e-9);
+        assert!((small.seconds_per_epoch - 0.1875).abs() < 1e-9);
+        let line = run(10, 2000, 14.5, 0.5).per_step_line();
+        assert!(
+            line.contains(
+                "(4 trainings, 10 epochs, 1450 ms/epoch, 7.00 ms/minibatch, holdout 0.5)"
+            ),
+            "{line}"
+        );
+        // No training in a window: no division by zero.
+        assert_eq!(run(0, 0, 0.0, 0.0).ms_per_step(1.0).ms_per_model_step, 0.0);
     }
 }

@@ -1,5 +1,6 @@
 //! Command-line definitions (clap derive).
 
+use clap::builder::TypedValueParser as _;
 use clap::{Args, Parser, Subcommand};
 
 /// MBPO (model-based policy optimization) as a pipelined multi-process system.
@@ -222,8 +223,8 @@ pub struct PlanLatencyArgs {
     /// Plan with the model's reward head instead of the known reward.
     #[arg(long)]
     pub model_reward: bool,
-    /// Timed plans (after two warm-up plans).
-    #[arg(long, default_value_t = 10)]
+    /// Timed plans (after two warm-up plans), at least 1.
+    #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..).map(|n| n as usize))]
     pub plans: usize,
 }
 
@@ -303,8 +304,8 @@ pub struct LearningArgs {
     /// Override one key of the config (see `mbpo config show --help`).
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub overrides: Vec<String>,
-    /// Number of seeds (0..N).
-    #[arg(long, default_value_t = 5)]
+    /// Number of seeds (0..N), at least 1.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u64).range(1..))]
     pub seeds: u64,
     /// Total real env steps per run (overrides the config).
     #[arg(long)]

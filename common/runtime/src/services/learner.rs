@@ -218,11 +218,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
         }
         waiter.wait(Duration::from_secs(1))?;
     }
-    step_seconds.sort_by(f64::total_cmp);
-    let median = step_seconds
-        .get(step_seconds.len() / 2)
-        .copied()
-        .unwrap_or(0.0);
+    let median = mbpo_core::stats::median(&mut step_seconds).unwrap_or(0.0);
     let (lo, hi, mean) = owed.get();
     let lost = real.stats().missing;
     let done = Done {

@@ -196,8 +196,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
             })?;
         }
     }
-    plan_seconds.sort_by(f64::total_cmp);
-    let median = plan_seconds.get(plan_seconds.len() / 2).copied();
+    let median = mbpo_core::stats::median(&mut plan_seconds);
     let (lo, hi, mean) = lag.get();
     let done = Done {
         real: steps,
