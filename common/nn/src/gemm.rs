@@ -4,9 +4,17 @@
 //! weight matrix is `in x out`, so a dense layer is `Y = X W + b`. faer views a row-major slice
 //! as the transpose of a column-major one at no cost, so transposed operands (`X^T dY`,
 //! `dY W^T`) are free views, never copies.
+//!
+//! Products whose output width is not a multiple of 16 (the dynamics model's 200-wide layers)
+//! run, on AVX-512 CPUs, through [`ragged`], a kernel that gives faer's results bit for bit
+//! without faer's slow 8-row tail; the environment variable `MBPO_GEMM_FAER=1` sends them back to
+//! faer, for measuring one against the other.
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
+
+#[cfg(target_arch = "x86_64")]
+mod ragged;
 
 /// Whether an operand is used as stored or transposed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -40,6 +48,10 @@ pub fn gemm(
         // update; this loop is a fraction of that. Each element is one product, as in faer.
         return outer(&mut c[..m * n], &a[..m], &b[..n], accumulate);
     }
+    #[cfg(target_arch = "x86_64")]
+    if !accumulate && n >= 96 && !n.is_multiple_of(16) && use_ragged() {
+        return ragged_width(c, a, op_a, b, op_b, m, k, n);
+    }
     let c = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
     let a = match op_a {
         Op::N => MatRef::from_row_major_slice(&a[..m * k], m, k),
@@ -55,6 +67,79 @@ pub fn gemm(
         Accum::Replace
     };
     matmul(c, accum, a, b, 1.0f32, Par::Seq);
+}
+
+/// [`gemm`] for an output width that is not a multiple of 16 (see [`ragged`]). With `B` used
+/// transposed, its columns are strided, so faer computes the first `16·⌊n/16⌋` columns (whole
+/// 96-row kernels of its own) and only the last few go through [`ragged`], from a packed copy
+/// of their `k x (n mod 16)` slice of `B`. Bit-identical to faer either way.
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+fn ragged_width(
+    c: &mut [f32],
+    a: &[f32],
+    op_a: Op,
+    b: &[f32],
+    op_b: Op,
+    m: usize,
+    k: usize,
+    n: usize,
+) {
+    let (rs_a, cs_a) = match op_a {
+        Op::N => (k, 1),
+        Op::T => (1, m),
+    };
+    let a = &a[..m * k];
+    if op_b == Op::N {
+        // SAFETY: `use_ragged` checked the CPU for AVX-512F.
+        return unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) };
+    }
+    let whole = n - n % 16;
+    let stored = MatRef::from_row_major_slice(&b[..k * n], n, k);
+    let (b_whole, b_rest) = (
+        stored.subrows(0, whole).transpose(),
+        stored.subrows(whole, n - whole),
+    );
+    let a_view = match op_a {
+        Op::N => MatRef::from_row_major_slice(a, m, k),
+        Op::T => MatRef::from_row_major_slice(a, k, m).transpose(),
+    };
+    let c_all = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
+    let (c_whole, _) = c_all.split_at_col_mut(whole);
+    matmul(c_whole, Accum::Replace, a_view, b_whole, 1.0f32, Par::Seq);
+    let rest = n - whole;
+    PACKED.with_borrow_mut(|packed| {
+        packed.clear();
+        packed.extend((0..k).flat_map(|p| (0..rest).map(move |j| b_rest[(j, p)])));
+        // SAFETY: as above; the last `rest` columns of C are rows `n` apart from column `whole`.
+        unsafe {
+            ragged::gemm(
+                &mut c[whole..m * n],
+                n,
+                a,
+                rs_a,
+                cs_a,
+                packed,
+                rest,
+                m,
+                k,
+                rest,
+            )
+        };
+    });
+}
+
+#[cfg(target_arch = "x86_64")]
+thread_local! {
+    /// The `k x (n mod 16)` slice of a transposed `B` that [`ragged_width`] packs (allocated
+    /// once per thread and shape).
+    static PACKED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+#[cfg(target_arch = "x86_64")]
+fn use_ragged() -> bool {
+    static USE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *USE.get_or_init(|| ragged::available() && std::env::var_os("MBPO_GEMM_FAER").is_none())
 }
 
 /// `C = a bᵀ` (or `C += a bᵀ`) for vectors a (m) and b (n): both layouts of a `m x 1` or
@@ -102,6 +187,39 @@ mod tests {
     fn all_transpose_combinations_match_naive_product() {
         for (m, k, n) in [(5, 7, 3), (6, 1, 4)] {
             check_shape(m, k, n);
+        }
+    }
+
+    /// Widths that are not a multiple of 16 take [`ragged`] (on AVX-512 CPUs) for every
+    /// orientation; the products must be faer's, bit for bit, so that no result depends on
+    /// the CPU the run happens to be on.
+    #[test]
+    fn ragged_widths_give_faers_bits_in_every_orientation() {
+        for (m, k, n) in [(128, 200, 200), (37, 50, 104), (256, 14, 200), (9, 300, 99)] {
+            let a: Vec<f32> = (0..m * k).map(|i| (i as f32 * 0.37).sin()).collect();
+            let b: Vec<f32> = (0..k * n).map(|i| (i as f32 * 0.11).cos()).collect();
+            for op_a in [Op::N, Op::T] {
+                for op_b in [Op::N, Op::T] {
+                    let mut got = vec![f32::NAN; m * n];
+                    gemm(&mut got, &a, op_a, &b, op_b, m, k, n, false);
+                    let mut want = vec![0.0; m * n];
+                    let a_view = match op_a {
+                        Op::N => MatRef::from_row_major_slice(&a, m, k),
+                        Op::T => MatRef::from_row_major_slice(&a, k, m).transpose(),
+                    };
+                    let b_view = match op_b {
+                        Op::N => MatRef::from_row_major_slice(&b, k, n),
+                        Op::T => MatRef::from_row_major_slice(&b, n, k).transpose(),
+                    };
+                    let c = MatMut::from_row_major_slice_mut(&mut want, m, n);
+                    matmul(c, Accum::Replace, a_view, b_view, 1.0f32, Par::Seq);
+                    let same = got
+                        .iter()
+                        .zip(&want)
+                        .all(|(x, y)| x.to_bits() == y.to_bits());
+                    assert!(same, "{m}x{k}x{n} {op_a:?}{op_b:?}");
+                }
+            }
         }
     }
 

@@ -4,8 +4,9 @@
 //! numbers. Its parameters live in one contiguous `&[f32]` described by a [`ParamLayout`], which
 //! is exactly what crosses shared memory, what Adam updates, and what a checkpoint stores.
 //! Activations live in a cache ([`MlpCache`]) sized once for a batch, so forward and backward
-//! allocate nothing per call. Every GEMM is one call into faer ([`gemm`]), single-threaded; a
-//! caller that wants more cores splits its batch over a [`WorkerPool`].
+//! allocate nothing per call. Every GEMM is one call into faer ([`gemm`]; output widths that are not
+//! a multiple of 16 go through a kernel with faer's results), single-threaded; a caller that wants
+//! more cores splits its batch over a [`WorkerPool`].
 //!
 //! ```
 //! use mbpo_nn::{Activation, Init, Mlp, MlpCache};
