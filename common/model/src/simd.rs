@@ -505,15 +505,93 @@ mod tests {
         }
     }
 
+    /// Which compiled copy of the kernels a test calls.
+    #[derive(Debug, Clone, Copy)]
+    enum Copy {
+        Baseline,
+        #[cfg(target_arch = "x86_64")]
+        Avx2,
+    }
+
+    /// A hidden layer's bias + SiLU and its backward pass, then the Gaussian NLL pass, through
+    /// one compiled copy; every output they write.
+    fn hot_kernels(copy: Copy) -> Vec<Vec<f64>> {
+        let (rows, width, d) = (5, 200, 12);
+        let wave = |n: usize, f: f32, a: f32| -> Vec<f32> {
+            (0..n).map(|i| (i as f32 * f).sin() * a).collect()
+        };
+        let (mut z, bias) = (wave(rows * width, 0.77, 6.0), wave(width, 0.31, 0.5));
+        let (mut sig, mut g, mut db) = (
+            vec![0.0; rows * width],
+            wave(rows * width, 0.13, 1.0),
+            vec![0.0; width],
+        );
+        let (mut y, target, out_bias) = (
+            wave(rows * 2 * d, 0.53, 3.0),
+            wave(rows * d, 0.29, 2.0),
+            wave(2 * d, 0.41, 0.2),
+        );
+        let (max, min) = (vec![0.5; d], vec![-10.0; d]);
+        let (mut ndb, mut d_max, mut d_min, mut scratch) =
+            (vec![0.0; 2 * d], vec![0.0; d], vec![0.0; d], vec![0.0; d]);
+        let mut acc = NllAccumulators {
+            db: &mut ndb,
+            d_max: &mut d_max,
+            d_min: &mut d_min,
+            scratch: &mut scratch,
+        };
+        let bounds = LogvarBounds {
+            max: &max,
+            min: &min,
+        };
+        // SAFETY: the test calls a copy only on a CPU with its features.
+        let loss = unsafe {
+            match copy {
+                Copy::Baseline => {
+                    bias_silu(&mut z, Some(&mut sig), &bias);
+                    silu_backward_bias_grad(&mut g, &z, &sig, &mut db);
+                    gaussian_nll_rows(&mut y, &target, &out_bias, &bounds, 0.01, &mut acc)
+                }
+                #[cfg(target_arch = "x86_64")]
+                Copy::Avx2 => {
+                    avx2::bias_silu(&mut z, Some(&mut sig), &bias);
+                    avx2::silu_backward_bias_grad(&mut g, &z, &sig, &mut db);
+                    avx2::gaussian_nll_rows(&mut y, &target, &out_bias, &bounds, 0.01, &mut acc)
+                }
+            }
+        };
+        let wide = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
+        vec![
+            wide(&z),
+            wide(&sig),
+            wide(&g),
+            wide(&db),
+            wide(&y),
+            wide(&ndb),
+            wide(&d_max),
+            wide(&d_min),
+            vec![loss],
+        ]
+    }
+
+    /// Every compiled copy of the hot kernels (baseline and AVX2+FMA) gives the same
+    /// bits: what a run computes must not depend on the CPU it lands on.
     #[test]
-    fn dispatched_and_baseline_kernels_agree_bit_for_bit() {
-        let z0: Vec<f32> = (0..3 * 8).map(|i| (i as f32 * 0.77).sin() * 6.0).collect();
-        let bias: Vec<f32> = (0..8).map(|i| i as f32 * 0.1 - 0.3).collect();
-        let (mut z1, mut z2) = (z0.clone(), z0.clone());
-        let (mut s1, mut s2) = (vec![0.0; 24], vec![0.0; 24]);
-        bias_silu(&mut z1, Some(&mut s1), &bias);
-        dispatch!(bias_silu(&mut z2, Some(&mut s2), &bias));
-        assert_eq!(z1, z2);
-        assert_eq!(s1, s2);
+    fn every_compiled_copy_of_the_kernels_agrees_bit_for_bit() {
+        let bits = |outs: Vec<Vec<f64>>| -> Vec<Vec<u64>> {
+            outs.iter()
+                .map(|v| v.iter().map(|x| x.to_bits()).collect())
+                .collect()
+        };
+        let want = bits(hot_kernels(Copy::Baseline));
+        #[cfg(target_arch = "x86_64")]
+        {
+            if has_avx2() {
+                assert!(
+                    bits(hot_kernels(Copy::Avx2)) == want,
+                    "AVX2+FMA copy differs"
+                );
+            }
+        }
     }
 }
