@@ -50,64 +50,64 @@ pub fn gemm(
     }
     #[cfg(target_arch = "x86_64")]
     if !accumulate && n >= 96 && !n.is_multiple_of(16) && use_ragged() {
-        return ragged_width(c, a, op_a, b, op_b, m, k, n);
+        let (a, (rs_a, cs_a)) = (&a[..m * k], strides(op_a, m, k));
+        return match op_b {
+            // SAFETY: `use_ragged` checked the CPU for AVX-512F.
+            Op::N => unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) },
+            Op::T => ragged_tail(c, operand(a, op_a, m, k), a, (rs_a, cs_a), b, m, k, n),
+        };
     }
     let c = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
-    let a = match op_a {
-        Op::N => MatRef::from_row_major_slice(&a[..m * k], m, k),
-        Op::T => MatRef::from_row_major_slice(&a[..m * k], k, m).transpose(),
-    };
-    let b = match op_b {
-        Op::N => MatRef::from_row_major_slice(&b[..k * n], k, n),
-        Op::T => MatRef::from_row_major_slice(&b[..k * n], n, k).transpose(),
-    };
     let accum = if accumulate {
         Accum::Add
     } else {
         Accum::Replace
     };
+    let (a, b) = (operand(a, op_a, m, k), operand(b, op_b, k, n));
     matmul(c, accum, a, b, 1.0f32, Par::Seq);
 }
 
-/// [`gemm`] for an output width that is not a multiple of 16 (see [`ragged`]). With `B` used
-/// transposed, its columns are strided, so faer computes the first `16·⌊n/16⌋` columns (whole
-/// 96-row kernels of its own) and only the last few go through [`ragged`], from a packed copy
-/// of their `k x (n mod 16)` slice of `B`. Bit-identical to faer either way.
+/// The stored row-major matrix `x` as the `rows x cols` operand `op` makes of it.
+fn operand(x: &[f32], op: Op, rows: usize, cols: usize) -> MatRef<'_, f32> {
+    match op {
+        Op::N => MatRef::from_row_major_slice(&x[..rows * cols], rows, cols),
+        Op::T => MatRef::from_row_major_slice(&x[..rows * cols], cols, rows).transpose(),
+    }
+}
+
+/// `(row stride, column stride)` of the `rows x cols` operand `op` makes of a row-major matrix.
+#[cfg(target_arch = "x86_64")]
+fn strides(op: Op, rows: usize, cols: usize) -> (usize, usize) {
+    match op {
+        Op::N => (cols, 1),
+        Op::T => (1, rows),
+    }
+}
+
+/// `C = A' Bᵀ` for an output width `n` that is not a multiple of 16 (see [`ragged`]): `Bᵀ`'s
+/// columns are strided, so faer computes the first `16·⌊n/16⌋` columns (whole 96-row kernels
+/// of its own) and only the last few go through [`ragged`], from a packed copy of their
+/// `k x (n mod 16)` slice. Bit-identical to faer.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
-fn ragged_width(
+fn ragged_tail(
     c: &mut [f32],
+    a_view: MatRef<'_, f32>,
     a: &[f32],
-    op_a: Op,
+    (rs_a, cs_a): (usize, usize),
     b: &[f32],
-    op_b: Op,
     m: usize,
     k: usize,
     n: usize,
 ) {
-    let (rs_a, cs_a) = match op_a {
-        Op::N => (k, 1),
-        Op::T => (1, m),
-    };
-    let a = &a[..m * k];
-    if op_b == Op::N {
-        // SAFETY: `use_ragged` checked the CPU for AVX-512F.
-        return unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) };
-    }
     let whole = n - n % 16;
+    let rest = n - whole;
     let stored = MatRef::from_row_major_slice(&b[..k * n], n, k);
-    let (b_whole, b_rest) = (
-        stored.subrows(0, whole).transpose(),
-        stored.subrows(whole, n - whole),
-    );
-    let a_view = match op_a {
-        Op::N => MatRef::from_row_major_slice(a, m, k),
-        Op::T => MatRef::from_row_major_slice(a, k, m).transpose(),
-    };
     let c_all = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
     let (c_whole, _) = c_all.split_at_col_mut(whole);
+    let b_whole = stored.subrows(0, whole).transpose();
     matmul(c_whole, Accum::Replace, a_view, b_whole, 1.0f32, Par::Seq);
-    let rest = n - whole;
+    let b_rest = stored.subrows(whole, rest);
     PACKED.with_borrow_mut(|packed| {
         packed.clear();
         packed.extend((0..k).flat_map(|p| (0..rest).map(move |j| b_rest[(j, p)])));
@@ -131,7 +131,7 @@ fn ragged_width(
 
 #[cfg(target_arch = "x86_64")]
 thread_local! {
-    /// The `k x (n mod 16)` slice of a transposed `B` that [`ragged_width`] packs (allocated
+    /// The `k x (n mod 16)` slice of a transposed `B` that [`ragged_tail`] packs (allocated
     /// once per thread and shape).
     static PACKED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
@@ -203,16 +203,9 @@ mod tests {
                     let mut got = vec![f32::NAN; m * n];
                     gemm(&mut got, &a, op_a, &b, op_b, m, k, n, false);
                     let mut want = vec![0.0; m * n];
-                    let a_view = match op_a {
-                        Op::N => MatRef::from_row_major_slice(&a, m, k),
-                        Op::T => MatRef::from_row_major_slice(&a, k, m).transpose(),
-                    };
-                    let b_view = match op_b {
-                        Op::N => MatRef::from_row_major_slice(&b, k, n),
-                        Op::T => MatRef::from_row_major_slice(&b, n, k).transpose(),
-                    };
                     let c = MatMut::from_row_major_slice_mut(&mut want, m, n);
-                    matmul(c, Accum::Replace, a_view, b_view, 1.0f32, Par::Seq);
+                    let (a, b) = (operand(&a, op_a, m, k), operand(&b, op_b, k, n));
+                    matmul(c, Accum::Replace, a, b, 1.0f32, Par::Seq);
                     let same = got
                         .iter()
                         .zip(&want)
