@@ -54,7 +54,7 @@ pub fn gemm(
         return match op_b {
             // SAFETY: `use_ragged` checked the CPU for AVX-512F.
             Op::N => unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) },
-            Op::T => ragged_tail(c, operand(a, op_a, m, k), a, (rs_a, cs_a), b, m, k, n),
+            Op::T => ragged_tail(c, a, op_a, b, m, k, n),
         };
     }
     let c = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
@@ -89,17 +89,8 @@ fn strides(op: Op, rows: usize, cols: usize) -> (usize, usize) {
 /// of its own) and only the last few go through [`ragged`], from a packed copy of their
 /// `k x (n mod 16)` slice. Bit-identical to faer.
 #[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
-fn ragged_tail(
-    c: &mut [f32],
-    a_view: MatRef<'_, f32>,
-    a: &[f32],
-    (rs_a, cs_a): (usize, usize),
-    b: &[f32],
-    m: usize,
-    k: usize,
-    n: usize,
-) {
+fn ragged_tail(c: &mut [f32], a: &[f32], op_a: Op, b: &[f32], m: usize, k: usize, n: usize) {
+    let (a_view, (rs_a, cs_a)) = (operand(a, op_a, m, k), strides(op_a, m, k));
     let whole = n - n % 16;
     let rest = n - whole;
     let stored = MatRef::from_row_major_slice(&b[..k * n], n, k);
@@ -136,6 +127,8 @@ thread_local! {
     static PACKED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
+/// Whether ragged widths go through [`ragged`]: on AVX-512 CPUs unless `MBPO_GEMM_FAER` is set
+/// (read once per process).
 #[cfg(target_arch = "x86_64")]
 fn use_ragged() -> bool {
     static USE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();

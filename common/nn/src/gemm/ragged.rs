@@ -23,7 +23,8 @@ use std::arch::x86_64::{
 const MR: usize = 8;
 /// 16-lane vectors of `C` columns per panel.
 const NR: usize = 3;
-/// Depth of one pass: a panel of `B` (`KC x 48` floats, 24 KiB) stays in L1 across row blocks.
+/// Depth of one pass: the panel of `B` it reads (`KC x 48` floats, 24 KiB) is meant to stay in
+/// L1 across row blocks.
 const KC: usize = 128;
 
 /// Whether [`gemm`] runs on this CPU.
@@ -170,34 +171,9 @@ impl Panel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gemm::{operand, strides, Op};
     use faer::linalg::matmul::matmul;
-    use faer::{Accum, MatMut, MatRef, Par};
-
-    fn faer_product(
-        a: &[f32],
-        transposed: bool,
-        b: &[f32],
-        m: usize,
-        k: usize,
-        n: usize,
-    ) -> Vec<f32> {
-        let mut c = vec![0.0; m * n];
-        let av = if transposed {
-            MatRef::from_row_major_slice(a, k, m).transpose()
-        } else {
-            MatRef::from_row_major_slice(a, m, k)
-        };
-        let cm = MatMut::from_row_major_slice_mut(&mut c, m, n);
-        matmul(
-            cm,
-            Accum::Replace,
-            av,
-            MatRef::from_row_major_slice(b, k, n),
-            1.0,
-            Par::Seq,
-        );
-        c
-    }
+    use faer::{Accum, MatMut, Par};
 
     #[test]
     fn equals_faer_bit_for_bit_on_ragged_and_blocked_shapes() {
@@ -220,17 +196,17 @@ mod tests {
             let b: Vec<f32> = (0..k * n)
                 .map(|i| ((i * 104_729 % 997) as f32 - 498.0) * 1e-3)
                 .collect();
-            for transposed in [false, true] {
-                let (rs, cs) = if transposed { (1, m) } else { (k, 1) };
+            for op_a in [Op::N, Op::T] {
+                let (rs, cs) = strides(op_a, m, k);
                 let mut c = vec![f32::NAN; m * n];
                 // SAFETY: AVX-512F checked above.
                 unsafe { gemm(&mut c, n, &a, rs, cs, &b, n, m, k, n) };
-                let want = faer_product(&a, transposed, &b, m, k, n);
+                let mut want = vec![0.0; m * n];
+                let (a, b) = (operand(&a, op_a, m, k), operand(&b, Op::N, k, n));
+                let out = MatMut::from_row_major_slice_mut(&mut want, m, n);
+                matmul(out, Accum::Replace, a, b, 1.0, Par::Seq);
                 let same = c.iter().zip(&want).all(|(x, y)| x.to_bits() == y.to_bits());
-                assert!(
-                    same,
-                    "{m}x{k}x{n} transposed {transposed}: differs from faer"
-                );
+                assert!(same, "{m}x{k}x{n} {op_a:?}: differs from faer");
             }
         }
     }
