@@ -210,6 +210,11 @@ impl<'a> AdamPart<'a> {
         self.offset..self.offset + self.params.len()
     }
 
+    /// The piece's parameters before the update.
+    pub fn params(&self) -> &[f32] {
+        self.params
+    }
+
     /// Update the piece with `grads`, the gradient of its range; returns the new parameters.
     pub fn apply(mut self, grads: &[f32]) -> &'a mut [f32] {
         assert_eq!(grads.len(), self.params.len());

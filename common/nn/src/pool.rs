@@ -1,7 +1,7 @@
 //! A small persistent thread pool for data-parallel phases of a computation.
 //!
-//! SAC's update on two cores splits its batch into row shards and runs each phase (critic step,
-//! actor step) on all shards at once, a few times per update, thousands of times per second.
+//! SAC's update on two cores runs each phase (the actor's samples, the critics' steps, the
+//! actor's gradient) on both at once, a few times per update, thousands of times per second.
 //! Spawning threads per phase would cost tens of microseconds and lose faer's thread-local
 //! packing buffers each time, so the workers live as long as the pool and sleep on a condvar
 //! between phases. A thread that waits (a worker for the next phase, the caller for the

@@ -1,23 +1,23 @@
 //! The SAC agent and its update.
 //!
 //! One update is four steps, each a method below, in the paper's order: critic step, actor
-//! step, temperature step, Polyak targets (done right after the critic's Adam step, in the same
-//! pass over memory: it reads only the new critic parameters, which the actor step does not
-//! change, and nothing reads the targets in between). The per-row work of the two gradient
-//! steps runs on row shards ([`crate::shard`]), one per thread of a small [`WorkerPool`]
-//! (`sac.threads`); each optimiser step is cut into parameter ranges, one per thread, which add
-//! the shards' partial gradients in shard order and apply Adam. The agent draws all random
-//! noise itself in stream order, so an update is a deterministic function of the parameters,
-//! the batch and the random stream for a given thread count.
+//! step, temperature step, Polyak targets (done right after each critic's Adam step, in the
+//! same pass over memory: it reads only the new critic parameters, which the actor step does
+//! not change, and nothing reads the targets in between). The work runs on a small
+//! [`WorkerPool`] (`sac.threads`), cut two ways ([`crate::shard`]): the actor's by rows, one
+//! row shard per thread, whose partial gradients are added in shard order before the actor's
+//! Adam step, cut into one parameter range per thread; the critics' by network, one lane per
+//! critic, each with its own Adam and Polyak step. The agent draws all random noise itself in
+//! stream order, so an update is a deterministic function of the parameters, the batch and the
+//! random stream for a given thread count, and the critics' results do not depend on it.
 
 use crate::actor::{ActorCache, TanhGaussianActor};
 use crate::config::SacConfig;
 use crate::critic::TwinCritic;
-use crate::shard::{Grads, Nets, Shard};
+use crate::shard::{assign_min_rows, CriticLane, Nets, RowShard};
 use mbpo_core::rng::normal_f32;
 use mbpo_core::{Batch, Rng};
 use mbpo_nn::adam::{part_len, AdamPart};
-use mbpo_nn::ops::polyak;
 use mbpo_nn::{Adam, AdamConfig, AdamState, WorkerPool};
 use serde::{Deserialize, Serialize};
 
@@ -110,13 +110,23 @@ impl mbpo_core::BatchPolicy for SacPolicy<'_> {
 #[derive(Debug, Clone)]
 struct Scratch {
     pool: WorkerPool,
-    /// Row shards, one per thread.
-    shards: Vec<Shard>,
+    /// The actor's row shards, one per thread.
+    shards: Vec<RowShard>,
+    /// The critics' lanes: Q₁, Q₂.
+    lanes: [CriticLane; 2],
     /// ε for a' ~ π(·|s') and for a ~ π(·|s) (`B x A` each), drawn in this order.
     noise_next: Vec<f32>,
     noise: Vec<f32>,
-    /// TD targets gathered from the shards ([`Sac::td_targets`]).
+    /// a' ~ π(·|s') and log π(a'|s') of the whole batch, gathered from the shards.
+    next_action: Vec<f32>,
+    next_log_prob: Vec<f32>,
+    /// a ~ π(·|s) and log π(a|s) of the whole batch, gathered from the shards.
+    pi_action: Vec<f32>,
+    pi_log_prob: Vec<f32>,
+    /// TD targets of the whole batch ([`Sac::td_targets`]).
     y: Vec<f32>,
+    /// ∂L_π/∂a of the whole batch, gathered from the lanes (`B x A`).
+    d_act: Vec<f32>,
     act_cache: ActorCache,
 }
 
@@ -139,14 +149,23 @@ impl Sac {
         // Shard i holds rows [i·B/T, (i+1)·B/T).
         let threads = config.threads.clamp(1, b.max(1));
         let shards = (0..threads)
-            .map(|i| Shard::new(&actor, &critic, i * b / threads..(i + 1) * b / threads))
+            .map(|i| RowShard::new(&actor, i * b / threads..(i + 1) * b / threads))
             .collect();
         let buf = Scratch {
             pool: WorkerPool::new(threads),
             shards,
+            lanes: [
+                CriticLane::new(&critic, 0, b),
+                CriticLane::new(&critic, 1, b),
+            ],
             noise_next: vec![0.0; b * act_dim],
             noise: vec![0.0; b * act_dim],
+            next_action: vec![0.0; b * act_dim],
+            next_log_prob: vec![0.0; b],
+            pi_action: vec![0.0; b * act_dim],
+            pi_log_prob: vec![0.0; b],
             y: vec![0.0; b],
+            d_act: vec![0.0; b * act_dim],
             act_cache: actor.cache(1),
         };
         Self {
@@ -253,9 +272,11 @@ impl Sac {
         );
         let alpha = self.alpha();
         // The noise of a' ~ π(·|s') and then of a ~ π(·|s): the stream order of drawing them
-        // where they are used, one after the other.
+        // where they are used, one after the other. Both samples use the current actor, so
+        // they are drawn together, before the critic step.
         fill_normal(&mut self.buf.noise_next, rng);
         fill_normal(&mut self.buf.noise, rng);
+        self.sample_policy(batch, alpha, true);
         let critic_loss = self.update_critics(batch, alpha);
         let (actor_loss, mean_log_prob, q_mean) = self.update_actor(batch, alpha);
         let alpha_loss = self.update_temperature(mean_log_prob);
@@ -270,55 +291,65 @@ impl Sac {
         }
     }
 
-    /// Run `phase` on every shard at once, each on its own thread, with what the shards read
-    /// (architectures, current parameters, constants).
-    fn run_shards(&mut self, alpha: f32, phase: impl Fn(&Nets, &mut Shard) + Sync) {
-        let nets = Nets {
-            actor: &self.actor,
-            critic: &self.critic,
-            actor_params: &self.actor_params,
-            critic_params: &self.critic_params,
-            target_params: &self.target_params,
-            gamma: self.config.gamma,
+    /// a' ~ π(·|s') with the noise in `buf.noise_next` and, when `with_pi`, a ~ π(·|s) with
+    /// the noise in `buf.noise`, on the row shards at once; gathered into the whole-batch
+    /// buffers.
+    fn sample_policy(&mut self, batch: &Batch, alpha: f32, with_pi: bool) {
+        let n = nets(
+            &self.actor,
+            &self.critic,
+            &self.actor_params,
+            &self.config,
             alpha,
-            batch_size: self.config.batch_size,
-        };
-        let Scratch { pool, shards, .. } = &mut self.buf;
-        pool.for_each_mut(shards, |_, shard| phase(&nets, shard));
-    }
-
-    /// Critic step: y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) with a' ~ π(·|s'),
-    /// then descend ½·MSE(Q₁, y) + ½·MSE(Q₂, y). Bootstrapping stops only at termination.
-    /// Then the Polyak step θ̄_Q ← (1 − τ)·θ̄_Q + τ·θ_Q.
-    fn update_critics(&mut self, batch: &Batch, alpha: f32) -> f32 {
-        let loss = self.critic_gradient(batch, alpha);
-        let Sac {
-            buf,
-            critic_opt,
-            critic_params,
-            target_params,
-            config,
-            ..
-        } = self;
-        optimizer_step(
-            buf,
-            critic_opt,
-            critic_params,
-            Grads::Critic,
-            Some((target_params, config.tau)),
         );
-        loss
+        let buf = &mut self.buf;
+        let (noise_next, noise) = (&buf.noise_next, with_pi.then_some(&buf.noise[..]));
+        buf.pool.for_each_mut(&mut buf.shards, |_, s| {
+            s.sample(&n, batch, noise_next, noise)
+        });
+        let a = self.actor.act_dim();
+        for s in &buf.shards {
+            let (rows, r) = (s.rows.clone(), s.rows.len());
+            let acts = rows.start * a..rows.end * a;
+            buf.next_action[acts.clone()].copy_from_slice(&s.next_pi.action[..r * a]);
+            buf.next_log_prob[rows.clone()].copy_from_slice(&s.next_pi.log_prob[..r]);
+            if with_pi {
+                buf.pi_action[acts].copy_from_slice(&s.pi.action[..r * a]);
+                buf.pi_log_prob[rows].copy_from_slice(&s.pi.log_prob[..r]);
+            }
+        }
     }
 
-    /// The critic loss ½·MSE(Q₁, y) + ½·MSE(Q₂, y) and the shards' partial gradients, with
-    /// the noise of a' already in `buf.noise_next`.
-    fn critic_gradient(&mut self, batch: &Batch, alpha: f32) -> f32 {
-        let noise_next = std::mem::take(&mut self.buf.noise_next);
-        self.run_shards(alpha, |nets, shard| {
-            shard.critic_gradient(nets, batch, &noise_next)
+    /// Soft TD targets y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) into `buf.y`,
+    /// for the a' of the last [`Sac::sample_policy`]; each lane computes its Q̄_e. `d` is
+    /// `terminated`: a time-limit truncation is not terminal, so such rows bootstrap.
+    fn targets_of_samples(&mut self, batch: &Batch, alpha: f32) {
+        let n = nets(
+            &self.actor,
+            &self.critic,
+            &self.actor_params,
+            &self.config,
+            alpha,
+        );
+        let Scratch {
+            pool,
+            lanes,
+            next_action,
+            next_log_prob,
+            y,
+            ..
+        } = &mut self.buf;
+        let (critic, target) = (&self.critic, &self.target_params);
+        for_each_lane(pool, lanes, |lane| {
+            let target_e = &target[critic.member_range(lane.e)];
+            lane.target_values(&n, target_e, batch, next_action)
         });
-        self.buf.noise_next = noise_next;
-        self.buf.shards.iter().map(|s| s.sums.critic_loss).sum()
+        let (q1t, q2t) = (lanes[0].target_q(&n), lanes[1].target_q(&n));
+        let (reward, done) = (&batch.reward, &batch.terminated);
+        for i in 0..batch.len {
+            let soft_v = q1t[i].min(q2t[i]) - alpha * next_log_prob[i];
+            y[i] = reward[i] + n.gamma * (1.0 - done[i]) * soft_v;
+        }
     }
 
     /// Soft TD targets y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')), a' ~ π(·|s'),
@@ -326,48 +357,112 @@ impl Sac {
     /// so such rows bootstrap.
     pub fn td_targets(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> &[f32] {
         fill_normal(&mut self.buf.noise_next, rng);
-        let noise_next = std::mem::take(&mut self.buf.noise_next);
-        self.run_shards(alpha, |nets, shard| {
-            shard.td_targets(nets, batch, &noise_next)
-        });
-        self.buf.noise_next = noise_next;
-        let buf = &mut self.buf;
-        for s in &buf.shards {
-            buf.y[s.rows.clone()].copy_from_slice(&s.y[..s.rows.len()]);
-        }
-        &buf.y[..batch.len]
+        self.sample_policy(batch, alpha, false);
+        self.targets_of_samples(batch, alpha);
+        &self.buf.y[..batch.len]
     }
 
-    /// Actor step: descend mean(α log π(a|s) − min_e Q_e(s, a)) with a ~ π(·|s)
-    /// reparameterised. Returns (loss, mean log π, mean Q₁).
+    /// Critic step: y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) with the a' of
+    /// the last [`Sac::sample_policy`], then descend ½·MSE(Q₁, y) + ½·MSE(Q₂, y), each critic
+    /// by its own lane: its gradient, its Adam step, its Polyak step θ̄_e ← (1 − τ)·θ̄_e + τ·θ_e
+    /// and, with the new θ_e, its values on the policy's actions for the actor step.
+    /// Bootstrapping stops only at termination. Returns the loss.
+    fn update_critics(&mut self, batch: &Batch, alpha: f32) -> f32 {
+        self.targets_of_samples(batch, alpha);
+        let n = nets(
+            &self.actor,
+            &self.critic,
+            &self.actor_params,
+            &self.config,
+            alpha,
+        );
+        let Scratch {
+            pool,
+            lanes,
+            y,
+            pi_action,
+            ..
+        } = &mut self.buf;
+        let p = self.critic.mlp().num_params();
+        let tau = self.config.tau;
+        // Adam's two halves are exactly the two critics (`TwinCritic` stores Q₁ then Q₂).
+        let mut steps: [Option<CriticStep>; 2] = Default::default();
+        let parts = self.critic_opt.step_parts(&mut self.critic_params, 2);
+        for (((slot, lane), adam), target) in steps
+            .iter_mut()
+            .zip(lanes.iter_mut())
+            .zip(parts)
+            .zip(self.target_params.chunks_mut(p))
+        {
+            debug_assert_eq!(adam.range(), self.critic.member_range(lane.e));
+            *slot = Some(CriticStep { lane, adam, target });
+        }
+        let (y, pi_action) = (&y[..], &pi_action[..]);
+        for_each_lane(pool, &mut steps, |step| {
+            let Some(CriticStep { lane, adam, target }) = step.take() else {
+                return;
+            };
+            lane.gradient(&n, adam.params(), batch, y);
+            let theta = lane.step(adam, target, tau);
+            lane.policy_values(&n, theta, batch, pi_action);
+        });
+        critic_loss(lanes, y, batch.len, self.config.batch_size)
+    }
+
+    /// Actor step: descend mean(α log π(a|s) − min_e Q_e(s, a)) with the a ~ π(·|s) of the
+    /// last [`Sac::sample_policy`] (reparameterised) and the lanes' Q_e(s, a). Returns (loss,
+    /// mean log π, mean Q₁).
     fn update_actor(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
-        let out = self.actor_gradient(batch, alpha);
+        let out = self.actor_gradient_of_samples(batch, alpha);
         let Sac {
             buf,
             actor_opt,
             actor_params,
             ..
         } = self;
-        optimizer_step(buf, actor_opt, actor_params, Grads::Actor, None);
+        actor_step(buf, actor_opt, actor_params);
         out
     }
 
-    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and the shards' partial gradients,
-    /// with the noise already in `buf.noise`.
-    /// Returns (loss, mean log π, mean Q₁).
-    fn actor_gradient(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
-        let noise = std::mem::take(&mut self.buf.noise);
-        self.run_shards(alpha, |nets, shard| {
-            shard.actor_gradient(nets, batch, &noise)
-        });
-        self.buf.noise = noise;
-        let (mut loss, mut log_prob, mut q1) = (0.0f32, 0.0f32, 0.0f32);
-        for s in &self.buf.shards {
-            loss += s.sums.actor_loss;
-            log_prob += s.sums.log_prob;
-            q1 += s.sums.q1;
+    /// The actor loss mean(α log π(a|s) − min_e Q_e(s, a)) and the shards' partial
+    /// gradients, from the samples of the last [`Sac::sample_policy`] and the lanes' last
+    /// [`CriticLane::policy_values`]. Returns (loss, mean log π, mean Q₁).
+    fn actor_gradient_of_samples(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
+        let n = nets(
+            &self.actor,
+            &self.critic,
+            &self.actor_params,
+            &self.config,
+            alpha,
+        );
+        let inv_b = 1.0 / self.config.batch_size as f32;
+        let buf = &mut self.buf;
+        let (mut loss, mut log_prob, mut q1_sum) = (0.0f32, 0.0f32, 0.0f32);
+        {
+            let (q1, q2) = (buf.lanes[0].policy_q(&n), buf.lanes[1].policy_q(&n));
+            for i in 0..batch.len {
+                let lp = buf.pi_log_prob[i];
+                loss += (alpha * lp - q1[i].min(q2[i])) * inv_b;
+                log_prob += lp * inv_b;
+                q1_sum += q1[i] * inv_b;
+            }
         }
-        (loss, log_prob, q1)
+        // ∂L/∂a through min(Q₁, Q₂): each row through its minimum's critic, on its lane.
+        assign_min_rows(&mut buf.lanes, &self.critic, -inv_b);
+        let (critic, theta) = (&self.critic, &self.critic_params);
+        for_each_lane(&mut buf.pool, &mut buf.lanes, |lane| {
+            lane.action_gradient(&n, &theta[critic.member_range(lane.e)])
+        });
+        let a = self.actor.act_dim();
+        for lane in &buf.lanes {
+            for (i, &r) in lane.min_rows.iter().enumerate() {
+                buf.d_act[r * a..(r + 1) * a].copy_from_slice(&lane.min_d_act[i * a..(i + 1) * a]);
+            }
+        }
+        let d_act = &buf.d_act;
+        buf.pool
+            .for_each_mut(&mut buf.shards, |_, s| s.actor_gradient(&n, batch, d_act));
+        (loss, log_prob, q1_sum)
     }
 
     /// Temperature step: descend −mean(log α · (log π + H̄)); ∂/∂log α = −(mean log π + H̄).
@@ -383,63 +478,96 @@ impl Sac {
     }
 }
 
+/// What the threads of an update read: architectures, the actor's parameters, constants.
+fn nets<'a>(
+    actor: &'a TanhGaussianActor,
+    critic: &'a TwinCritic,
+    actor_params: &'a [f32],
+    config: &SacConfig,
+    alpha: f32,
+) -> Nets<'a> {
+    Nets {
+        actor,
+        critic,
+        actor_params,
+        gamma: config.gamma,
+        alpha,
+        batch_size: config.batch_size,
+    }
+}
+
+/// One critic's step as its lane runs it: the lane, the critic's piece of Adam and its target
+/// parameters.
+struct CriticStep<'a> {
+    lane: &'a mut CriticLane,
+    adam: AdamPart<'a>,
+    target: &'a mut [f32],
+}
+
+/// `f` on each of the two critic lanes: each on its own thread when there are two or more,
+/// else one after the other on the caller.
+fn for_each_lane<T: Send>(pool: &mut WorkerPool, lanes: &mut [T; 2], f: impl Fn(&mut T) + Sync) {
+    if pool.threads() >= lanes.len() {
+        pool.for_each_mut(lanes, |_, lane| f(lane));
+    } else {
+        lanes.iter_mut().for_each(f);
+    }
+}
+
+/// ½·MSE(Q₁, y) + ½·MSE(Q₂, y) over the first `rows` rows from the lanes' last
+/// [`CriticLane::gradient`], summed critic by critic and row by row.
+fn critic_loss(lanes: &[CriticLane; 2], y: &[f32], rows: usize, batch_size: usize) -> f32 {
+    let b = batch_size as f32;
+    let mut loss = 0.0f32;
+    for lane in lanes {
+        for i in 0..rows {
+            let err = lane.q_data[i] - y[i];
+            loss += 0.5 * err * err / b;
+        }
+    }
+    loss
+}
+
 /// Standard normals from `rng` into `out`, in order.
 fn fill_normal(out: &mut [f32], rng: &mut Rng) {
     out.iter_mut().for_each(|v| *v = normal_f32(rng));
 }
 
-/// An optimiser step is cut into at most this many parameter ranges (one per thread).
+/// The actor's optimiser step is cut into at most this many parameter ranges (one per thread).
 const MAX_PARTS: usize = 16;
 
-/// One thread's range of an optimiser step: the Adam piece, the first shard's partial gradient
-/// of the range (which becomes the sum), and the target parameters of the range if any.
+/// One thread's range of the actor's optimiser step: the Adam piece and the first shard's
+/// partial gradient of the range (which becomes the sum).
 struct StepPart<'a> {
     adam: AdamPart<'a>,
     grads: &'a mut [f32],
-    target: Option<&'a mut [f32]>,
 }
 
-/// Adam on `params` with the sum of the shards' `kind` gradients, cut into one parameter range
-/// per thread; each range adds the shards' partial gradients in shard order, takes its Adam
-/// step and, given `(θ̄, τ)`, its Polyak step θ̄ ← θ̄ + τ(θ − θ̄).
-fn optimizer_step(
-    buf: &mut Scratch,
-    opt: &mut Adam,
-    params: &mut [f32],
-    kind: Grads,
-    target: Option<(&mut Vec<f32>, f32)>,
-) {
+/// Adam on the actor's `params` with the sum of the shards' partial gradients, cut into one
+/// parameter range per thread; each range adds the shards' partial gradients in shard order
+/// and takes its Adam step.
+fn actor_step(buf: &mut Scratch, opt: &mut Adam, params: &mut [f32]) {
     let parts = buf.pool.threads().min(MAX_PARTS);
     let len = part_len(params.len(), parts);
     let (first, rest) = buf.shards.split_at_mut(1);
-    let tau = target.as_ref().map_or(0.0, |t| t.1);
-    let mut targets = target.map(|(t, _)| t.chunks_mut(len));
     let mut items: [Option<StepPart>; MAX_PARTS] = Default::default();
     let pieces = opt
         .step_parts(params, parts)
-        .zip(first[0].grads_mut(kind).chunks_mut(len));
+        .zip(first[0].actor_grads.chunks_mut(len));
     for (slot, (adam, grads)) in items.iter_mut().zip(pieces) {
-        let target = targets.as_mut().and_then(|t| t.next());
-        *slot = Some(StepPart {
-            adam,
-            grads,
-            target,
-        });
+        *slot = Some(StepPart { adam, grads });
     }
-    let rest: &[Shard] = rest;
+    let rest: &[RowShard] = rest;
     buf.pool.for_each_mut(&mut items[..parts], |_, item| {
         let Some(part) = item.take() else { return };
         let range = part.adam.range();
         for shard in rest {
             part.grads
                 .iter_mut()
-                .zip(&shard.grads(kind)[range.clone()])
+                .zip(&shard.actor_grads[range.clone()])
                 .for_each(|(g, &s)| *g += s);
         }
-        let new = part.adam.apply(part.grads);
-        if let Some(t) = part.target {
-            polyak(t, new, tau);
-        }
+        part.adam.apply(part.grads);
     });
 }
 
@@ -462,27 +590,65 @@ mod tests {
         Sac::new(3, 2, config, &mut stream(seed, "test.init", 0))
     }
 
-    /// The shards' partial gradients added up.
+    /// Which gradient a test reads.
+    #[derive(Clone, Copy)]
+    enum Grads {
+        Critic,
+        Actor,
+    }
+
+    /// The whole gradient of `kind` after [`actor_loss`] or [`critic_loss`]: the actor
+    /// shards' partial gradients added up, or the critic lanes' gradients one after the other.
     fn total(sac: &Sac, kind: Grads) -> Vec<f32> {
-        let mut sum = vec![0.0f32; sac.buf.shards[0].grads(kind).len()];
-        for s in &sac.buf.shards {
-            sum.iter_mut()
-                .zip(s.grads(kind))
-                .for_each(|(t, &g)| *t += g);
+        match kind {
+            Grads::Actor => {
+                let mut sum = vec![0.0f32; sac.actor_params.len()];
+                for s in &sac.buf.shards {
+                    sum.iter_mut()
+                        .zip(&s.actor_grads)
+                        .for_each(|(t, &g)| *t += g);
+                }
+                sum
+            }
+            Grads::Critic => sac.buf.lanes.iter().flat_map(|l| l.grads.clone()).collect(),
         }
-        sum
     }
 
     /// The actor loss and gradient with the noise of `rng` (a pure function of θ_π for a seed).
     fn actor_loss(sac: &mut Sac, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
         fill_normal(&mut sac.buf.noise, rng);
-        sac.actor_gradient(batch, alpha).0
+        sac.sample_policy(batch, alpha, true);
+        let n = nets(
+            &sac.actor,
+            &sac.critic,
+            &sac.actor_params,
+            &sac.config,
+            alpha,
+        );
+        for lane in &mut sac.buf.lanes {
+            let theta = &sac.critic_params[sac.critic.member_range(lane.e)];
+            lane.policy_values(&n, theta, batch, &sac.buf.pi_action);
+        }
+        sac.actor_gradient_of_samples(batch, alpha).0
     }
 
     /// The critic loss and gradient with the noise of `rng` (a pure function of θ_Q).
     fn critic_loss(sac: &mut Sac, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
         fill_normal(&mut sac.buf.noise_next, rng);
-        sac.critic_gradient(batch, alpha)
+        sac.sample_policy(batch, alpha, false);
+        sac.targets_of_samples(batch, alpha);
+        let n = nets(
+            &sac.actor,
+            &sac.critic,
+            &sac.actor_params,
+            &sac.config,
+            alpha,
+        );
+        for lane in &mut sac.buf.lanes {
+            let theta = &sac.critic_params[sac.critic.member_range(lane.e)];
+            lane.gradient(&n, theta, batch, &sac.buf.y);
+        }
+        super::critic_loss(&sac.buf.lanes, &sac.buf.y, batch.len, sac.config.batch_size)
     }
 
     /// Central differences of `loss` over every parameter against the analytic gradient.
@@ -586,6 +752,68 @@ mod tests {
             for (x, y) in a.iter().zip(b.iter()) {
                 assert!((x - y).abs() <= 1e-5 * scale, "{x} vs {y}");
             }
+        }
+    }
+
+    #[test]
+    fn the_critic_step_gives_the_same_bits_on_any_thread_count() {
+        // Each critic is one lane over all rows whatever the thread count, and the actor's
+        // samples are per row: so after one update the critics and their targets must be the
+        // one-thread bits on 2 and 3 threads (the actor's gradient is a sum over row shards
+        // and may differ in rounding). Sizes where the products take the blocked GEMM paths.
+        let config = |threads| SacConfig {
+            batch_size: 64,
+            hidden: vec![96, 96],
+            threads,
+            ..SacConfig::default()
+        };
+        let mut g = stream(6, "test.batch", 0);
+        let mut batch = Batch::new(11, 3, 64);
+        for v in batch
+            .obs
+            .iter_mut()
+            .chain(&mut batch.next_obs)
+            .chain(&mut batch.reward)
+        {
+            *v = normal_f32(&mut g);
+        }
+        for v in batch.act.iter_mut() {
+            *v = normal_f32(&mut g).tanh();
+        }
+        batch.terminated[5] = 1.0;
+        let run = |threads| {
+            let mut sac = Sac::new(11, 3, config(threads), &mut stream(7, "test.init", 0));
+            let stats = sac.update(&batch, &mut stream(8, "upd", 0));
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            (
+                bits(&sac.critic_params),
+                bits(&sac.target_params),
+                stats.critic_loss.to_bits(),
+                bits(&sac.actor_params),
+            )
+        };
+        let one = run(1);
+        for threads in [2, 3] {
+            let many = run(threads);
+            assert!(
+                one.0 == many.0,
+                "critic parameters differ on {threads} threads"
+            );
+            assert!(
+                one.1 == many.1,
+                "target parameters differ on {threads} threads"
+            );
+            assert_eq!(one.2, many.2, "critic loss differs on {threads} threads");
+            // The actor did move, and the same way up to rounding.
+            let close = one
+                .3
+                .iter()
+                .zip(&many.3)
+                .all(|(&x, &y)| (f32::from_bits(x) - f32::from_bits(y)).abs() <= 1e-6);
+            assert!(
+                close,
+                "actor parameters differ beyond rounding on {threads} threads"
+            );
         }
     }
 

@@ -31,9 +31,11 @@ pub struct SacConfig {
     pub log_std_min: f32,
     /// Upper clamp of the actor's log σ.
     pub log_std_max: f32,
-    /// Threads one update runs on (≥ 1; at most the batch size is used). The minibatch is
-    /// split into that many row shards whose gradients are added in a fixed order, so results
-    /// are deterministic for a given thread count but differ in rounding between counts.
+    /// Threads one update runs on (≥ 1; at most the batch size is used). The critics run one
+    /// per thread (two at most), whose results do not depend on the count; the actor's rows
+    /// are split into that many shards whose gradients are added in a fixed order, so the
+    /// actor's results are deterministic for a given thread count but differ in rounding
+    /// between counts.
     pub threads: usize,
 }
 

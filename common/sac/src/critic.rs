@@ -52,6 +52,10 @@ impl TwinCritic {
     pub fn mlp(&self) -> &Mlp {
         &self.mlp
     }
+    /// Action width A.
+    pub fn act_dim(&self) -> usize {
+        self.act_dim
+    }
     /// Parameter count of both critics.
     pub fn num_params(&self) -> usize {
         self.layout.len()
@@ -103,11 +107,7 @@ impl TwinCritic {
             *cache = self.cache(batch);
         }
         cache.batch = batch;
-        for r in 0..batch {
-            let row = &mut cache.input[r * (o + a)..(r + 1) * (o + a)];
-            row[..o].copy_from_slice(&obs[r * o..(r + 1) * o]);
-            row[o..].copy_from_slice(&act[r * a..(r + 1) * a]);
-        }
+        self.join_inputs(obs, act, batch, &mut cache.input);
         for e in 0..2 {
             self.mlp.forward(
                 &params[self.member_range(e)],
@@ -115,6 +115,29 @@ impl TwinCritic {
                 batch,
                 &mut cache.members[e],
             );
+        }
+    }
+
+    /// The critics' input rows [s, a] of `batch` rows into `input` (`batch x (O + A)`).
+    pub fn join_inputs(&self, obs: &[f32], act: &[f32], batch: usize, input: &mut [f32]) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        for ((row, s), u) in input[..batch * (o + a)]
+            .chunks_exact_mut(o + a)
+            .zip(obs.chunks_exact(o))
+            .zip(act.chunks_exact(a))
+        {
+            row[..o].copy_from_slice(s);
+            row[o..].copy_from_slice(u);
+        }
+    }
+
+    /// Which critic's value is min(Q₁, Q₂) of a row, the one its gradient flows through:
+    /// 0 for Q₁ (also on ties), 1 for Q₂.
+    pub fn min_critic(q1: f32, q2: f32) -> usize {
+        if q1 <= q2 {
+            0
+        } else {
+            1
         }
     }
 
@@ -169,7 +192,7 @@ impl TwinCritic {
             let q2 = members[1].output(&self.mlp);
             min_rows.iter_mut().for_each(Vec::clear);
             for r in 0..batch {
-                let e = if q1[r] <= q2[r] { 0 } else { 1 };
+                let e = Self::min_critic(q1[r], q2[r]);
                 min_grad[e][min_rows[e].len()] = d_min[r];
                 min_rows[e].push(r);
             }

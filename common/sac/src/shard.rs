@@ -1,25 +1,33 @@
-//! One row shard of a SAC update.
+//! The two ways an update's work is cut across threads.
 //!
-//! Every per-row quantity of the update (TD targets, critic errors, the actor's sample, the
-//! gradient of min(Q₁, Q₂) with respect to the action) depends on its own row only; the rows
-//! meet only in the parameter gradients and the loss means, which are sums over rows. So
-//! [`crate::Sac`] splits its minibatch into contiguous row ranges, one per thread, and each
-//! shard computes its rows' share of every gradient and mean into its own buffers; the agent
-//! adds the shards' partial gradients in shard order (deterministic for a thread count) before
-//! each Adam step. With one thread there is one shard holding the whole batch.
+//! * The **actor's** work is cut by rows. Every per-row quantity of the actor (its samples,
+//!   log π, the backward pass to θ_π) depends on its own row only; rows meet only in the
+//!   parameter gradient, a sum over rows. So [`crate::Sac`] splits the minibatch into
+//!   contiguous row ranges, one [`RowShard`] per thread, each computing its rows' share of
+//!   ∂L_π/∂θ_π; the agent adds the shares in shard order before Adam (deterministic for a
+//!   thread count; with one thread there is one shard holding the whole batch).
+//! * The **critics'** work is cut by network: Q₁ and Q₂ are separate networks that meet only
+//!   in min(Q̄₁, Q̄₂) of the TD target and min(Q₁, Q₂) of the actor loss. So each critic is one
+//!   [`CriticLane`] over all rows of the batch: its target values, its gradient, its own Adam
+//!   and Polyak step and its values on the policy's actions, on one thread, with nothing to
+//!   add up between threads. Each critic's products are as wide as the whole batch and its
+//!   parameters and moments stay in one core's cache; the lane computes exactly what a single
+//!   thread computes for that critic, so the critics' results do not depend on the thread
+//!   count. With one thread both lanes run one after the other on it.
 
 use crate::actor::{ActorCache, TanhGaussianActor};
-use crate::critic::{CriticCache, TwinCritic};
+use crate::critic::TwinCritic;
 use mbpo_core::Batch;
+use mbpo_nn::adam::AdamPart;
+use mbpo_nn::ops::polyak;
+use mbpo_nn::MlpCache;
 use std::ops::Range;
 
-/// What a shard reads during a phase: architectures, current parameters, constants.
+/// What the threads read during a phase: architectures and constants.
 pub(crate) struct Nets<'a> {
     pub actor: &'a TanhGaussianActor,
     pub critic: &'a TwinCritic,
     pub actor_params: &'a [f32],
-    pub critic_params: &'a [f32],
-    pub target_params: &'a [f32],
     pub gamma: f32,
     /// Temperature α of this update.
     pub alpha: f32,
@@ -27,183 +35,209 @@ pub(crate) struct Nets<'a> {
     pub batch_size: usize,
 }
 
-/// A shard's share of the update's scalar means (each term already divided by B).
-#[derive(Debug, Clone, Copy, Default)]
-pub(crate) struct ShardSums {
-    /// ½·MSE(Q₁, y) + ½·MSE(Q₂, y).
-    pub critic_loss: f32,
-    /// α log π − min Q.
-    pub actor_loss: f32,
-    /// log π(a|s).
-    pub log_prob: f32,
-    /// Q₁(s, a~π).
-    pub q1: f32,
-}
-
-/// Which network's gradient.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Grads {
-    Critic,
-    Actor,
-}
-
-/// Activations, targets and partial gradients for rows `rows` of the minibatch.
-#[derive(Debug, Clone)]
-pub(crate) struct Shard {
-    pub rows: Range<usize>,
-    next_pi: ActorCache,
-    pi: ActorCache,
-    q_target: CriticCache,
-    q: CriticCache,
-    /// TD targets of the shard's rows.
-    pub y: Vec<f32>,
-    d_q: [Vec<f32>; 2],
-    d_min: Vec<f32>,
-    d_act: Vec<f32>,
-    d_log_prob: Vec<f32>,
-    /// The shard's share of ∂L_Q/∂θ_Q (after a critic phase).
-    pub critic_grads: Vec<f32>,
-    /// The shard's share of ∂L_π/∂θ_π (after an actor phase).
-    pub actor_grads: Vec<f32>,
-    pub sums: ShardSums,
-}
-
 /// Rows `rows` of a row-major matrix of width `w`.
 fn rows_of<'x>(x: &'x [f32], w: usize, rows: &Range<usize>) -> &'x [f32] {
     &x[rows.start * w..rows.end * w]
 }
 
-impl Shard {
-    pub fn new(actor: &TanhGaussianActor, critic: &TwinCritic, rows: Range<usize>) -> Self {
+/// The actor's samples and partial gradient for rows `rows` of the minibatch.
+#[derive(Debug, Clone)]
+pub(crate) struct RowShard {
+    pub rows: Range<usize>,
+    /// a' ~ π(·|s') of the shard's rows.
+    pub next_pi: ActorCache,
+    /// a ~ π(·|s) of the shard's rows, kept for the backward pass.
+    pub pi: ActorCache,
+    d_log_prob: Vec<f32>,
+    /// The shard's share of ∂L_π/∂θ_π (after [`RowShard::actor_gradient`]).
+    pub actor_grads: Vec<f32>,
+}
+
+impl RowShard {
+    pub fn new(actor: &TanhGaussianActor, rows: Range<usize>) -> Self {
         let r = rows.len();
         Self {
             next_pi: actor.cache(r),
             pi: actor.cache(r),
-            q_target: critic.cache(r),
-            q: critic.cache(r),
-            y: vec![0.0; r],
-            d_q: [vec![0.0; r], vec![0.0; r]],
-            d_min: vec![0.0; r],
-            d_act: vec![0.0; r * actor.act_dim()],
             d_log_prob: vec![0.0; r],
-            critic_grads: vec![0.0; critic.num_params()],
             actor_grads: vec![0.0; actor.num_params()],
-            sums: ShardSums::default(),
             rows,
         }
     }
 
-    /// The shard's partial gradient of `kind`.
-    pub fn grads(&self, kind: Grads) -> &[f32] {
-        match kind {
-            Grads::Critic => &self.critic_grads,
-            Grads::Actor => &self.actor_grads,
-        }
-    }
-
-    /// [`Shard::grads`], writable.
-    pub fn grads_mut(&mut self, kind: Grads) -> &mut [f32] {
-        match kind {
-            Grads::Critic => &mut self.critic_grads,
-            Grads::Actor => &mut self.actor_grads,
-        }
-    }
-
-    /// Soft TD targets y = r + γ(1 − d)(min_e Q̄_e(s', a') − α log π(a'|s')) with a' ~ π(·|s')
-    /// drawn with the noise `noise_next` (whole batch, `B x A`). `d` is `terminated`: a
-    /// time-limit truncation is not terminal, so such rows bootstrap.
-    pub fn td_targets(&mut self, n: &Nets, batch: &Batch, noise_next: &[f32]) {
+    /// a' ~ π(·|s') with the noise `noise_next` and, given `noise`, a ~ π(·|s) (both whole
+    /// batch, `B x A`), for the shard's rows, with the current actor.
+    pub fn sample(&mut self, n: &Nets, batch: &Batch, noise_next: &[f32], noise: Option<&[f32]>) {
         let (o, a, rows) = (n.actor.obs_dim(), n.actor.act_dim(), self.rows.clone());
         let r = rows.len();
-        let next_obs = rows_of(&batch.next_obs, o, &rows);
-        n.actor.ensure(&mut self.next_pi, r);
-        self.next_pi.eps[..r * a].copy_from_slice(rows_of(noise_next, a, &rows));
-        n.actor
-            .sample_with_noise(n.actor_params, next_obs, r, &mut self.next_pi);
-        n.critic.forward(
-            n.target_params,
-            next_obs,
-            &self.next_pi.action,
-            r,
-            &mut self.q_target,
-        );
-        let (q1t, q2t) = (n.critic.q(&self.q_target, 0), n.critic.q(&self.q_target, 1));
-        let (reward, done) = (&batch.reward[rows.clone()], &batch.terminated[rows]);
-        for i in 0..r {
-            let soft_v = q1t[i].min(q2t[i]) - n.alpha * self.next_pi.log_prob[i];
-            self.y[i] = reward[i] + n.gamma * (1.0 - done[i]) * soft_v;
+        let draws = [
+            (&mut self.next_pi, &batch.next_obs, Some(noise_next)),
+            (&mut self.pi, &batch.obs, noise),
+        ];
+        for (cache, obs, noise) in draws {
+            let Some(noise) = noise else { continue };
+            n.actor.ensure(cache, r);
+            cache.eps[..r * a].copy_from_slice(rows_of(noise, a, &rows));
+            n.actor
+                .sample_with_noise(n.actor_params, rows_of(obs, o, &rows), r, cache);
         }
     }
 
-    /// Critic phase: TD targets, then the shard's share of ∂/∂θ_Q of
-    /// ½·MSE(Q₁, y) + ½·MSE(Q₂, y) into `critic_grads`, and of the loss into `sums`.
-    pub fn critic_gradient(&mut self, n: &Nets, batch: &Batch, noise_next: &[f32]) {
-        self.td_targets(n, batch, noise_next);
+    /// The shard's share of ∂/∂θ_π of mean(α log π(a|s) − min_e Q_e(s, a)) into
+    /// `actor_grads`, for the samples of the last [`RowShard::sample`] and `d_act` =
+    /// ∂L/∂a of the whole batch (`B x A`).
+    pub fn actor_gradient(&mut self, n: &Nets, batch: &Batch, d_act: &[f32]) {
         let (o, a, rows) = (n.actor.obs_dim(), n.actor.act_dim(), self.rows.clone());
-        let r = rows.len();
-        let obs = rows_of(&batch.obs, o, &rows);
-        let act = rows_of(&batch.act, a, &rows);
-        n.critic.forward(n.critic_params, obs, act, r, &mut self.q);
-        let b = n.batch_size as f32;
-        let mut loss = 0.0f32;
-        for e in 0..2 {
-            let q = n.critic.q(&self.q, e);
-            for i in 0..r {
-                let err = q[i] - self.y[i];
-                loss += 0.5 * err * err / b;
-                self.d_q[e][i] = err / b;
-            }
-        }
-        self.sums.critic_loss = loss;
-        n.critic.backward_params(
-            n.critic_params,
-            &mut self.q,
-            [&self.d_q[0], &self.d_q[1]],
-            &mut self.critic_grads,
-        );
-    }
-
-    /// Actor phase: a ~ π(·|s) with the noise `noise` (whole batch, `B x A`), then the shard's
-    /// share of ∂/∂θ_π of mean(α log π(a|s) − min_e Q_e(s, a)) into `actor_grads`, and of the
-    /// loss, log π and Q₁ means into `sums`.
-    pub fn actor_gradient(&mut self, n: &Nets, batch: &Batch, noise: &[f32]) {
-        let (o, a, rows) = (n.actor.obs_dim(), n.actor.act_dim(), self.rows.clone());
-        let r = rows.len();
-        let obs = rows_of(&batch.obs, o, &rows);
-        n.actor.ensure(&mut self.pi, r);
-        self.pi.eps[..r * a].copy_from_slice(rows_of(noise, a, &rows));
-        n.actor
-            .sample_with_noise(n.actor_params, obs, r, &mut self.pi);
-        n.critic
-            .forward(n.critic_params, obs, &self.pi.action, r, &mut self.q);
-        let (q1, q2) = (n.critic.q(&self.q, 0), n.critic.q(&self.q, 1));
-        let inv_b = 1.0 / n.batch_size as f32;
-        let mut sums = ShardSums {
-            critic_loss: self.sums.critic_loss,
-            ..ShardSums::default()
-        };
-        for i in 0..r {
-            let lp = self.pi.log_prob[i];
-            sums.actor_loss += (n.alpha * lp - q1[i].min(q2[i])) * inv_b;
-            sums.log_prob += lp * inv_b;
-            sums.q1 += q1[i] * inv_b;
-            self.d_min[i] = -inv_b;
-            self.d_log_prob[i] = n.alpha * inv_b;
-        }
-        self.sums = sums;
-        n.critic.backward_action_min(
-            n.critic_params,
-            &mut self.q,
-            &self.d_min[..r],
-            &mut self.d_act,
-        );
+        let d_log_prob = n.alpha * (1.0 / n.batch_size as f32);
+        self.d_log_prob.fill(d_log_prob);
         n.actor.backward(
             n.actor_params,
-            obs,
+            rows_of(&batch.obs, o, &rows),
             &mut self.pi,
-            &self.d_act,
+            rows_of(d_act, a, &rows),
             &self.d_log_prob,
             &mut self.actor_grads,
+        );
+    }
+}
+
+/// Hand each row's ∂L/∂min(Q₁, Q₂) = `d_min` to the critic whose value is the minimum
+/// ([`TwinCritic::min_critic`]), from the lanes' last [`CriticLane::policy_values`]: fills
+/// both lanes' `min_rows` and `min_grad`.
+pub(crate) fn assign_min_rows(lanes: &mut [CriticLane; 2], critic: &TwinCritic, d_min: f32) {
+    let [l1, l2] = lanes;
+    let (q1, q2) = (l1.q.output(critic.mlp()), l2.q.output(critic.mlp()));
+    let mut picks = [
+        (&mut l1.min_rows, &mut l1.min_grad),
+        (&mut l2.min_rows, &mut l2.min_grad),
+    ];
+    picks.iter_mut().for_each(|(rows, _)| rows.clear());
+    for (r, (&v1, &v2)) in q1.iter().zip(q2).enumerate() {
+        let (rows, grad) = &mut picks[TwinCritic::min_critic(v1, v2)];
+        grad[rows.len()] = d_min;
+        rows.push(r);
+    }
+}
+
+/// One critic's work in an update, over all rows of the minibatch.
+#[derive(Debug, Clone)]
+pub(crate) struct CriticLane {
+    /// Which critic: 0 for Q₁, 1 for Q₂.
+    pub e: usize,
+    /// Input rows [s, a] of the current pass (`B x (O + A)`).
+    input: Vec<f32>,
+    /// Q̄_e(s', a'), the target network's values.
+    target: MlpCache,
+    /// Q_e(s, a) for the batch's actions, then Q_e(s, a~π) for the policy's.
+    q: MlpCache,
+    /// Q_e(s, a) of the batch's own actions, kept for the loss.
+    pub q_data: Vec<f32>,
+    d_q: Vec<f32>,
+    /// ∂L_Q/∂θ_e (after [`CriticLane::gradient`]).
+    pub grads: Vec<f32>,
+    /// The rows whose min(Q₁, Q₂) is Q_e, their ∂L/∂Q_e and (after
+    /// [`CriticLane::action_gradient`]) their ∂L/∂a (`rows x A`), compact.
+    pub min_rows: Vec<usize>,
+    pub min_grad: Vec<f32>,
+    pub min_d_act: Vec<f32>,
+}
+
+impl CriticLane {
+    pub fn new(critic: &TwinCritic, e: usize, batch: usize) -> Self {
+        let (mlp, a) = (critic.mlp(), critic.act_dim());
+        Self {
+            e,
+            input: vec![0.0; batch * mlp.in_dim()],
+            target: MlpCache::new(mlp, batch),
+            q: MlpCache::new(mlp, batch),
+            q_data: vec![0.0; batch],
+            d_q: vec![0.0; batch],
+            grads: vec![0.0; mlp.num_params()],
+            min_rows: Vec::with_capacity(batch),
+            min_grad: vec![0.0; batch],
+            min_d_act: vec![0.0; batch * a],
+        }
+    }
+
+    /// Q̄_e(s', a') for every row, with the target parameters `target_e` of this critic and
+    /// the policy's actions `next_action` (`B x A`); read with [`CriticLane::target_q`].
+    pub fn target_values(
+        &mut self,
+        n: &Nets,
+        target_e: &[f32],
+        batch: &Batch,
+        next_action: &[f32],
+    ) {
+        let b = batch.len;
+        n.critic
+            .join_inputs(&batch.next_obs, next_action, b, &mut self.input);
+        n.critic
+            .mlp()
+            .forward(target_e, &self.input, b, &mut self.target);
+    }
+
+    /// Q̄_e(s', a') of the last [`CriticLane::target_values`].
+    pub fn target_q(&self, n: &Nets) -> &[f32] {
+        self.target.output(n.critic.mlp())
+    }
+
+    /// ∂/∂θ_e of ½·MSE(Q_e(s, a), y) into `grads` for the critic's parameters `theta_e`
+    /// and the TD targets `y`; Q_e(s, a) is kept in `q_data` (the loss is the agent's sum).
+    pub fn gradient(&mut self, n: &Nets, theta_e: &[f32], batch: &Batch, y: &[f32]) {
+        let b = batch.len;
+        let mlp = n.critic.mlp();
+        n.critic
+            .join_inputs(&batch.obs, &batch.act, b, &mut self.input);
+        let q = mlp.forward(theta_e, &self.input, b, &mut self.q);
+        self.q_data[..b].copy_from_slice(&q[..b]);
+        let b_all = n.batch_size as f32;
+        for i in 0..b {
+            self.d_q[i] = (self.q_data[i] - y[i]) / b_all;
+        }
+        mlp.backward(
+            theta_e,
+            &self.input,
+            &mut self.q,
+            &self.d_q[..b],
+            Some(&mut self.grads),
+            None,
+        );
+    }
+
+    /// Adam on this critic's parameters with its gradient, then the Polyak step
+    /// θ̄_e ← θ̄_e + τ(θ_e − θ̄_e); returns the new θ_e.
+    pub fn step<'p>(&self, adam: AdamPart<'p>, target_e: &mut [f32], tau: f32) -> &'p mut [f32] {
+        let theta = adam.apply(&self.grads);
+        polyak(target_e, theta, tau);
+        theta
+    }
+
+    /// Q_e(s, a) for the policy's actions `pi_action` (`B x A`) with parameters `theta_e`,
+    /// kept for [`CriticLane::action_gradient`]; read with [`CriticLane::policy_q`].
+    pub fn policy_values(&mut self, n: &Nets, theta_e: &[f32], batch: &Batch, pi_action: &[f32]) {
+        let b = batch.len;
+        n.critic
+            .join_inputs(&batch.obs, pi_action, b, &mut self.input);
+        n.critic.mlp().forward(theta_e, &self.input, b, &mut self.q);
+    }
+
+    /// Q_e(s, a~π) of the last [`CriticLane::policy_values`].
+    pub fn policy_q(&self, n: &Nets) -> &[f32] {
+        self.q.output(n.critic.mlp())
+    }
+
+    /// ∂L/∂a of the rows `min_rows` (whose minimum is this critic) for their ∂L/∂Q_e
+    /// `min_grad`, into `min_d_act`: the backward pass of the last
+    /// [`CriticLane::policy_values`] on those rows only.
+    pub fn action_gradient(&mut self, n: &Nets, theta_e: &[f32]) {
+        let (o, a) = (n.actor.obs_dim(), n.actor.act_dim());
+        n.critic.mlp().input_grad_rows(
+            theta_e,
+            &mut self.q,
+            &self.min_rows,
+            &self.min_grad,
+            o..o + a,
+            &mut self.min_d_act,
         );
     }
 }
