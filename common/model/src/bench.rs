@@ -1,8 +1,8 @@
 //! Benchmarks of the model's two hot paths, for `mbpo bench model-train` / `model-rollout`.
 //!
 //! Both run the MBPO-sized model (7 members, 4 x 200 SiLU) at HalfCheetah's dimensions
-//! (obs 17, act 6), the rollouts on one thread and the training on `model.threads` (members in
-//! blocks, `mbpo bench model-train --threads N`), and compare the achieved GEMM throughput with the roofline
+//! (obs 17, act 6), both on `model.threads` (`--threads N`: the training's members in blocks,
+//! the rollouts' grouped chunks in runs), and compare the achieved GEMM throughput with the roofline
 //! measured in the same run: [`mbpo_nn::bench::gemm_gflops`] on the model's hidden-layer shape
 //! `256 x 200 x 200`. Only GEMM flops are counted (2 per multiply-add): a forward pass costs
 //! `2·rows·in·out` per layer, a training step adds the weight gradient of every layer and the
@@ -253,6 +253,6 @@ pub fn model_rollout(
         flops,
         roofline,
         &cfg.model,
-        1,
+        cfg.model.threads.min(cfg.model.members),
     ))
 }

@@ -24,7 +24,8 @@
 //! backward pass needs), so the whole horizon is run forward once and backward once.
 
 use crate::error::PredictError;
-use crate::model::{check_len, Grouping, ProbabilisticEnsemble};
+use crate::grouped::Grouping;
+use crate::model::{check_len, ProbabilisticEnsemble};
 use mbpo_nn::MlpCache;
 
 /// Activations of recorded mean predictions, one slot per planning step; reused across calls

@@ -48,6 +48,7 @@ pub mod bench;
 mod config;
 mod error;
 mod grad;
+mod grouped;
 mod model;
 mod network;
 mod normalizer;

@@ -1,12 +1,15 @@
 //! [`ProbabilisticEnsemble`]: construction, parameters, the training objective and predictions.
 
-use crate::config::{ModelConfig, ModelConfigError};
+use crate::config::{ModelConfig, ModelConfigError, MAX_THREADS};
 use crate::error::{ParamsError, PredictError};
-use crate::network::{member_forward, members_mse, InferBuffers, Net, INFER_CHUNK};
+use crate::grouped::{
+    forward_grouped, sample_block, ChunkBlock, GroupedInputs, Grouping, InputChunk,
+};
+use crate::network::{members_mse, InferBuffers, Net};
 use crate::normalizer::InputNormalizer;
-use crate::parallel::{members_loss_and_grads, MemberThreads};
+use crate::parallel::{for_each_with_inference, members_loss_and_grads, MemberThreads};
 use crate::rollout::RolloutBuffers;
-use crate::simd::{dispatch, fill_standard_normal};
+use crate::simd::fill_standard_normal;
 use crate::termination::{TerminationClassifier, TerminationWeights};
 use mbpo_core::rng::index;
 use mbpo_core::{Batch, Rng};
@@ -86,41 +89,11 @@ pub(crate) struct Workspace {
     pub(crate) group: Grouping,
     /// Standard-normal draws of a sampled prediction, in member-grouped order (`n x d`).
     pub(crate) eps: Vec<f32>,
+    /// The sampled `[reward, Δobs]` rows of a prediction, in member-grouped order (`n x d`).
+    pub(crate) sampled: Vec<f32>,
     /// Member per sample.
     pub(crate) members: Vec<usize>,
     pub(crate) rollout: RolloutBuffers,
-}
-
-/// Samples ordered by member (a counting sort), so each member runs once on its own rows.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct Grouping {
-    /// Sample indices, member 0's first; stable within a member.
-    pub(crate) order: Vec<u32>,
-    /// `starts[e]..starts[e + 1]` is member e's part of `order`.
-    pub(crate) starts: Vec<usize>,
-}
-
-impl Grouping {
-    pub(crate) fn build(&mut self, members: &[usize], n_members: usize) {
-        self.starts.clear();
-        self.starts.resize(n_members + 1, 0);
-        for &m in members {
-            self.starts[m + 1] += 1;
-        }
-        for e in 0..n_members {
-            self.starts[e + 1] += self.starts[e];
-        }
-        self.order.resize(members.len(), 0);
-        // `starts[e]` is used as member e's write cursor, then restored.
-        for (i, &m) in members.iter().enumerate() {
-            self.order[self.starts[m]] = i as u32;
-            self.starts[m] += 1;
-        }
-        for e in (0..n_members).rev() {
-            self.starts[e + 1] = self.starts[e];
-        }
-        self.starts[0] = 0;
-    }
 }
 
 impl ProbabilisticEnsemble {
@@ -470,32 +443,29 @@ impl ProbabilisticEnsemble {
             ..
         } = &mut self.ws;
         group.build(&members[..n], self.config.members);
-        forward_grouped(
-            &self.net,
-            &self.theta,
-            &self.normalizer,
-            infer,
-            input,
+        let inputs = GroupedInputs {
+            net: &self.net,
+            theta: &self.theta,
             group,
             obs,
             act,
-            |_, idx, y| {
-                for (row, &i) in y.chunks_exact(2 * d).zip(idx) {
-                    let i = i as usize;
-                    let (m, lv) = row.split_at(d);
-                    let out = &mut mean[i * d..(i + 1) * d];
-                    out[0] = m[0];
-                    for ((v, &dm), &s) in out[1..]
-                        .iter_mut()
-                        .zip(&m[1..])
-                        .zip(&obs[i * o..(i + 1) * o])
-                    {
-                        *v = s + dm;
-                    }
-                    logvar[i * d..(i + 1) * d].copy_from_slice(lv);
+        };
+        forward_grouped(&inputs, &self.normalizer, input, infer, |_, idx, y| {
+            for (row, &i) in y.chunks_exact(2 * d).zip(idx) {
+                let i = i as usize;
+                let (m, lv) = row.split_at(d);
+                let out = &mut mean[i * d..(i + 1) * d];
+                out[0] = m[0];
+                for ((v, &dm), &s) in out[1..]
+                    .iter_mut()
+                    .zip(&m[1..])
+                    .zip(&obs[i * o..(i + 1) * o])
+                {
+                    *v = s + dm;
                 }
-            },
-        );
+                logvar[i * d..(i + 1) * d].copy_from_slice(lv);
+            }
+        });
         Ok(())
     }
 
@@ -523,6 +493,11 @@ impl ProbabilisticEnsemble {
     }
 
     /// The body of [`ProbabilisticEnsemble::predict_sample`] once `ws.group` is built.
+    ///
+    /// The grouped chunks are cut into one contiguous run per thread of the training calls
+    /// (`model.threads`); each thread samples its chunks into its range of the grouped-order
+    /// buffer `ws.sampled`, and the caller scatters them to the samples. ε is drawn first, in
+    /// grouped order, so the result is the same bits for any thread count.
     pub(crate) fn sample_grouped(
         &mut self,
         obs: &[f32],
@@ -534,43 +509,58 @@ impl ProbabilisticEnsemble {
     ) {
         let (o, d) = (self.obs_dim, self.net.d());
         let Workspace {
-            infer,
             group,
             eps,
-            input,
+            sampled,
+            threads,
             ..
         } = &mut self.ws;
-        // ε in member-grouped order (the order the chunks are computed in), so each chunk's
-        // draws are contiguous; the grouping is a fixed function of `members`, so a seed still
+        // ε in member-grouped order (the order of the chunks), so each chunk's draws are
+        // contiguous; the grouping is a fixed function of the members drawn, so a seed still
         // fixes every sample's noise.
         eps.resize(n * d, 0.0);
         fill_standard_normal(rng, eps);
-        forward_grouped(
-            &self.net,
-            &self.theta,
-            &self.normalizer,
-            infer,
-            input,
+        sampled.resize(n * d, 0.0);
+        let workers = threads.ensure_inference(self.config.threads, &self.net, &self.normalizer);
+        let chunks = group.chunk_count();
+        let used = workers.min(chunks);
+        let mut blocks: [Option<ChunkBlock>; MAX_THREADS] = std::array::from_fn(|_| None);
+        let mut rest = &mut sampled[..];
+        for (t, slot) in blocks.iter_mut().enumerate().take(used) {
+            let run = t * chunks / used..(t + 1) * chunks / used;
+            let (first, end) = (
+                group.chunk_position(run.start),
+                group.chunk_position(run.end),
+            );
+            let (out, tail) = std::mem::take(&mut rest).split_at_mut((end - first) * d);
+            rest = tail;
+            *slot = Some(ChunkBlock {
+                chunks: run,
+                first,
+                out,
+            });
+        }
+        let inputs = GroupedInputs {
+            net: &self.net,
+            theta: &self.theta,
             group,
             obs,
             act,
-            |pos, idx, y| {
-                let eps = &eps[pos * d..(pos + idx.len()) * d];
-                dispatch!(sample_gaussian_rows(y, eps, d));
-                for (row, &i) in y.chunks_exact(2 * d).zip(idx) {
-                    let i = i as usize;
-                    reward[i] = row[0];
-                    let next = &mut next_obs[i * o..(i + 1) * o];
-                    for ((v, &dm), &s) in next
-                        .iter_mut()
-                        .zip(&row[1..d])
-                        .zip(&obs[i * o..(i + 1) * o])
-                    {
-                        *v = s + dm;
-                    }
-                }
-            },
-        );
+        };
+        let eps = &eps[..];
+        for_each_with_inference(threads, &mut blocks[..used], |block, infer, input| {
+            if let Some(block) = block.take() {
+                sample_block(&inputs, eps, block, input, infer);
+            }
+        });
+        for (&i, row) in group.order.iter().zip(sampled.chunks_exact(d)) {
+            let i = i as usize;
+            reward[i] = row[0];
+            let next = &mut next_obs[i * o..(i + 1) * o];
+            for ((v, &dm), &s) in next.iter_mut().zip(&row[1..]).zip(&obs[i * o..(i + 1) * o]) {
+                *v = s + dm;
+            }
+        }
     }
 
     /// Mean-squared error of each member's mean prediction of `[reward, Δobs]` on `data`
@@ -666,68 +656,6 @@ pub(crate) fn standardize(
             .zip(&data.next_obs[r * o..(r + 1) * o])
         {
             *v = s2 - s;
-        }
-    }
-}
-
-/// Standardised inputs of one inference chunk, built vectorised: the raw `[obs, act]` rows are
-/// copied in, then `(x − mean)/std` runs over blocks of 8 rows against mean and std tiled 8
-/// times (so every lane's column parameter sits at the same offset). Same IEEE operations as
-/// [`InputNormalizer::transform_into`], hence the same values as the training path.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct InputChunk {
-    x: Vec<f32>,
-    mean_tile: Vec<f32>,
-    std_tile: Vec<f32>,
-}
-
-impl InputChunk {
-    fn prepare(&mut self, normalizer: &InputNormalizer) {
-        let in_dim = normalizer.dim();
-        self.x.resize(INFER_CHUNK * in_dim, 0.0);
-        self.mean_tile.clear();
-        self.std_tile.clear();
-        for _ in 0..8 {
-            self.mean_tile.extend_from_slice(&normalizer.mean);
-            self.std_tile.extend_from_slice(&normalizer.std);
-        }
-    }
-}
-
-/// Run each member once over its own samples (in chunks of [`INFER_CHUNK`] rows) and hand each
-/// chunk's position in the grouped order, its sample indices and its `[μ | logvar]` rows to
-/// `sink`. This is the rollout's speed lever:
-/// every sample costs one member's forward pass, not E.
-#[allow(clippy::too_many_arguments)]
-fn forward_grouped(
-    net: &Net,
-    theta: &[f32],
-    normalizer: &InputNormalizer,
-    infer: &mut InferBuffers,
-    chunk: &mut InputChunk,
-    group: &Grouping,
-    obs: &[f32],
-    act: &[f32],
-    mut sink: impl FnMut(usize, &[u32], &mut [f32]),
-) {
-    let in_dim = net.in_dim();
-    let o = net.d() - 1;
-    let a = in_dim - o;
-    chunk.prepare(normalizer);
-    for e in 0..net.members() {
-        let mine = &group.order[group.starts[e]..group.starts[e + 1]];
-        for (c, idx) in mine.chunks(INFER_CHUNK).enumerate() {
-            let rows = idx.len();
-            let pos = group.starts[e] + c * INFER_CHUNK;
-            for (&i, x) in idx.iter().zip(chunk.x.chunks_exact_mut(in_dim)) {
-                let i = i as usize;
-                x[..o].copy_from_slice(&obs[i * o..(i + 1) * o]);
-                x[o..].copy_from_slice(&act[i * a..(i + 1) * a]);
-            }
-            let x = &mut chunk.x[..rows * in_dim];
-            dispatch!(standardize_tiled(x, &chunk.mean_tile, &chunk.std_tile));
-            member_forward(net, theta, e, x, rows, infer, true);
-            sink(pos, idx, &mut infer.y[..rows * 2 * net.d()]);
         }
     }
 }

@@ -23,7 +23,9 @@
 //! other count trains halves. With 1 thread everything runs inline on the caller.
 
 use crate::config::MAX_THREADS;
+use crate::grouped::InputChunk;
 use crate::network::{member_loss_and_grad, member_mse, InferBuffers, Net, TrainBuffers};
+use crate::normalizer::InputNormalizer;
 use mbpo_nn::adam::AdamPart;
 use mbpo_nn::{Adam, WorkerPool};
 use std::ops::Range;
@@ -34,6 +36,8 @@ use std::ops::Range;
 struct MemberWorker {
     train: TrainBuffers,
     infer: InferBuffers,
+    /// Standardised inputs of one inference chunk (a sampled prediction's share).
+    input: InputChunk,
     /// Standardised inputs of one member's minibatch (`batch x in`).
     x_chunk: Vec<f32>,
     /// Its targets (`batch x d`).
@@ -98,6 +102,28 @@ impl MemberThreads {
         };
         self.second_halves.resize(second_halves, 0.0);
         self.half_losses.resize(self.parts * net.members(), 0.0);
+    }
+
+    /// Make sure there are the threads a training call on `threads` threads would use, each
+    /// with inference buffers and an input chunk prepared for `normalizer`; returns how many.
+    /// (The same count as [`MemberThreads::ensure`], so inference never rebuilds the pool.)
+    pub(crate) fn ensure_inference(
+        &mut self,
+        threads: usize,
+        net: &Net,
+        normalizer: &InputNormalizer,
+    ) -> usize {
+        let threads = threads.clamp(1, MAX_THREADS);
+        let threads = threads.min(parts_per_member(net.members(), threads) * net.members());
+        if self.pool.as_ref().is_none_or(|p| p.threads() != threads) {
+            self.pool = Some(WorkerPool::new(threads));
+        }
+        self.workers.resize_with(threads, MemberWorker::default);
+        for w in &mut self.workers {
+            w.infer.ensure(net);
+            w.input.prepare(normalizer);
+        }
+        threads
     }
 
     fn threads(&self) -> usize {
@@ -389,6 +415,32 @@ pub(crate) fn holdout_mse(
         };
         for (k, m) in out.iter_mut().enumerate() {
             *m = member_mse(net, theta, first + k, x, targets, n, &mut worker.infer);
+        }
+    });
+}
+
+/// `f(item, infer, input)` for each of `items` at once, item i on thread i with that thread's
+/// inference buffers and input chunk (after [`MemberThreads::ensure_inference`]; at most that
+/// many items).
+pub(crate) fn for_each_with_inference<T: Send>(
+    threads: &mut MemberThreads,
+    items: &mut [T],
+    f: impl Fn(&mut T, &mut InferBuffers, &mut InputChunk) + Sync,
+) {
+    let (pool, workers, _) = threads.parts();
+    let used = items.len();
+    assert!(used <= workers.len(), "more items than threads");
+    let mut pairs: [Option<(&mut T, &mut MemberWorker)>; MAX_THREADS] =
+        std::array::from_fn(|_| None);
+    for (slot, pair) in pairs
+        .iter_mut()
+        .zip(items.iter_mut().zip(workers.iter_mut()))
+    {
+        *slot = Some(pair);
+    }
+    pool.for_each_mut(&mut pairs[..used], |_, pair| {
+        if let Some((item, worker)) = pair.take() {
+            f(item, &mut worker.infer, &mut worker.input);
         }
     });
 }

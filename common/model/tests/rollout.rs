@@ -464,3 +464,45 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
         "{err}"
     );
 }
+
+#[test]
+fn rollouts_give_the_same_bits_on_any_thread_count() {
+    // 2000 rollouts over 5 members: every member has more than one chunk of 256 rows, so the
+    // chunks are cut between threads inside members as well as between them.
+    let run = |threads: usize| {
+        let mut rng = stream(8, "threads", 0);
+        let cfg = ModelConfig {
+            threads,
+            ..small_config(5, 3, &[32, 32])
+        };
+        let mut model = ProbabilisticEnsemble::new(4, 2, cfg, &mut rng).unwrap();
+        let start = random_start(2000, 4, &mut rng);
+        let mut out = ReplayBuffer::new(4, 2, 10_000);
+        let stats = model
+            .rollout(
+                &start,
+                2000,
+                &mut uniform(2),
+                2,
+                RolloutTermination::Rule(&fake_done),
+                None,
+                &mut rng,
+                &mut out,
+            )
+            .unwrap();
+        assert!(stats.terminated > 0 && stats.steps == 2, "{stats:?}");
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let b = out.to_batch();
+        (
+            stats,
+            bits(&b.obs),
+            bits(&b.reward),
+            bits(&b.next_obs),
+            b.terminated,
+        )
+    };
+    let one = run(1);
+    for threads in [2, 3] {
+        assert!(run(threads) == one, "{threads} threads");
+    }
+}

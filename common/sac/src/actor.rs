@@ -16,7 +16,7 @@
 use mbpo_core::rng::normal_f32;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_nn::math::{exp_neg_f32, log1p_unit};
-use mbpo_nn::{Activation, Init, Mlp, MlpCache, ParamLayout};
+use mbpo_nn::{Activation, Init, Mlp, MlpCache, ParamLayout, WorkerPool};
 
 const HALF_LOG_2PI: f32 = 0.918_938_5;
 const LN_2: f32 = std::f32::consts::LN_2;
@@ -252,8 +252,22 @@ fn softplus(x: f32) -> f32 {
     x.max(0.0) + (-x.abs()).exp().ln_1p()
 }
 
+/// Rows per forward pass of [`ActorPolicy::act_batch`]: large enough for full-speed GEMMs,
+/// small enough that a layer's activations (rows x 256 x 4 B) stay in L2. A model rollout acts
+/// on 100k states at once; one pass over all of them would stream hundreds of MB of
+/// activations through memory.
+pub const POLICY_CHUNK: usize = 256;
+
+/// Most threads an [`ActorPolicy`] acts on.
+pub const MAX_POLICY_THREADS: usize = 16;
+
 /// An actor with its own parameters, usable wherever a [`BatchPolicy`] is needed (actors,
 /// model rollouts, evaluation).
+///
+/// A batch is acted on in chunks of [`POLICY_CHUNK`] rows, on [`ActorPolicy::with_threads`]
+/// threads when there are more chunks than one. The noise of the whole batch is drawn first,
+/// in row order, and every row's action depends only on its own row, so the actions are the
+/// same bits for any chunking and thread count (and the same as one pass over the batch).
 #[derive(Debug, Clone)]
 pub struct ActorPolicy {
     /// Architecture.
@@ -262,11 +276,23 @@ pub struct ActorPolicy {
     pub params: Vec<f32>,
     /// Act with tanh μ instead of sampling (evaluation).
     pub deterministic: bool,
-    cache: ActorCache,
+    /// ε of the whole batch (`batch x A`).
+    eps: Vec<f32>,
+    /// One cache of up to [`POLICY_CHUNK`] rows per thread.
+    caches: Vec<ActorCache>,
+    pool: WorkerPool,
+}
+
+/// One thread's contiguous block of rows in [`ActorPolicy::act_batch`].
+struct PolicyBlock<'a> {
+    cache: &'a mut ActorCache,
+    obs: &'a [f32],
+    eps: &'a [f32],
+    actions: &'a mut [f32],
 }
 
 impl ActorPolicy {
-    /// A policy from an actor and its parameters.
+    /// A policy from an actor and its parameters, acting on the calling thread.
     pub fn new(actor: TanhGaussianActor, params: Vec<f32>, deterministic: bool) -> Self {
         assert_eq!(params.len(), actor.num_params());
         let cache = actor.cache(1);
@@ -274,18 +300,85 @@ impl ActorPolicy {
             actor,
             params,
             deterministic,
-            cache,
+            eps: Vec::new(),
+            caches: vec![cache],
+            pool: WorkerPool::new(1),
+        }
+    }
+
+    /// The same policy acting on `threads` threads (at most [`MAX_POLICY_THREADS`]) for
+    /// batches of more than one chunk; the actions do not change.
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        let threads = threads.clamp(1, MAX_POLICY_THREADS);
+        self.caches = vec![self.actor.cache(1); threads];
+        self.pool = WorkerPool::new(threads);
+        self
+    }
+
+    /// a ~ π(·|s) (or tanh μ) of `batch` rows of `obs` with the noise in `self.eps`, into
+    /// `actions`: contiguous blocks of rows, one per thread, each in chunks.
+    fn act_with_noise(&mut self, obs: &[f32], batch: usize, actions: &mut [f32]) {
+        if batch == 0 {
+            return;
+        }
+        let (o, a) = (self.actor.obs_dim(), self.actor.act_dim());
+        let chunks = batch.div_ceil(POLICY_CHUNK);
+        let threads = self.pool.threads().min(chunks);
+        // Whole chunks per block, so every chunk but the batch's last is full.
+        let rows_per_block = chunks.div_ceil(threads) * POLICY_CHUNK;
+        let mut blocks: [Option<PolicyBlock>; MAX_POLICY_THREADS] = Default::default();
+        let parts = self
+            .caches
+            .iter_mut()
+            .zip(obs[..batch * o].chunks(rows_per_block * o))
+            .zip(self.eps[..batch * a].chunks(rows_per_block * a))
+            .zip(actions[..batch * a].chunks_mut(rows_per_block * a));
+        for (slot, (((cache, obs), eps), actions)) in blocks.iter_mut().zip(parts) {
+            *slot = Some(PolicyBlock {
+                cache,
+                obs,
+                eps,
+                actions,
+            });
+        }
+        let (actor, params) = (&self.actor, &self.params[..]);
+        let used = batch.div_ceil(rows_per_block);
+        let act_block = |block: &mut Option<PolicyBlock>| {
+            let Some(b) = block.take() else { return };
+            let chunks = b
+                .obs
+                .chunks(POLICY_CHUNK * o)
+                .zip(b.eps.chunks(POLICY_CHUNK * a))
+                .zip(b.actions.chunks_mut(POLICY_CHUNK * a));
+            for ((obs, eps), out) in chunks {
+                let rows = obs.len() / o;
+                actor.ensure(b.cache, rows);
+                b.cache.eps[..rows * a].copy_from_slice(eps);
+                actor.sample_with_noise(params, obs, rows, b.cache);
+                out.copy_from_slice(&b.cache.action[..rows * a]);
+            }
+        };
+        if used == 1 {
+            act_block(&mut blocks[0]);
+        } else {
+            self.pool
+                .for_each_mut(&mut blocks[..used], |_, block| act_block(block));
         }
     }
 }
 
 impl BatchPolicy for ActorPolicy {
     fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
-        let rng = if self.deterministic { None } else { Some(rng) };
-        self.actor
-            .sample(&self.params, obs, batch, &mut self.cache, rng);
         let n = batch * self.actor.act_dim();
-        actions[..n].copy_from_slice(&self.cache.action[..n]);
+        self.eps.resize(n.max(self.eps.len()), 0.0);
+        let eps = &mut self.eps[..n];
+        // The draws of `TanhGaussianActor::sample`: the whole batch's ε in row order.
+        if self.deterministic {
+            eps.fill(0.0);
+        } else {
+            eps.iter_mut().for_each(|e| *e = normal_f32(rng));
+        }
+        self.act_with_noise(obs, batch, actions);
     }
 }
 
@@ -304,6 +397,53 @@ mod tests {
             lp -= (1.0 - u[j].tanh().powi(2)).ln();
         }
         lp
+    }
+
+    #[test]
+    fn a_policy_acts_with_the_same_bits_in_chunks_and_on_threads() {
+        // Hopper's sizes: 256-wide layers take faer's blocked kernels. 1000 rows are three
+        // full chunks and a partial one; the reference is one pass over the whole batch.
+        let actor = TanhGaussianActor::new(11, 3, &[256, 256], -20.0, 2.0);
+        let mut params = vec![0.0; actor.num_params()];
+        actor.init(&mut params, &mut stream(3, "a", 0));
+        let rows = 1000;
+        let mut g = stream(4, "obs", 0);
+        let obs: Vec<f32> = (0..rows * 11).map(|_| 2.0 * normal_f32(&mut g)).collect();
+        for deterministic in [false, true] {
+            let mut whole = actor.cache(rows);
+            let rng = (!deterministic).then(|| stream(5, "eps", 0));
+            actor.sample(&params, &obs, rows, &mut whole, rng.clone().as_mut());
+            let want: Vec<u32> = whole.action[..rows * 3]
+                .iter()
+                .map(|v| v.to_bits())
+                .collect();
+            for threads in [1, 2, 3] {
+                let mut policy = ActorPolicy::new(actor.clone(), params.clone(), deterministic)
+                    .with_threads(threads);
+                let mut actions = vec![f32::NAN; rows * 3];
+                let mut rng = stream(5, "eps", 0);
+                policy.act_batch(&obs, rows, &mut actions, &mut rng);
+                let got: Vec<u32> = actions.iter().map(|v| v.to_bits()).collect();
+                assert!(
+                    got == want,
+                    "{threads} threads, deterministic {deterministic}"
+                );
+                // A small batch after a large one still acts right.
+                policy.act_batch(&obs[..11], 1, &mut actions[..3], &mut stream(5, "eps", 0));
+                assert_eq!(
+                    actions[..3].iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                    {
+                        let mut one = actor.cache(1);
+                        let rng = (!deterministic).then(|| stream(5, "eps", 0));
+                        actor.sample(&params, &obs[..11], 1, &mut one, rng.clone().as_mut());
+                        one.action[..3]
+                            .iter()
+                            .map(|v| v.to_bits())
+                            .collect::<Vec<_>>()
+                    }
+                );
+            }
+        }
     }
 
     #[test]

@@ -397,7 +397,9 @@ impl RolloutRole {
             d_env: ReplayBuffer::new(obs_dim, act_dim, cfg.mbpo.replay_capacity),
             model,
             model_version: 0,
-            policy: ActorPolicy::new(net, params, false),
+            // The rollouts' policy acts on the model's threads (its actions do not depend on
+            // the count): a rollout's states are 100k rows, as many as the model's.
+            policy: ActorPolicy::new(net, params, false).with_threads(cfg.model.threads),
             policy_version: 0,
             termination,
             schedule: cfg.mbpo.rollout_schedule,

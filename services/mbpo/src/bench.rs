@@ -33,7 +33,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             Ok(())
         }
         BenchCommand::ModelRollout(r) => {
-            let cfg = model_bench_config(&r);
+            let mut cfg = model_bench_config(&r.reps);
+            cfg.model.threads = r.threads;
             let report = mbpo_model::bench::model_rollout(100_000, &cfg)?;
             println!("{}", serde_json::to_string(&report)?);
             Ok(())

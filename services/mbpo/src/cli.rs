@@ -159,9 +159,9 @@ pub enum BenchCommand {
     /// One SAC update (obs 17, act 6, 2x256, batch 256: HalfCheetah dims).
     SacUpdate(SacUpdateArgs),
     /// One dynamics-model training epoch over 10k transitions (7 x 4x200, HalfCheetah dims).
-    ModelTrain(ModelTrainArgs),
+    ModelTrain(ModelBenchArgs),
     /// 100k one-step model rollouts (7 x 4x200, HalfCheetah dims).
-    ModelRollout(Repetitions),
+    ModelRollout(ModelBenchArgs),
     /// Learning benchmark: a training config over several seeds -> <out>/learning-<env>.json.
     Learning(LearningArgs),
     /// Where an MBPO run's time goes at given sizes of D_env: continue a run from its kept
@@ -460,11 +460,11 @@ pub struct RemoteArgs {
 }
 
 #[derive(Debug, Args)]
-pub struct ModelTrainArgs {
+pub struct ModelBenchArgs {
     #[command(flatten)]
     pub reps: Repetitions,
-    /// Threads of the training call (`model.threads`; members in blocks, same result for any
-    /// count).
+    /// Threads (`model.threads`): a training call's members in blocks, a rollout's grouped
+    /// chunks in runs.
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
 }
