@@ -7,20 +7,24 @@
 //!
 //! 1. every thread computes the loss gradient of its block of units ([`members_loss_and_grads`]).
 //!    A unit is a whole member when the threads divide the members; otherwise every member's
-//!    minibatch is cut into two halves of rows ([`parts_per_member`], [`part_rows`]), so that 7
-//!    members on 2 threads are 7 : 7 halves instead of 4 : 3 members. A first half (or a whole
-//!    member) writes the member's range of the gradient, a second half the member's range of
-//!    a second buffer; each unit's bound gradient goes into its own slot;
-//! 2. each member's second half is added to its first: by the thread that computed both,
-//!    right after the second, or once both threads are done for a member cut between two
-//!    blocks; the caller adds the bound slots in member and part order ([`sum_bound_slots`]);
+//!    minibatch is cut into two halves of rows ([`parts_per_member`], [`part_rows`]) and the
+//!    halves are dealt out in equal blocks, so that 7 members on 2 threads are 3½ : 3½
+//!    instead of 4 : 3. A member whose two halves fall in one block still runs whole, in one
+//!    pass; only a member that a block boundary cuts (member 3 on 2 threads) runs as two
+//!    halves on two threads. A first half (or a whole member) writes the member's range of the
+//!    gradient, a second half the member's range of a second buffer; each unit's bound
+//!    gradient goes into its own slot (a whole member's second slot holds zeros);
+//! 2. the second half of a member cut between two blocks is added to its first once both
+//!    threads are done; the caller adds the bound slots in member and part order
+//!    ([`sum_bound_slots`]);
 //! 3. Adam, cut into one equal range of θ per thread ([`adam_step`]).
 //!
 //! The holdout MSE of an epoch is per member ([`holdout_mse`]). Every floating-point sum has
-//! the same operands in the same order for any number of threads that cuts members the same
-//! way, so a training call gives bit-identical weights for them (`tests/training.rs` checks
-//! it): one thread and any thread count that divides the members train whole members; every
-//! other count trains halves. With 1 thread everything runs inline on the caller.
+//! the same operands in the same order for any number of threads that cuts the same members,
+//! so a training call gives bit-identical weights for them (`tests/training.rs` checks it):
+//! one thread, any thread count that divides the members, and any whose blocks hold whole
+//! members (4 or 8 threads for 7 members) cut none. With 1 thread everything runs inline on
+//! the caller.
 
 use crate::config::MAX_THREADS;
 use crate::grouped::InputChunk;
@@ -149,9 +153,10 @@ impl MemberThreads {
 /// How many parts each member's minibatch is cut into on `threads` threads: whole members
 /// (1) when the threads divide the members, as one thread always does; halves (2) otherwise,
 /// so that no thread idles for a member's work (7 members on 2 threads: 14 halves, 7 each,
-/// instead of members 4 : 3). Halves are not the default because a 128-row GEMM runs about
-/// 3 % below a 256-row one and the halves' sum is one more pass: one thread is about 6 %
-/// slower on halves (`mbpo bench model-train`, results/measurements.md session 18).
+/// instead of members 4 : 3). A member whose halves land on one thread runs whole all the
+/// same: a 128-row GEMM runs about 3 % below a 256-row one and the halves' sum is one more
+/// pass (one thread is about 6 % slower on halves, `mbpo bench model-train`,
+/// results/measurements.md session 18).
 fn parts_per_member(members: usize, threads: usize) -> usize {
     if members.is_multiple_of(threads) {
         1
@@ -253,8 +258,18 @@ pub(crate) fn members_loss_and_grads<'r>(
         let first_members = members_with_part(&b.units, 0, parts);
         let second_members = members_with_part(&b.units, 1, parts);
         let slots = b.bound_slots.chunks_mut(2 * d);
+        let units = b.units.clone();
         for ((u, slot), loss) in b.units.zip(slots).zip(b.losses.iter_mut()) {
             let (e, h) = (u / parts, u % parts);
+            // Both halves of member e in this block: the first unit runs the whole member in
+            // one pass (wider products, no sum), the second contributes zeros.
+            let whole =
+                parts == 2 && units.contains(&(e * parts)) && units.contains(&(e * parts + 1));
+            if whole && h == 1 {
+                slot.fill(0.0);
+                *loss = 0.0;
+                continue;
+            }
             let g = if h == 0 {
                 let k = e - first_members.start;
                 &mut b.first_halves[k * per_member..(k + 1) * per_member]
@@ -263,7 +278,11 @@ pub(crate) fn members_loss_and_grads<'r>(
                 &mut b.second_halves[k * per_member..(k + 1) * per_member]
             };
             let member_rows = rows_of(e);
-            let idx = &member_rows[part_rows(member_rows.len(), h, parts)];
+            let idx = if whole {
+                member_rows
+            } else {
+                &member_rows[part_rows(member_rows.len(), h, parts)]
+            };
             for (r, &i) in idx.iter().enumerate() {
                 let i = i as usize;
                 w.x_chunk[r * in_dim..(r + 1) * in_dim]
@@ -280,13 +299,6 @@ pub(crate) fn members_loss_and_grads<'r>(
                 g,
                 slot,
             );
-            // A member whose halves are both in this block: its sum now, while it is in cache.
-            if h == 1 && first_members.contains(&e) {
-                let (k1, k2) = (e - first_members.start, e - second_members.start);
-                let first = &mut b.first_halves[k1 * per_member..(k1 + 1) * per_member];
-                let second = &b.second_halves[k2 * per_member..(k2 + 1) * per_member];
-                add_into(first, second);
-            }
         }
     });
     sum_bound_slots(bound_slots, g_bounds);
