@@ -253,6 +253,7 @@ pub fn model_rollout(
         flops,
         roofline,
         &cfg.model,
-        cfg.model.threads.min(cfg.model.members),
+        // The runs of chunks use the training's threads: at most two per member.
+        cfg.model.threads.min(2 * cfg.model.members),
     ))
 }

@@ -52,15 +52,18 @@ pub struct ModelConfig {
     pub learn_logvar_bounds: bool,
     /// Coefficient of the bound regulariser `c · (Σ max_logvar − Σ min_logvar)` (0.01).
     pub logvar_bound_penalty: f32,
-    /// Threads a training call runs on (1). Members are independent until the shared bounds
-    /// and Adam, so each thread takes a contiguous block of members, or of half minibatches
-    /// when the threads do not divide the members (7 members on 2 threads: 7 halves each
-    /// instead of 4 and 3 members). Every sum keeps member order, so the result is
-    /// bit-identical for every thread count that cuts the same way (1 and the divisors of the
-    /// members train whole members, every other count halves); the two ways differ in f32
-    /// rounding only. Threads beyond the units of work would have none and are not started.
-    /// Not a hyper-parameter of MBPO: a machine setting (the pipeline's model trainer can use
-    /// a core the learner leaves idle).
+    /// Threads the model's training calls, sampled predictions and rollouts run on (1).
+    /// Training: members are independent until the shared bounds and Adam, so each thread
+    /// takes a contiguous block of members, or of half minibatches when the threads do not
+    /// divide the members (7 members on 2 threads: 3½ each instead of 4 and 3); a member
+    /// whose halves land on one thread runs whole, so only members that a block boundary cuts
+    /// run in halves. Every sum keeps member order, so the result is bit-identical for every
+    /// thread count that cuts the same members (with 7 members: 1, 4 and 7-13 cut none; 2 cuts
+    /// member 3; 3 member 2; 5 and 6 members 1 and 4; 14 or more all); the ways differ in f32
+    /// rounding only. Sampled predictions and rollouts give the same bits for every count.
+    /// Threads beyond the units of work would have none and are not started. Not a
+    /// hyper-parameter of MBPO: a machine setting (the pipeline's model trainer can use a core
+    /// the learner leaves idle).
     pub threads: usize,
     /// Learn the termination rule of model rollouts with the model (a
     /// [`crate::TerminationClassifier`] trained after the ensemble on the same data). Not a key

@@ -432,6 +432,7 @@ impl ProbabilisticEnsemble {
         mean: &mut [f32],
         logvar: &mut [f32],
     ) -> Result<(), PredictError> {
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let (o, d) = (self.obs_dim, self.net.d());
         self.check_predict(obs, act, n, members)?;
         check_len("mean", n * d, mean.len())?;
@@ -507,6 +508,8 @@ impl ProbabilisticEnsemble {
         reward: &mut [f32],
         next_obs: &mut [f32],
     ) {
+        // Flushed on every thread count (the pool's jobs are; mbpo_nn::subnormal says why).
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let (o, d) = (self.obs_dim, self.net.d());
         let Workspace {
             group,

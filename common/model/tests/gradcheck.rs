@@ -16,10 +16,12 @@ const D: usize = OBS + 1;
 const BATCH: usize = 5;
 
 /// `threads` decides how a training step cuts the work: 1 trains whole members; 4 (which does
-/// not divide the 2 members) trains halves of 3 and 2 rows, each on its own thread.
-fn small_model_on(threads: usize) -> ProbabilisticEnsemble {
+/// not divide 2 members) trains halves of 3 and 2 rows, each on its own thread; 2 threads on 3
+/// members run member 0 whole and half of member 1 on one thread, the other half and member 2
+/// whole on the other.
+fn small_model_on(members: usize, threads: usize) -> ProbabilisticEnsemble {
     let cfg = ModelConfig {
-        members: 2,
+        members,
         threads,
         elites: 1,
         hidden: vec![6, 5],
@@ -107,21 +109,26 @@ fn reference_loss(m: &ProbabilisticEnsemble, params: &[f32], x: &[f32], y: &[f32
 }
 
 fn small_model() -> ProbabilisticEnsemble {
-    small_model_on(1)
+    small_model_on(2, 1)
 }
 
 #[test]
 fn gaussian_nll_with_bounded_logvar_matches_finite_differences() {
-    check_against_finite_differences(1);
+    check_against_finite_differences(2, 1);
 }
 
 #[test]
 fn the_gradient_of_half_minibatches_matches_finite_differences() {
-    check_against_finite_differences(4);
+    check_against_finite_differences(2, 4);
 }
 
-fn check_against_finite_differences(threads: usize) {
-    let mut m = small_model_on(threads);
+#[test]
+fn the_gradient_of_whole_and_cut_members_on_two_threads_matches_finite_differences() {
+    check_against_finite_differences(3, 2);
+}
+
+fn check_against_finite_differences(members: usize, threads: usize) {
+    let mut m = small_model_on(members, threads);
     let x = randn(m.members() * BATCH * (OBS + ACT), 2);
     let y = randn(m.members() * BATCH * D, 3);
     let params = m.params().to_vec();

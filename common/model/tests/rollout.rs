@@ -257,25 +257,40 @@ fn fake_done(_: &[f32], _: &[f32], s2: &[f32]) -> bool {
     s2[0] > 0.8
 }
 
-#[test]
-fn stochastic_rollouts_drop_terminated_samples() {
-    let mut rng = stream(3, "r", 0);
-    let mut model =
-        ProbabilisticEnsemble::new(4, 2, small_config(5, 3, &[32, 32]), &mut rng).unwrap();
-    let start = random_start(600, 4, &mut rng);
-    let mut out = ReplayBuffer::new(4, 2, 10_000);
+/// `n` rollouts of `k` steps under a uniform policy with [`fake_done`], from random starts, in a
+/// fresh 5-member model on `threads` threads; everything drawn from `seed`.
+fn fake_done_rollouts(
+    seed: u64,
+    n: usize,
+    k: usize,
+    threads: usize,
+) -> (RolloutStats, ReplayBuffer) {
+    let mut rng = stream(seed, "r", 0);
+    let cfg = ModelConfig {
+        threads,
+        ..small_config(5, 3, &[32, 32])
+    };
+    let mut model = ProbabilisticEnsemble::new(4, 2, cfg, &mut rng).unwrap();
+    let start = random_start(n, 4, &mut rng);
+    let mut out = ReplayBuffer::new(4, 2, n * k);
     let stats = model
         .rollout(
             &start,
-            600,
+            n,
             &mut uniform(2),
-            4,
+            k,
             RolloutTermination::Rule(&fake_done),
             None,
             &mut rng,
             &mut out,
         )
         .unwrap();
+    (stats, out)
+}
+
+#[test]
+fn stochastic_rollouts_drop_terminated_samples() {
+    let (stats, out) = fake_done_rollouts(3, 600, 4, 1);
     assert_eq!(stats.steps, 4);
     assert!(
         stats.terminated > 50 && stats.alive_per_step[3] > 50,
@@ -287,23 +302,7 @@ fn stochastic_rollouts_drop_terminated_samples() {
 #[test]
 fn rollouts_are_bit_reproducible() {
     let run = || {
-        let mut rng = stream(4, "r", 0);
-        let mut model =
-            ProbabilisticEnsemble::new(4, 2, small_config(5, 3, &[32, 32]), &mut rng).unwrap();
-        let start = random_start(700, 4, &mut rng);
-        let mut out = ReplayBuffer::new(4, 2, 10_000);
-        let stats = model
-            .rollout(
-                &start,
-                700,
-                &mut uniform(2),
-                3,
-                RolloutTermination::Rule(&fake_done),
-                None,
-                &mut rng,
-                &mut out,
-            )
-            .unwrap();
+        let (stats, out) = fake_done_rollouts(4, 700, 3, 1);
         (stats, out.to_batch())
     };
     assert_eq!(run(), run());
@@ -470,26 +469,7 @@ fn rollouts_give_the_same_bits_on_any_thread_count() {
     // 2000 rollouts over 5 members: every member has more than one chunk of 256 rows, so the
     // chunks are cut between threads inside members as well as between them.
     let run = |threads: usize| {
-        let mut rng = stream(8, "threads", 0);
-        let cfg = ModelConfig {
-            threads,
-            ..small_config(5, 3, &[32, 32])
-        };
-        let mut model = ProbabilisticEnsemble::new(4, 2, cfg, &mut rng).unwrap();
-        let start = random_start(2000, 4, &mut rng);
-        let mut out = ReplayBuffer::new(4, 2, 10_000);
-        let stats = model
-            .rollout(
-                &start,
-                2000,
-                &mut uniform(2),
-                2,
-                RolloutTermination::Rule(&fake_done),
-                None,
-                &mut rng,
-                &mut out,
-            )
-            .unwrap();
+        let (stats, out) = fake_done_rollouts(8, 2000, 2, threads);
         assert!(stats.terminated > 0 && stats.steps == 2, "{stats:?}");
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         let b = out.to_batch();

@@ -223,9 +223,11 @@ fn training_is_bit_reproducible() {
 /// Members, or halves of their minibatches, run in blocks on `threads` threads and every sum
 /// keeps member and half order; a member whose halves fall in one block runs whole. So
 /// weights, Adam state, reports and elites are bit-identical across the thread counts that
-/// cut no member (1, 7; and 4 and 8, whose blocks of 4 and 2 halves hold whole members), and
-/// across those that cut every member (14: one half each; 16: more threads than halves). 2
-/// and 3 threads cut one member each (members 3 and 2), so each gives its own rounding.
+/// cut no member (1, 7; and 4, 8 and 11, whose blocks of 4 and 2 halves hold whole members),
+/// across those that cut the same members (5 and 6: blocks of 3 halves cut members 1 and 4),
+/// and across those that cut every member (14: one half each; 16, more threads than halves,
+/// starts only 14). 2 and 3 threads cut one member each (3 and 2), their own rounding; the
+/// gradient of such a mix is checked in `gradcheck.rs`.
 /// 641 rows leave a last minibatch of one row (513 training rows), whose second half is empty.
 /// The ways of cutting differ only in f32 rounding of the gradient sums.
 #[test]
@@ -252,12 +254,7 @@ fn training_on_several_threads_is_bit_identical_to_one_thread() {
         }
         (model.checkpoint(), reports)
     };
-    for (reference, same) in [
-        (1, &[4, 7, 8][..]),
-        (14, &[16][..]),
-        (2, &[2][..]),
-        (3, &[3][..]),
-    ] {
+    for (reference, same) in [(1, &[4, 7, 8, 11][..]), (5, &[6][..]), (14, &[16][..])] {
         let (state1, reports1) = run(reference);
         assert!(reports1.iter().all(|r| r.gradient_steps > 0));
         for &threads in same {

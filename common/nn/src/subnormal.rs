@@ -8,9 +8,11 @@
 //! TensorFlow, in which the MBPO paper's code runs, sets the same two flags for its kernels.
 //!
 //! The rule, in one place: every job of a [`crate::WorkerPool`] runs flushed (workers from
-//! their start, the caller's share under a guard), and the training entry points
-//! (`Sac::update`, the ensemble's `train`) hold a [`FlushSubnormals`] for the whole call. So a
-//! result never depends on the thread count or on which thread a caller runs on.
+//! their start, the caller's share under a guard), and the entry points whose work may run
+//! on a pool hold a [`FlushSubnormals`] for the whole call: training (`Sac::update`, the
+//! ensemble's `train`), inference (`Sac::td_targets`, the ensemble's sampled and Gaussian
+//! predictions) and acting (`ActorPolicy`, and `Sac::act`, which must equal it). So a result
+//! never depends on the thread count or on which thread a caller runs on.
 
 /// While alive, the calling thread flushes subnormal results to zero (FTZ) and reads
 /// subnormal inputs as zero (DAZ); dropping it restores the thread's previous mode.

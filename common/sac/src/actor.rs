@@ -266,8 +266,10 @@ pub const MAX_POLICY_THREADS: usize = 16;
 ///
 /// A batch is acted on in chunks of [`POLICY_CHUNK`] rows, on [`ActorPolicy::with_threads`]
 /// threads when there are more chunks than one. The noise of the whole batch is drawn first,
-/// in row order, and every row's action depends only on its own row, so the actions are the
-/// same bits for any chunking and thread count (and the same as one pass over the batch).
+/// in row order, the chunks are fixed by the batch size, and every row's action depends only
+/// on its own row, so the actions are the same bits for any thread count. They are also the
+/// bits of one pass over the whole batch, except in a last chunk of one or two rows, where
+/// faer takes its matrix-vector or small-matrix kernels.
 #[derive(Debug, Clone)]
 pub struct ActorPolicy {
     /// Architecture.
@@ -369,6 +371,8 @@ impl ActorPolicy {
 
 impl BatchPolicy for ActorPolicy {
     fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        // Flushed on every path, inline or on the pool (mbpo_nn::subnormal says why).
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let n = batch * self.actor.act_dim();
         self.eps.resize(n.max(self.eps.len()), 0.0);
         let eps = &mut self.eps[..n];
@@ -409,6 +413,16 @@ mod tests {
         let rows = 1000;
         let mut g = stream(4, "obs", 0);
         let obs: Vec<f32> = (0..rows * 11).map(|_| 2.0 * normal_f32(&mut g)).collect();
+        // 257 rows end in a chunk of one row: any thread count gives the same bits (that row
+        // takes faer's matrix-vector kernel, so one pass over all rows may differ there).
+        let act = |threads: usize, rows: usize| {
+            let mut policy =
+                ActorPolicy::new(actor.clone(), params.clone(), false).with_threads(threads);
+            let mut actions = vec![f32::NAN; rows * 3];
+            policy.act_batch(&obs, rows, &mut actions, &mut stream(5, "eps", 0));
+            actions.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        };
+        assert!([2, 3].iter().all(|&t| act(t, 257) == act(1, 257)));
         for deterministic in [false, true] {
             let mut whole = actor.cache(rows);
             let rng = (!deterministic).then(|| stream(5, "eps", 0));

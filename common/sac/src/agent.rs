@@ -14,7 +14,7 @@
 use crate::actor::{ActorCache, TanhGaussianActor};
 use crate::config::SacConfig;
 use crate::critic::TwinCritic;
-use crate::shard::{assign_min_rows, CriticLane, Nets, RowShard};
+use crate::shard::{assign_min_rows, gather_action_gradients, CriticLane, Nets, RowShard};
 use mbpo_core::rng::normal_f32;
 use mbpo_core::{Batch, Rng};
 use mbpo_nn::adam::{part_len, AdamPart};
@@ -92,6 +92,7 @@ pub struct SacPolicy<'a>(&'a mut Sac);
 
 impl mbpo_core::BatchPolicy for SacPolicy<'_> {
     fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let sac = &mut *self.0;
         if batch == 1 {
             sac.act(obs, false, rng, actions);
@@ -251,6 +252,8 @@ impl Sac {
 
     /// Action for one observation: sampled, or tanh μ when `deterministic` (evaluation).
     pub fn act(&mut self, obs: &[f32], deterministic: bool, rng: &mut Rng, action: &mut [f32]) {
+        // Flushed as in `ActorPolicy`, whose actions these must equal bit for bit.
+        let _flush = mbpo_nn::FlushSubnormals::new();
         let rng = if deterministic { None } else { Some(rng) };
         self.actor
             .sample(&self.actor_params, obs, 1, &mut self.buf.act_cache, rng);
@@ -295,13 +298,7 @@ impl Sac {
     /// the noise in `buf.noise`, on the row shards at once; gathered into the whole-batch
     /// buffers.
     fn sample_policy(&mut self, batch: &Batch, alpha: f32, with_pi: bool) {
-        let n = nets(
-            &self.actor,
-            &self.critic,
-            &self.actor_params,
-            &self.config,
-            alpha,
-        );
+        let n = nets_of!(self, alpha);
         let buf = &mut self.buf;
         let (noise_next, noise) = (&buf.noise_next, with_pi.then_some(&buf.noise[..]));
         buf.pool.for_each_mut(&mut buf.shards, |_, s| {
@@ -324,13 +321,7 @@ impl Sac {
     /// for the a' of the last [`Sac::sample_policy`]; each lane computes its Q̄_e. `d` is
     /// `terminated`: a time-limit truncation is not terminal, so such rows bootstrap.
     fn targets_of_samples(&mut self, batch: &Batch, alpha: f32) {
-        let n = nets(
-            &self.actor,
-            &self.critic,
-            &self.actor_params,
-            &self.config,
-            alpha,
-        );
+        let n = nets_of!(self, alpha);
         let Scratch {
             pool,
             lanes,
@@ -356,6 +347,7 @@ impl Sac {
     /// for every row of `batch`. `d` is `terminated`: a time-limit truncation is not terminal,
     /// so such rows bootstrap.
     pub fn td_targets(&mut self, batch: &Batch, alpha: f32, rng: &mut Rng) -> &[f32] {
+        let _flush = mbpo_nn::FlushSubnormals::new();
         fill_normal(&mut self.buf.noise_next, rng);
         self.sample_policy(batch, alpha, false);
         self.targets_of_samples(batch, alpha);
@@ -369,13 +361,7 @@ impl Sac {
     /// Bootstrapping stops only at termination. Returns the loss.
     fn update_critics(&mut self, batch: &Batch, alpha: f32) -> f32 {
         self.targets_of_samples(batch, alpha);
-        let n = nets(
-            &self.actor,
-            &self.critic,
-            &self.actor_params,
-            &self.config,
-            alpha,
-        );
+        let n = nets_of!(self, alpha);
         let Scratch {
             pool,
             lanes,
@@ -428,13 +414,7 @@ impl Sac {
     /// gradients, from the samples of the last [`Sac::sample_policy`] and the lanes' last
     /// [`CriticLane::policy_values`]. Returns (loss, mean log π, mean Q₁).
     fn actor_gradient_of_samples(&mut self, batch: &Batch, alpha: f32) -> (f32, f32, f32) {
-        let n = nets(
-            &self.actor,
-            &self.critic,
-            &self.actor_params,
-            &self.config,
-            alpha,
-        );
+        let n = nets_of!(self, alpha);
         let inv_b = 1.0 / self.config.batch_size as f32;
         let buf = &mut self.buf;
         let (mut loss, mut log_prob, mut q1_sum) = (0.0f32, 0.0f32, 0.0f32);
@@ -453,12 +433,7 @@ impl Sac {
         for_each_lane(&mut buf.pool, &mut buf.lanes, |lane| {
             lane.action_gradient(&n, &theta[critic.member_range(lane.e)])
         });
-        let a = self.actor.act_dim();
-        for lane in &buf.lanes {
-            for (i, &r) in lane.min_rows.iter().enumerate() {
-                buf.d_act[r * a..(r + 1) * a].copy_from_slice(&lane.min_d_act[i * a..(i + 1) * a]);
-            }
-        }
+        gather_action_gradients(&buf.lanes, self.actor.act_dim(), &mut buf.d_act);
         let d_act = &buf.d_act;
         buf.pool
             .for_each_mut(&mut buf.shards, |_, s| s.actor_gradient(&n, batch, d_act));
@@ -477,6 +452,21 @@ impl Sac {
         loss
     }
 }
+
+/// [`nets`] of a [`Sac`]'s fields (a macro, so that each field is borrowed on its own and the
+/// scratch buffers stay free to borrow mutably).
+macro_rules! nets_of {
+    ($sac:expr, $alpha:expr) => {
+        nets(
+            &$sac.actor,
+            &$sac.critic,
+            &$sac.actor_params,
+            &$sac.config,
+            $alpha,
+        )
+    };
+}
+use nets_of;
 
 /// What the threads of an update read: architectures, the actor's parameters, constants.
 fn nets<'a>(
@@ -618,13 +608,7 @@ mod tests {
     fn actor_loss(sac: &mut Sac, batch: &Batch, alpha: f32, rng: &mut Rng) -> f32 {
         fill_normal(&mut sac.buf.noise, rng);
         sac.sample_policy(batch, alpha, true);
-        let n = nets(
-            &sac.actor,
-            &sac.critic,
-            &sac.actor_params,
-            &sac.config,
-            alpha,
-        );
+        let n = nets_of!(sac, alpha);
         for lane in &mut sac.buf.lanes {
             let theta = &sac.critic_params[sac.critic.member_range(lane.e)];
             lane.policy_values(&n, theta, batch, &sac.buf.pi_action);
@@ -637,13 +621,7 @@ mod tests {
         fill_normal(&mut sac.buf.noise_next, rng);
         sac.sample_policy(batch, alpha, false);
         sac.targets_of_samples(batch, alpha);
-        let n = nets(
-            &sac.actor,
-            &sac.critic,
-            &sac.actor_params,
-            &sac.config,
-            alpha,
-        );
+        let n = nets_of!(sac, alpha);
         for lane in &mut sac.buf.lanes {
             let theta = &sac.critic_params[sac.critic.member_range(lane.e)];
             lane.gradient(&n, theta, batch, &sac.buf.y);

@@ -32,10 +32,10 @@ pub struct SacConfig {
     /// Upper clamp of the actor's log σ.
     pub log_std_max: f32,
     /// Threads one update runs on (≥ 1; at most the batch size is used). The critics run one
-    /// per thread (two at most), whose results do not depend on the count; the actor's rows
-    /// are split into that many shards whose gradients are added in a fixed order, so the
-    /// actor's results are deterministic for a given thread count but differ in rounding
-    /// between counts.
+    /// per thread (two at most), and one update's critic step gives the same bits for any
+    /// count given the same actor; the actor's rows are split into that many shards whose
+    /// gradients are added in a fixed order, so the actor's results, and through it a run's,
+    /// are deterministic for a given thread count but differ in rounding between counts.
     pub threads: usize,
 }
 

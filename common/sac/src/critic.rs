@@ -22,12 +22,6 @@ pub struct CriticCache {
     /// [s, a] rows (`batch x (O + A)`).
     input: Vec<f32>,
     members: [MlpCache; 2],
-    /// Rows whose min(Q₁, Q₂) is Q_e, per critic e.
-    min_rows: [Vec<usize>; 2],
-    /// ∂L/∂Q_e of those rows, compact.
-    min_grad: [Vec<f32>; 2],
-    /// ∂L/∂a of those rows, compact (`rows x A`).
-    min_d_act: Vec<f32>,
 }
 
 impl TwinCritic {
@@ -87,9 +81,6 @@ impl TwinCritic {
                 MlpCache::new(&self.mlp, batch),
                 MlpCache::new(&self.mlp, batch),
             ],
-            min_rows: [Vec::with_capacity(batch), Vec::with_capacity(batch)],
-            min_grad: [vec![0.0; batch], vec![0.0; batch]],
-            min_d_act: vec![0.0; batch * self.act_dim],
         }
     }
 
@@ -144,120 +135,5 @@ impl TwinCritic {
     /// Q_e values of the last forward pass (one per row).
     pub fn q<'c>(&self, cache: &'c CriticCache, e: usize) -> &'c [f32] {
         cache.members[e].output(&self.mlp)
-    }
-
-    /// ∂L/∂θ of both critics for `d_q[e]` = ∂L/∂Q_e per row (overwrites `grads`).
-    pub fn backward_params(
-        &self,
-        params: &[f32],
-        cache: &mut CriticCache,
-        d_q: [&[f32]; 2],
-        grads: &mut [f32],
-    ) {
-        for (e, d) in d_q.iter().enumerate() {
-            let r = self.member_range(e);
-            self.mlp.backward(
-                &params[r.clone()],
-                &cache.input,
-                &mut cache.members[e],
-                d,
-                Some(&mut grads[r]),
-                None,
-            );
-        }
-    }
-
-    /// ∂L/∂a for L = Σ_r `d_min[r]` · min(Q₁, Q₂)(s_r, a_r) on the last forward pass
-    /// (`d_act` is `batch x A`, overwritten). No parameter gradients are formed.
-    ///
-    /// The minimum passes each row's gradient to one critic (Q₁ on ties), so each critic runs
-    /// its backward pass on its own rows only ([`Mlp::input_grad_rows`]): half the work of
-    /// back-propagating both critics on every row with zeros for the other half.
-    pub fn backward_action_min(
-        &self,
-        params: &[f32],
-        cache: &mut CriticCache,
-        d_min: &[f32],
-        d_act: &mut [f32],
-    ) {
-        let (o, a, batch) = (self.obs_dim, self.act_dim, cache.batch);
-        {
-            let CriticCache {
-                members,
-                min_rows,
-                min_grad,
-                ..
-            } = &mut *cache;
-            let q1 = members[0].output(&self.mlp);
-            let q2 = members[1].output(&self.mlp);
-            min_rows.iter_mut().for_each(Vec::clear);
-            for r in 0..batch {
-                let e = Self::min_critic(q1[r], q2[r]);
-                min_grad[e][min_rows[e].len()] = d_min[r];
-                min_rows[e].push(r);
-            }
-        }
-        for e in 0..2 {
-            let rows = std::mem::take(&mut cache.min_rows[e]);
-            let mut compact = std::mem::take(&mut cache.min_d_act);
-            self.mlp.input_grad_rows(
-                &params[self.member_range(e)],
-                &mut cache.members[e],
-                &rows,
-                &cache.min_grad[e],
-                o..o + a,
-                &mut compact,
-            );
-            for (i, &r) in rows.iter().enumerate() {
-                d_act[r * a..(r + 1) * a].copy_from_slice(&compact[i * a..(i + 1) * a]);
-            }
-            cache.min_d_act = compact;
-            cache.min_rows[e] = rows;
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use mbpo_core::rng::{normal_f32, stream};
-
-    #[test]
-    fn action_gradient_of_the_clipped_double_q_matches_finite_differences() {
-        let (o, a, batch) = (3, 2, 32);
-        let critic = TwinCritic::new(o, a, &[16, 16]);
-        let mut params = vec![0.0; critic.num_params()];
-        critic.init(&mut params, &mut stream(5, "q", 0));
-        let mut g = stream(4, "q.data", 0);
-        let obs: Vec<f32> = (0..batch * o).map(|_| normal_f32(&mut g)).collect();
-        let act: Vec<f32> = (0..batch * a).map(|_| normal_f32(&mut g).tanh()).collect();
-        let d_min: Vec<f32> = (0..batch).map(|_| normal_f32(&mut g)).collect();
-        let loss = |act: &[f32]| {
-            let mut cache = critic.cache(batch);
-            critic.forward(&params, &obs, act, batch, &mut cache);
-            let (q1, q2) = (critic.q(&cache, 0), critic.q(&cache, 1));
-            (0..batch)
-                .map(|r| d_min[r] as f64 * q1[r].min(q2[r]) as f64)
-                .sum::<f64>()
-        };
-        let mut cache = critic.cache(batch);
-        critic.forward(&params, &obs, &act, batch, &mut cache);
-        let picks_q2 = (0..batch).any(|r| critic.q(&cache, 1)[r] < critic.q(&cache, 0)[r]);
-        let picks_q1 = (0..batch).any(|r| critic.q(&cache, 0)[r] <= critic.q(&cache, 1)[r]);
-        assert!(picks_q1 && picks_q2, "both critics must own some rows");
-        let mut d_act = vec![f32::NAN; batch * a];
-        critic.backward_action_min(&params, &mut cache, &d_min, &mut d_act);
-        // Small steps: with 32 rows x 2 x 16 ReLUs, a step of 1e-3 already crosses a kink.
-        let eps = 2e-4f32;
-        let scale = d_act.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
-        for i in 0..batch * a {
-            let mut x = act.clone();
-            x[i] += eps;
-            let up = loss(&x);
-            x[i] -= 2.0 * eps;
-            let numeric = (up - loss(&x)) / (2.0 * eps as f64);
-            let err = (d_act[i] as f64 - numeric).abs() / (0.05 * scale + numeric.abs());
-            assert!(err < 2e-2, "d_act[{i}]: {} vs {numeric}", d_act[i]);
-        }
     }
 }
