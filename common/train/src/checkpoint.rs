@@ -112,23 +112,72 @@ fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> CheckpointError + '_ {
 
 /// Write `value` as a checkpoint of `kind` to `path`, atomically.
 pub fn write<T: Serialize>(path: &Path, kind: &str, value: &T) -> Result<(), CheckpointError> {
-    let payload =
-        bincode::serde::encode_to_vec(value, bincode::config::standard()).map_err(|e| {
-            CheckpointError::Decode {
+    EncodedFile::encode(path, kind, value)?.write()
+}
+
+/// A checkpoint file encoded in memory, header and payload in one buffer, its checksum not yet
+/// computed. Encoding is the snapshot of a role's state and must happen where the state is
+/// consistent (the training loop); [`EncodedFile::write`] (checksum, write, `fsync`) does not
+/// touch the state, so [`crate::checkpoint_writer`] runs it on another thread.
+pub struct EncodedFile {
+    path: PathBuf,
+    bytes: Vec<u8>,
+    payload_start: usize,
+}
+
+impl EncodedFile {
+    /// Encode `value` as a checkpoint of `kind` to go to `path`. The payload is encoded straight
+    /// after the header, so a large state (the learner's 360 MB model buffer at Hopper 100k) is
+    /// never copied whole.
+    pub fn encode<T: Serialize>(
+        path: &Path,
+        kind: &str,
+        value: &T,
+    ) -> Result<Self, CheckpointError> {
+        let mut bytes = Vec::new();
+        bytes.extend_from_slice(MAGIC);
+        bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+        bytes.extend_from_slice(&(kind.len() as u16).to_le_bytes());
+        bytes.extend_from_slice(kind.as_bytes());
+        // Payload length and SHA-256, filled in below and in `write`.
+        bytes.extend_from_slice(&[0; 8 + 32]);
+        let payload_start = bytes.len();
+        bincode::serde::encode_into_std_write(value, &mut bytes, bincode::config::standard())
+            .map_err(|e| CheckpointError::Decode {
                 path: path.to_path_buf(),
                 kind: kind.to_string(),
                 message: e.to_string(),
-            }
-        })?;
-    let mut bytes = Vec::with_capacity(payload.len() + 64 + kind.len());
-    bytes.extend_from_slice(MAGIC);
-    bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-    bytes.extend_from_slice(&(kind.len() as u16).to_le_bytes());
-    bytes.extend_from_slice(kind.as_bytes());
-    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&Sha256::digest(&payload));
-    bytes.extend_from_slice(&payload);
-    write_atomically(path, &bytes)
+            })?;
+        let len = (bytes.len() - payload_start) as u64;
+        bytes[payload_start - 40..payload_start - 32].copy_from_slice(&len.to_le_bytes());
+        Ok(Self {
+            path: path.to_path_buf(),
+            bytes,
+            payload_start,
+        })
+    }
+
+    /// Where the file goes.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Bytes of the whole file.
+    pub fn len(&self) -> usize {
+        self.bytes.len()
+    }
+
+    /// Whether the file is empty (never: the header alone has 50 bytes and more).
+    pub fn is_empty(&self) -> bool {
+        self.bytes.is_empty()
+    }
+
+    /// Checksum the payload and write the file atomically ([`write_atomically`]).
+    pub fn write(mut self) -> Result<(), CheckpointError> {
+        let sum = Sha256::digest(&self.bytes[self.payload_start..]);
+        self.bytes[self.payload_start - 32..self.payload_start].copy_from_slice(&sum);
+        write_atomically(&self.path, &self.bytes)
+    }
 }
 
 /// Write `bytes` to `path` through a temporary file, synced, then renamed over `path`. On

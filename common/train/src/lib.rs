@@ -10,6 +10,8 @@
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
+//! * [`checkpoint_writer`]: a checkpoint written on its own thread while the training goes on.
+//! * [`checkpoint_bench`]: what checkpointing a run costs its training loop (`mbpo bench checkpoint`).
 //! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
@@ -27,6 +29,8 @@ pub mod actor;
 pub mod algorithm;
 pub mod breakdown;
 pub mod checkpoint;
+pub mod checkpoint_bench;
+pub mod checkpoint_writer;
 pub mod config;
 pub mod diagnose;
 pub mod env_config;

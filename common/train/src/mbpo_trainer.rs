@@ -21,6 +21,7 @@
 
 use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
+use crate::checkpoint_writer::{BackgroundWriter, CheckpointFiles};
 use crate::config::ExperimentConfig;
 use crate::eval::Evaluator;
 use crate::phase_times::PhaseTimes;
@@ -225,39 +226,20 @@ impl Mbpo {
 }
 
 impl Mbpo {
-    /// Write the checkpoint after env step `t` into `dir`: the files of a one-actor pipeline
-    /// ([`crate::run_files`]), so `mbpo run --resume` continues it too. `book` is the run's
-    /// (the caller copies the evaluator's part into it).
-    pub fn write_checkpoint(
+    /// Encode the checkpoint after env step `t`, to go into `dir`: the files of a one-actor
+    /// pipeline ([`crate::run_files`]), so `mbpo run --resume` continues it too. `book` is the
+    /// run's (the caller copies the evaluator's part into it). Writing them
+    /// ([`CheckpointFiles::write`]) does not need the trainer, so it can run while it trains.
+    pub fn encode_checkpoint(
         &self,
         dir: &Path,
         t: u64,
         evaluator: &Evaluator,
         book: &RunBook,
-    ) -> Result<(), CheckpointError> {
-        std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
-            path: dir.to_path_buf(),
-            source,
-        })?;
+    ) -> Result<CheckpointFiles, CheckpointError> {
+        // In the order of `role_files`, as `mbpo run` lists them in `COMPLETE`.
+        let mut files = CheckpointFiles::new(dir, t);
         let k = self.model_trainer.version();
-        let actor = ActorCheckpoint {
-            role: self.actor.checkpoint(),
-            steps: t,
-        };
-        checkpoint::write(&dir.join(actor_file(0)), kind::ACTOR, &actor)?;
-        let trainer = ModelTrainerCheckpoint {
-            role: self.model_trainer.checkpoint(),
-        };
-        checkpoint::write(
-            &dir.join(file::MODEL_TRAINER),
-            kind::MODEL_TRAINER,
-            &trainer,
-        )?;
-        let rollout = RolloutCheckpoint {
-            role: self.rollout.checkpoint(),
-            branches: k,
-        };
-        checkpoint::write(&dir.join(file::ROLLOUT), kind::ROLLOUT, &rollout)?;
         let learner = LearnerCheckpoint {
             role: self.learner.checkpoint(),
             consumed: t,
@@ -265,19 +247,30 @@ impl Mbpo {
             model_batches: k,
             model_version: k,
         };
-        checkpoint::write(&dir.join(file::LEARNER), kind::LEARNER, &learner)?;
+        files.add(file::LEARNER, kind::LEARNER, &learner)?;
+        let trainer = ModelTrainerCheckpoint {
+            role: self.model_trainer.checkpoint(),
+        };
+        files.add(file::MODEL_TRAINER, kind::MODEL_TRAINER, &trainer)?;
+        let rollout = RolloutCheckpoint {
+            role: self.rollout.checkpoint(),
+            branches: k,
+        };
+        files.add(file::ROLLOUT, kind::ROLLOUT, &rollout)?;
         let eval = EvaluatorCheckpoint {
             rng: evaluator.rng().clone(),
             version: t,
             evals: self.schedule.eval_points_upto(t),
             env_steps: t,
         };
-        checkpoint::write(&dir.join(file::EVALUATOR), kind::EVALUATOR, &eval)?;
-        checkpoint::write(&dir.join(file::RUN_BOOK), kind::RUN_BOOK, book)?;
-        let mut files = role_files();
-        files.push(file::RUN_BOOK.into());
-        let names: Vec<&str> = files.iter().map(String::as_str).collect();
-        checkpoint::mark_complete(dir, t, &names)
+        files.add(file::EVALUATOR, kind::EVALUATOR, &eval)?;
+        let actor = ActorCheckpoint {
+            role: self.actor.checkpoint(),
+            steps: t,
+        };
+        files.add(&actor_file(0), kind::ACTOR, &actor)?;
+        files.add(file::RUN_BOOK, kind::RUN_BOOK, book)?;
+        Ok(files)
     }
 
     /// The run `run` (config `cfg`) as it was at its complete checkpoint after `at` env steps,
@@ -378,17 +371,25 @@ pub fn train_mbpo_with(
         mbpo.book = book;
         Ok(())
     })?;
-    let save = |mbpo: &Mbpo, evaluator: &Evaluator, t: u64| -> Result<(), TrainError> {
-        let mut book = mbpo.book.clone();
-        evaluator.write_book(&mut book);
-        book.progress = (t, mbpo.sac().updates(), mbpo.model_trainer.version());
-        mbpo.write_checkpoint(&checkpoint::dir_for(out, t), t, evaluator, &book)?;
-        Ok(checkpoint::prune(
-            out,
-            cfg.checkpoint.keep,
-            cfg.checkpoint.keep_every,
-        )?)
-    };
+    // Checkpoints are written on the writer's thread while the run goes on
+    // (crate::checkpoint_writer); pruning follows each one there. `wait`: return only once
+    // this one is on disk (the run is about to end).
+    let mut writer = BackgroundWriter::default();
+    let (keep, keep_every) = (cfg.checkpoint.keep, cfg.checkpoint.keep_every);
+    let mut save =
+        |mbpo: &Mbpo, evaluator: &Evaluator, t: u64, wait: bool| -> Result<(), TrainError> {
+            let mut book = mbpo.book.clone();
+            evaluator.write_book(&mut book);
+            book.progress = (t, mbpo.sac().updates(), mbpo.model_trainer.version());
+            let files =
+                mbpo.encode_checkpoint(&checkpoint::dir_for(out, t), t, evaluator, &book)?;
+            let run = out.to_path_buf();
+            writer.submit(files, move || checkpoint::prune(&run, keep, keep_every))?;
+            if wait {
+                writer.wait()?;
+            }
+            Ok(())
+        };
     let mut status = "completed";
     let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
@@ -402,7 +403,7 @@ pub fn train_mbpo_with(
                 let kept = match t - 1 {
                     0 => "nothing was kept (it failed at the first step)".to_string(),
                     done => {
-                        save(&mbpo, &evaluator, done)?;
+                        save(&mbpo, &evaluator, done, true)?;
                         format!("the run stopped with a checkpoint after step {done}")
                     }
                 };
@@ -416,7 +417,7 @@ pub fn train_mbpo_with(
         };
         if !stepped {
             // Stopped during the model training of step t, which was undone.
-            stop_before(t, |at| save(&mbpo, &evaluator, at), out)?;
+            stop_before(t, |at| save(&mbpo, &evaluator, at, true), out)?;
             status = "stopped";
             break;
         }
@@ -439,7 +440,7 @@ pub fn train_mbpo_with(
         progress.update(t, mbpo.sac().updates());
         let stopping = opts.stopping_at(t, cfg.steps);
         if checkpoint_due(cfg, t, stopping) {
-            save(&mbpo, &evaluator, t)?;
+            save(&mbpo, &evaluator, t, stopping || t == cfg.steps)?;
         }
         if stopping {
             log_stopped(t, out);

@@ -13,6 +13,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Learning(args) => learning(&args),
         BenchCommand::Breakdown(args) => breakdown(&args),
         BenchCommand::Diagnose(args) => diagnose(&args),
+        BenchCommand::Checkpoint(args) => checkpoint(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
@@ -229,6 +230,35 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         std::fs::write(&file, serde_json::to_string_pretty(&report)? + "\n")?;
         eprintln!("wrote {}", file.display());
     }
+    Ok(())
+}
+
+/// `mbpo bench checkpoint`: one JSON line, and a summary line on stderr.
+fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
+    let cfg = mbpo_run_config(&args.run, &[], "checkpoint benchmark")?;
+    anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
+    let scratch = args.scratch.clone().unwrap_or_else(|| {
+        let mut name = args.run.as_os_str().to_owned();
+        name.push(".checkpoint-bench");
+        name.into()
+    });
+    anyhow::ensure!(
+        !scratch.exists(),
+        "{}: the scratch directory exists; remove it or pass another --scratch",
+        scratch.display()
+    );
+    let cost = mbpo_train::checkpoint_bench::checkpoint_cost(
+        &cfg,
+        &args.run,
+        args.at,
+        args.repeats,
+        &scratch,
+    )?;
+    eprintln!("{}", cost.summary_line());
+    println!(
+        "{}",
+        json!({"bench": "checkpoint", "env": cfg.env, "run": args.run, "cost": cost})
+    );
     Ok(())
 }
 

@@ -171,6 +171,10 @@ pub enum BenchCommand {
     /// checkpoints: Q against real soft returns, on-policy model error against holdout,
     /// imagined data against real -> <out>/diagnose-<run>.json.
     Diagnose(DiagnoseArgs),
+    /// What checkpointing an MBPO run costs: its kept checkpoint restored and written again
+    /// into a scratch directory, encoding (the training loop waits) and checksum + write +
+    /// fsync (the writer's thread) timed apart.
+    Checkpoint(CheckpointBenchArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
     /// The learned termination rule against the env's own: trained on random-action
@@ -348,6 +352,24 @@ pub struct BreakdownArgs {
     /// Results directory (`breakdown-<env>.json`; `-` for none).
     #[arg(long, default_value = "results")]
     pub out: std::path::PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct CheckpointBenchArgs {
+    /// A run directory of `mbpo train` or `mbpo bench learning` (MBPO) with a complete
+    /// checkpoint at `--at`.
+    #[arg(long)]
+    pub run: std::path::PathBuf,
+    /// Env steps of the checkpoint.
+    #[arg(long)]
+    pub at: u64,
+    /// Writes to time.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: usize,
+    /// Scratch run directory (removed after each write; default: `<run>.checkpoint-bench`,
+    /// on the run's file system, whose `fsync` is the one that counts).
+    #[arg(long)]
+    pub scratch: Option<std::path::PathBuf>,
 }
 
 #[derive(Debug, Args)]
