@@ -387,10 +387,11 @@ pub fn prune(run: &Path, keep: usize, keep_every: u64) -> Result<(), CheckpointE
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    fn tmp(name: &str) -> PathBuf {
+    /// A fresh scratch directory for one test (also `checkpoint_writer`'s tests).
+    pub(crate) fn tmp(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("mbpo-ckpt-{}-{name}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();

@@ -132,13 +132,7 @@ impl Drop for BackgroundWriter {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn tmp(name: &str) -> PathBuf {
-        let dir = std::env::temp_dir().join(format!("mbpo-ckptw-{}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    }
+    use crate::checkpoint::tests::tmp;
 
     fn files(run: &Path, steps: u64) -> CheckpointFiles {
         let mut files = CheckpointFiles::new(&checkpoint::dir_for(run, steps), steps);
@@ -151,7 +145,7 @@ mod tests {
 
     #[test]
     fn written_in_the_background_equals_written_in_place() {
-        let run = tmp("equal");
+        let run = tmp("writer-equal");
         let mut writer = BackgroundWriter::default();
         writer.submit(files(&run, 100), || Ok(())).unwrap();
         writer.wait().unwrap();
@@ -177,7 +171,7 @@ mod tests {
 
     #[test]
     fn one_checkpoint_in_flight_and_pruning_after_it() {
-        let run = tmp("prune");
+        let run = tmp("writer-prune");
         let mut writer = BackgroundWriter::default();
         for steps in [100, 200, 300] {
             let prune_run = run.clone();
@@ -198,7 +192,7 @@ mod tests {
 
     #[test]
     fn a_failed_write_is_reported_by_the_next_call_and_leaves_no_complete_marker() {
-        let run = tmp("fail");
+        let run = tmp("writer-fail");
         let mut writer = BackgroundWriter::default();
         // A directory where the file `a` should go: its rename fails.
         let dir = checkpoint::dir_for(&run, 100);
