@@ -422,6 +422,7 @@ fn learning_bench_continues_and_reuses_its_runs() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// Seeds of `mbpo bench learning` run on their own threads, each logging into its own run's

@@ -117,6 +117,7 @@ fn a_registered_task_runs_sequentially_and_in_the_pipeline_with_equal_results() 
         metrics_without_timing(&run.out),
         metrics_without_timing(&dir.join("sequential"))
     );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -146,6 +147,7 @@ fn an_env_that_cannot_save_its_state_resumes_with_a_new_episode() {
         .collect();
     // Eval points 100, 200, 300 and the first run's last step.
     assert_eq!(rows, ["100", "125", "200", "300"]);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// The toy algorithm: a uniform-random policy, evaluated at the config's eval points.
@@ -264,4 +266,5 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
     };
     let err = run_in_process(&cfg, &run).unwrap_err().to_string();
     assert!(err.contains("runs mbpo or mpc, not random-policy"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -66,6 +66,7 @@ fn in_process_lockstep_mbpo_equals_sequential() {
         s.real_transitions.spilled
     );
     assert_eq!(s.ratios.rollout_batches, 3, "train points 201, 301, 401");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -91,6 +92,7 @@ fn in_process_lockstep_mbpo_with_clipped_imagined_states_equals_sequential() {
         &run.out,
         &dir.join("sequential"),
     );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]
@@ -107,6 +109,7 @@ fn in_process_lockstep_mpc_equals_sequential() {
         &dir.join("sequential"),
     );
     assert_last_step_checkpointed(&run.out, Algo::MPC, 1, cfg.steps);
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A finished run's newest complete checkpoint is its last step's, with every role's file:
@@ -145,4 +148,5 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);
     assert_last_step_checkpointed(&run.out, Algo::MBPO, 2, 400);
+    std::fs::remove_dir_all(&dir).unwrap();
 }

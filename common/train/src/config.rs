@@ -708,12 +708,18 @@ impl ExperimentConfig {
 mod tests {
     use super::*;
 
+    /// Load `text` as a config file from a scratch directory of its own (tests run in
+    /// parallel), removed afterwards.
     fn parse(text: &str) -> Result<ExperimentConfig, ConfigError> {
-        let dir = std::env::temp_dir().join(format!("mbpo-cfg-{}", std::process::id()));
+        static CALLS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+        let call = CALLS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("mbpo-cfg-{}-{call}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join(format!("{:x}.toml", mbpo_core::rng::fnv1a(text.as_bytes())));
         std::fs::write(&path, text).unwrap();
-        ExperimentConfig::load(&path)
+        let parsed = ExperimentConfig::load(&path);
+        std::fs::remove_dir_all(&dir).unwrap();
+        parsed
     }
 
     #[test]

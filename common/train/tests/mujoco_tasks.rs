@@ -56,5 +56,6 @@ fn mbpo_runs_on_inverted_pendulum_and_hopper() {
                 assert!(r == r.round() && (0.0..=1000.0).contains(&r), "return {r}");
             }
         }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
