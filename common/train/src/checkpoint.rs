@@ -163,13 +163,8 @@ impl EncodedFile {
     }
 
     /// Bytes of the whole file.
-    pub fn len(&self) -> usize {
+    pub fn bytes(&self) -> usize {
         self.bytes.len()
-    }
-
-    /// Whether the file is empty (never: the header alone has 50 bytes and more).
-    pub fn is_empty(&self) -> bool {
-        self.bytes.is_empty()
     }
 
     /// Checksum the payload and write the file atomically ([`write_atomically`]).

@@ -26,7 +26,6 @@ pub struct CheckpointFiles {
     dir: PathBuf,
     env_steps: u64,
     files: Vec<EncodedFile>,
-    names: Vec<String>,
 }
 
 impl CheckpointFiles {
@@ -36,7 +35,6 @@ impl CheckpointFiles {
             dir: dir.to_path_buf(),
             env_steps,
             files: Vec::new(),
-            names: Vec::new(),
         }
     }
 
@@ -47,9 +45,8 @@ impl CheckpointFiles {
         kind: &str,
         value: &T,
     ) -> Result<(), CheckpointError> {
-        let file = EncodedFile::encode(&self.dir.join(name), kind, value)?;
-        self.files.push(file);
-        self.names.push(name.to_string());
+        self.files
+            .push(EncodedFile::encode(&self.dir.join(name), kind, value)?);
         Ok(())
     }
 
@@ -60,7 +57,7 @@ impl CheckpointFiles {
 
     /// Bytes of all its files.
     pub fn bytes(&self) -> usize {
-        self.files.iter().map(EncodedFile::len).sum()
+        self.files.iter().map(EncodedFile::bytes).sum()
     }
 
     /// Write every file (checksummed, synced, renamed into place), then `COMPLETE`.
@@ -69,12 +66,22 @@ impl CheckpointFiles {
             path: self.dir.clone(),
             source,
         })?;
+        let names: Vec<String> = self.files.iter().map(file_name).collect();
         for file in self.files {
             file.write()?;
         }
-        let names: Vec<&str> = self.names.iter().map(String::as_str).collect();
+        let names: Vec<&str> = names.iter().map(String::as_str).collect();
         checkpoint::mark_complete(&self.dir, self.env_steps, &names)
     }
+}
+
+/// The name of `file` in its checkpoint directory (what `COMPLETE` lists).
+fn file_name(file: &EncodedFile) -> String {
+    let name = file
+        .path()
+        .file_name()
+        .expect("a file in the checkpoint directory");
+    name.to_string_lossy().into_owned()
 }
 
 /// Runs one checkpoint write at a time on its own thread.
