@@ -45,6 +45,27 @@ impl Batch {
         }
     }
 
+    /// A 64-bit digest of every value's bits, in row order: whether two batches hold the
+    /// same bits (a checkpoint's D_model computed again, `mbpo_train::d_model_branches`).
+    /// Not cryptographic.
+    pub fn digest(&self) -> u64 {
+        const K: u64 = 0x9e37_79b9_7f4a_7c15;
+        let fields = [
+            &self.obs[..],
+            &self.act,
+            &self.reward,
+            &self.next_obs,
+            &self.terminated,
+        ];
+        let mut h = (self.len as u64).wrapping_mul(K);
+        for field in fields {
+            for &v in field {
+                h = (h.rotate_left(23) ^ v.to_bits() as u64).wrapping_mul(K);
+            }
+        }
+        h
+    }
+
     /// Copy row `src` of `from` into row `dst` of `self`.
     #[inline]
     fn copy_row(&mut self, dst: usize, from: &ReplayBuffer, src: usize) {
@@ -267,6 +288,86 @@ impl ReplayBuffer {
     }
 }
 
+impl ReplayBuffer {
+    /// The buffer as it was after its first `n` pushes, when none of them has been overwritten
+    /// since (it never wrapped): the same capacity, the same slots, so it samples what it
+    /// sampled then. D_env only grows in MBPO's runs (1M rows of capacity), so a rollout branch
+    /// done at any earlier step can be done again from it.
+    pub fn prefix(&self, n: u64) -> Result<Self, SnapshotMismatch> {
+        if self.pushed > self.capacity as u64 || n > self.pushed {
+            return Err(SnapshotMismatch(format!(
+                "no prefix of {n} rows in a buffer that holds {} of {} pushed (capacity {})",
+                self.len, self.pushed, self.capacity
+            )));
+        }
+        let n = n as usize;
+        let mut buf = Self::new(self.obs_dim, self.act_dim, self.capacity);
+        let (o, a) = (self.obs_dim, self.act_dim);
+        buf.obs[..n * o].copy_from_slice(&self.obs[..n * o]);
+        buf.act[..n * a].copy_from_slice(&self.act[..n * a]);
+        buf.reward[..n].copy_from_slice(&self.reward[..n]);
+        buf.next_obs[..n * o].copy_from_slice(&self.next_obs[..n * o]);
+        buf.terminated[..n].copy_from_slice(&self.terminated[..n]);
+        buf.len = n;
+        buf.head = n % self.capacity;
+        buf.pushed = n as u64;
+        Ok(buf)
+    }
+
+    /// The buffer whose positions are `layout`'s (capacity, head, pushed; its slots are not
+    /// read) holding `rows`, oldest first: the inverse of [`ReplayBuffer::to_batch`] for a
+    /// buffer whose rows a checkpoint did not store.
+    pub fn from_age_order(layout: &ReplaySnapshot, rows: &Batch) -> Result<Self, SnapshotMismatch> {
+        let (capacity, head, len) = (layout.capacity, layout.head, rows.len);
+        let dims = (layout.slots.obs_dim, layout.slots.act_dim);
+        if (rows.obs_dim, rows.act_dim) != dims {
+            return Err(SnapshotMismatch(format!(
+                "rows have obs/act dims {}/{}, the buffer {}/{}",
+                rows.obs_dim, rows.act_dim, dims.0, dims.1
+            )));
+        }
+        if !layout_is_consistent(capacity, head, len, layout.pushed) {
+            return Err(inconsistent(len, capacity, head, layout.pushed));
+        }
+        let mut buf = Self::new(rows.obs_dim, rows.act_dim, capacity);
+        buf.len = len;
+        buf.head = head;
+        buf.pushed = layout.pushed;
+        for i in 0..len {
+            let slot = buf.slot(i);
+            buf.set_row(slot, rows, i);
+        }
+        Ok(buf)
+    }
+
+    /// Write row `src` of `from` into slot `dst`.
+    fn set_row(&mut self, dst: usize, from: &Batch, src: usize) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        self.obs[dst * o..(dst + 1) * o].copy_from_slice(&from.obs[src * o..(src + 1) * o]);
+        self.act[dst * a..(dst + 1) * a].copy_from_slice(&from.act[src * a..(src + 1) * a]);
+        self.reward[dst] = from.reward[src];
+        self.next_obs[dst * o..(dst + 1) * o]
+            .copy_from_slice(&from.next_obs[src * o..(src + 1) * o]);
+        self.terminated[dst] = from.terminated[src];
+    }
+}
+
+/// Whether a ring of `capacity` slots can hold `len` rows with its next write at `head` after
+/// `pushed` pushes: rows fill slots from 0 until the ring is full.
+fn layout_is_consistent(capacity: usize, head: usize, len: usize, pushed: u64) -> bool {
+    capacity > 0
+        && len <= capacity
+        && head < capacity
+        && (len == capacity || head == len)
+        && pushed >= len as u64
+}
+
+fn inconsistent(len: usize, capacity: usize, head: usize, pushed: u64) -> SnapshotMismatch {
+    SnapshotMismatch(format!(
+        "replay snapshot is inconsistent: {len} rows, capacity {capacity}, head {head}, pushed {pushed}"
+    ))
+}
+
 /// A [`ReplayBuffer`] as a checkpoint stores it: the held slots in slot order (not age order)
 /// and the write position, because sampling draws slot indices -- a buffer rebuilt from this
 /// samples exactly the rows the original would have.
@@ -309,6 +410,18 @@ impl ReplayBuffer {
         }
     }
 
+    /// [`ReplayBuffer::snapshot`] without the rows: the capacity, write position and push
+    /// count, for a checkpoint that stores the rows in another form
+    /// ([`ReplayBuffer::from_age_order`] puts them back).
+    pub fn positions(&self) -> ReplaySnapshot {
+        ReplaySnapshot {
+            capacity: self.capacity,
+            head: self.head,
+            pushed: self.pushed,
+            slots: Batch::new(self.obs_dim, self.act_dim, 0),
+        }
+    }
+
     /// Rebuild a buffer from [`ReplayBuffer::snapshot`]; `obs_dim`/`act_dim` are what the
     /// caller expects (a mismatch or an inconsistent snapshot is an error, not a panic).
     pub fn from_snapshot(
@@ -317,11 +430,7 @@ impl ReplayBuffer {
         act_dim: usize,
     ) -> Result<Self, SnapshotMismatch> {
         let b = &s.slots;
-        let consistent = s.capacity > 0
-            && b.len <= s.capacity
-            && s.head < s.capacity
-            && (b.len == s.capacity || s.head == b.len)
-            && s.pushed >= b.len as u64
+        let consistent = layout_is_consistent(s.capacity, s.head, b.len, s.pushed)
             && b.obs.len() == b.len * b.obs_dim
             && b.next_obs.len() == b.len * b.obs_dim
             && b.act.len() == b.len * b.act_dim
@@ -334,10 +443,7 @@ impl ReplayBuffer {
             )));
         }
         if !consistent {
-            return Err(SnapshotMismatch(format!(
-                "replay snapshot is inconsistent: {} rows, capacity {}, head {}, pushed {}",
-                b.len, s.capacity, s.head, s.pushed
-            )));
+            return Err(inconsistent(b.len, s.capacity, s.head, s.pushed));
         }
         let mut buf = Self::new(obs_dim, act_dim, s.capacity);
         let (o, a) = (obs_dim, act_dim);
@@ -402,6 +508,66 @@ mod tests {
             original.sample_into(&mut stream(3, "t", 0), &mut a);
             restored.sample_into(&mut stream(3, "t", 0), &mut b);
             assert_eq!(a, b);
+        }
+    }
+
+    #[test]
+    fn age_order_and_positions_rebuild_the_buffer() {
+        // Not full, full with the oldest at slot 0, and wrapped (the oldest mid-ring).
+        for pushes in [3, 4, 11] {
+            let mut original = ReplayBuffer::new(2, 1, 4);
+            push_n(&mut original, 0, pushes);
+            let rebuilt =
+                ReplayBuffer::from_age_order(&original.positions(), &original.to_batch()).unwrap();
+            assert_eq!(rebuilt, original, "{pushes} pushes");
+        }
+        let mut buf = ReplayBuffer::new(2, 1, 4);
+        push_n(&mut buf, 0, 3);
+        let mut layout = buf.positions();
+        layout.head = 1;
+        let err = ReplayBuffer::from_age_order(&layout, &buf.to_batch()).unwrap_err();
+        assert!(err.0.contains("inconsistent"), "{err}");
+    }
+
+    #[test]
+    fn a_prefix_is_the_buffer_as_it_was_until_it_wraps() {
+        let mut then = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut then, 0, 5);
+        let mut now = then.clone();
+        push_n(&mut now, 5, 3);
+        assert_eq!(now.prefix(5).unwrap(), then);
+        assert_eq!(now.prefix(8).unwrap(), now);
+        assert!(now.prefix(9).is_err());
+        push_n(&mut now, 8, 1); // the first row is overwritten: no prefix is what it was
+        let err = now.prefix(5).unwrap_err();
+        assert!(err.0.contains("no prefix"), "{err}");
+    }
+
+    #[test]
+    fn the_digest_sees_every_value() {
+        let mut buf = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut buf, 0, 5);
+        let b = buf.to_batch();
+        let changed = |f: &dyn Fn(&mut Batch)| {
+            let mut c = b.clone();
+            f(&mut c);
+            c.digest()
+        };
+        assert_eq!(b.clone().digest(), b.digest());
+        for (name, d) in [
+            (
+                "obs",
+                changed(&|c| c.obs[3] = f32::from_bits(c.obs[3].to_bits() ^ 1)),
+            ),
+            ("act", changed(&|c| c.act[0] += 1.0)),
+            ("reward", changed(&|c| c.reward[4] = -0.0)),
+            ("next_obs", changed(&|c| c.next_obs[9] += 1.0)),
+            (
+                "terminated",
+                changed(&|c| c.terminated[1] = 1.0 - c.terminated[1]),
+            ),
+        ] {
+            assert_ne!(d, b.digest(), "{name}");
         }
     }
 

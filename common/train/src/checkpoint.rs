@@ -29,8 +29,24 @@ const MAGIC: &[u8; 8] = b"MBPOCKPT";
 /// (2: actors keep the environment's resume state, e.g. MuJoCo's solver warm start; 3: an
 /// actor's episode in progress is optional, for environments that cannot save their state, and
 /// the role files are one format for both commands, `run_files`; 4: an actor counts the episodes
-/// lost to an environment process that exited).
-pub const FORMAT_VERSION: u32 = 4;
+/// lost to an environment process that exited; 5: the learner's file may store D_model as the
+/// branches that made it, a field after all others, `crate::d_model_branches`).
+pub const FORMAT_VERSION: u32 = 5;
+
+/// The oldest format this build still reads: every file of format 4 is its format-5 payload
+/// but for the learner's last field, absent ([`upgraded_payload`]).
+const OLDEST_READABLE: u32 = 4;
+
+/// A payload of format `version` as this build's format reads it.
+fn upgraded_payload<'a>(version: u32, kind: &str, payload: &'a [u8]) -> std::borrow::Cow<'a, [u8]> {
+    if version == 4 && kind == crate::run_files::kind::LEARNER {
+        // `d_model_branches: None`: bincode writes `None` as one zero byte.
+        let mut upgraded = payload.to_vec();
+        upgraded.push(0);
+        return upgraded.into();
+    }
+    payload.into()
+}
 
 /// Name of the marker that makes a checkpoint directory resumable.
 pub const COMPLETE: &str = "COMPLETE";
@@ -53,7 +69,7 @@ pub enum CheckpointError {
         path: PathBuf,
     },
     /// Written by another format version.
-    #[error("checkpoint {path}: format version {found}, this build reads version {supported}; resume it with the build that wrote it")]
+    #[error("checkpoint {path}: format version {found}, this build reads versions {oldest} to {supported}; resume it with the build that wrote it", oldest = OLDEST_READABLE)]
     Version {
         /// The file.
         path: PathBuf,
@@ -127,7 +143,7 @@ pub struct EncodedFile {
 
 impl EncodedFile {
     /// Encode `value` as a checkpoint of `kind` to go to `path`. The payload is encoded straight
-    /// after the header, so a large state (the learner's 360 MB model buffer at Hopper 100k) is
+    /// after the header, so a large state (a pipeline learner's 360 MB model buffer at Hopper 100k) is
     /// never copied whole.
     pub fn encode<T: Serialize>(
         path: &Path,
@@ -207,10 +223,10 @@ pub fn verify(path: &Path, kind: &str) -> Result<(), CheckpointError> {
 
 /// Read a checkpoint of `kind` from `path`, checking every header field and the checksum.
 pub fn read<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<T, CheckpointError> {
-    let (bytes, range) = checked_payload(path, kind)?;
-    let payload = &bytes[range];
+    let (bytes, range, version) = checked_payload(path, kind)?;
+    let payload = upgraded_payload(version, kind, &bytes[range]);
     let p = || path.to_path_buf();
-    let (value, _) = bincode::serde::decode_from_slice(payload, bincode::config::standard())
+    let (value, _) = bincode::serde::decode_from_slice(&payload, bincode::config::standard())
         .map_err(|e| CheckpointError::Decode {
             path: p(),
             kind: kind.to_string(),
@@ -219,11 +235,11 @@ pub fn read<T: DeserializeOwned>(path: &Path, kind: &str) -> Result<T, Checkpoin
     Ok(value)
 }
 
-/// The file's bytes and the range of its payload, after every check.
+/// The file's bytes, the range of its payload and its format version, after every check.
 fn checked_payload(
     path: &Path,
     kind: &str,
-) -> Result<(Vec<u8>, std::ops::Range<usize>), CheckpointError> {
+) -> Result<(Vec<u8>, std::ops::Range<usize>, u32), CheckpointError> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
     let p = || path.to_path_buf();
     let truncated = |expected: usize| CheckpointError::Truncated {
@@ -247,7 +263,7 @@ fn checked_payload(
         Ok(s)
     };
     let version = u32::from_le_bytes(take(4)?.try_into().expect("4 bytes"));
-    if version != FORMAT_VERSION {
+    if !(OLDEST_READABLE..=FORMAT_VERSION).contains(&version) {
         return Err(CheckpointError::Version {
             path: p(),
             found: version,
@@ -270,7 +286,7 @@ fn checked_payload(
         return Err(CheckpointError::Corrupt { path: p() });
     }
     let end = at;
-    Ok((bytes, end - len..end))
+    Ok((bytes, end - len..end, version))
 }
 
 /// The `COMPLETE` marker of a checkpoint directory.
@@ -437,6 +453,36 @@ pub(crate) mod tests {
         write(&path, "test-state", &1u8).unwrap();
         let err = read::<(Vec<f32>, u64, String)>(&path, "test-state").unwrap_err();
         assert!(matches!(err, CheckpointError::Decode { .. }), "{err}");
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A learner file of format 4 (lanes of long runs started by the build before) reads as
+    /// format 5 without D_model's branches; another role's format-4 file reads as it is, and
+    /// format 3 is refused by name.
+    #[test]
+    fn format_4_files_read_with_the_learner_s_new_field_absent() {
+        use crate::run_files::kind::{LEARNER, ROLLOUT};
+        let dir = tmp("format-4");
+        let path = dir.join("learner");
+        let as_format = |version: u32, kind: &str, value: &(u64, Vec<f32>)| {
+            let mut file = EncodedFile::encode(&path, kind, value).unwrap();
+            file.bytes[8..12].copy_from_slice(&version.to_le_bytes());
+            file.write().unwrap();
+        };
+        let before = (7u64, vec![1.5f32, -2.0]);
+        as_format(4, LEARNER, &before);
+        let now: (u64, Vec<f32>, Option<u32>) = read(&path, LEARNER).unwrap();
+        assert_eq!(now, (7, vec![1.5, -2.0], None));
+        as_format(4, ROLLOUT, &before);
+        assert_eq!(read::<(u64, Vec<f32>)>(&path, ROLLOUT).unwrap(), before);
+        as_format(3, ROLLOUT, &before);
+        let err = read::<(u64, Vec<f32>)>(&path, ROLLOUT)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("format version 3, this build reads versions 4 to 5"),
+            "{err}"
+        );
         std::fs::remove_dir_all(dir).unwrap();
     }
 

@@ -10,6 +10,8 @@
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
+//! * [`d_model_branches`]: the model buffer in a checkpoint as the rollout branches that filled
+//!   it, done again on restore.
 //! * [`checkpoint_writer`]: a checkpoint written on its own thread while the training goes on.
 //! * [`checkpoint_bench`]: what checkpointing a run costs its training loop (`mbpo bench checkpoint`).
 //! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
@@ -32,6 +34,7 @@ pub mod checkpoint;
 pub mod checkpoint_bench;
 pub mod checkpoint_writer;
 pub mod config;
+pub mod d_model_branches;
 pub mod diagnose;
 pub mod env_config;
 pub mod eval;

@@ -161,8 +161,10 @@ impl Mbpo {
     pub fn branch_rollouts(&mut self, epoch: usize) -> Result<(), TrainError> {
         self.rollout.set_policy(&self.learner.policy());
         let started = Instant::now();
+        // What the branch starts from, so a checkpoint can store it instead of D_model's rows.
+        let inputs = self.rollout.inputs_of_branch(epoch);
         let imagined = self.rollout.branch(epoch)?;
-        self.learner.add_imagined(&imagined);
+        self.learner.add_imagined_from(&imagined, inputs);
         self.phases.rollout_seconds += started.elapsed().as_secs_f64();
         self.phases.imagined += imagined.rows.len as u64;
         Ok(())
@@ -240,12 +242,14 @@ impl Mbpo {
         // In the order of `role_files`, as `mbpo run` lists them in `COMPLETE`.
         let mut files = CheckpointFiles::new(dir, t);
         let k = self.model_trainer.version();
+        let (role, d_model_branches) = self.learner.checkpoint();
         let learner = LearnerCheckpoint {
-            role: self.learner.checkpoint(),
+            role,
             consumed: t,
             updates: self.sac().updates(),
             model_batches: k,
             model_version: k,
+            d_model_branches,
         };
         files.add(file::LEARNER, kind::LEARNER, &learner)?;
         let trainer = ModelTrainerCheckpoint {
@@ -335,7 +339,9 @@ impl Mbpo {
         self.actor.restore(actor.role)?;
         self.model_trainer.restore(trainer.role)?;
         self.rollout.restore(rollout.role)?;
-        self.learner.restore(learner.role)?;
+        let rollout = Some(&mut self.rollout);
+        self.learner
+            .restore(learner.role, learner.d_model_branches, rollout)?;
         Ok((eval.rng, book))
     }
 }

@@ -16,6 +16,7 @@
 
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::{ExperimentConfig, ImaginedStateClip};
+use crate::d_model_branches::{BranchInputs, BranchLog, DModelBranches};
 use crate::env_config::RolloutRule;
 use crate::sac_trainer::TrainError;
 use mbpo_core::rng::stream;
@@ -508,6 +509,43 @@ impl RolloutRole {
     pub fn real_received(&self) -> u64 {
         self.d_env.pushed()
     }
+    /// What [`RolloutRole::branch`] of `epoch` would start from now (a copy of the model and
+    /// the policy), for [`crate::d_model_branches`]; `rows` and `digest` are filled in after.
+    pub fn inputs_of_branch(&self, epoch: usize) -> BranchInputs {
+        BranchInputs {
+            epoch,
+            d_env_rows: self.d_env.pushed(),
+            model: self.model.weights(),
+            policy: self.policy.params.clone(),
+            rng: self.rng.clone(),
+            rows: 0,
+            digest: 0,
+        }
+    }
+    /// Do the branch of `inputs` again, from the first `inputs.d_env_rows` transitions of
+    /// `d_env`, and return its rows; the role's own state is as before afterwards.
+    pub fn replay(
+        &mut self,
+        inputs: &BranchInputs,
+        d_env: &ReplayBuffer,
+    ) -> Result<Batch, TrainError> {
+        let live = self.checkpoint();
+        let starts = d_env
+            .prefix(inputs.d_env_rows)
+            .map_err(|e| restore_err("learner's D_model", e))?;
+        let replayed = self.restore(RolloutState {
+            d_env: starts.snapshot(),
+            model: Some(inputs.model.clone()),
+            model_version: live.model_version,
+            policy: inputs.policy.clone(),
+            policy_version: live.policy_version,
+            rng: inputs.rng.clone(),
+        });
+        let rows = replayed.and_then(|()| self.branch(inputs.epoch).map(|b| b.rows));
+        // (A role without a model yet keeps the loaded weights, unread until its first model.)
+        self.restore(live)?;
+        rows
+    }
     /// k = rollout_length(epoch); M · model_train_freq k-step rollouts of π in p_θ from start
     /// states drawn uniformly from the real data.
     pub fn branch(&mut self, epoch: usize) -> Result<ImaginedBatch, TrainError> {
@@ -560,6 +598,8 @@ pub struct LearnerRole {
     sample_rng: Rng,
     update_rng: Rng,
     steps: u64,
+    /// The branches behind D_model's rows, when they were handed over with them.
+    branch_log: BranchLog,
     /// Statistics of the last update.
     pub last_stats: SacStats,
     /// Rollout length of the last imagined batch.
@@ -592,6 +632,7 @@ impl LearnerRole {
             sample_rng: stream(cfg.seed, "learner.sample", 0),
             update_rng: stream(cfg.seed, "learner.update", 0),
             steps: 0,
+            branch_log: BranchLog::default(),
             last_stats: SacStats::default(),
             rollout_length: k0,
         }
@@ -606,6 +647,22 @@ impl LearnerRole {
     }
     /// Resize D_model for the batch's k (keeping the newest rows) and append the batch.
     pub fn add_imagined(&mut self, batch: &ImaginedBatch) {
+        self.append_imagined(batch);
+        self.branch_log.forget();
+    }
+    /// [`LearnerRole::add_imagined`] of a batch branched from `inputs`
+    /// ([`RolloutRole::inputs_of_branch`]), so a checkpoint can store the inputs instead of
+    /// the rows ([`crate::d_model_branches`]).
+    pub fn add_imagined_from(&mut self, batch: &ImaginedBatch, inputs: BranchInputs) {
+        self.append_imagined(batch);
+        let inputs = BranchInputs {
+            rows: batch.rows.len,
+            digest: batch.rows.digest(),
+            ..inputs
+        };
+        self.branch_log.record(inputs, self.d_model.capacity());
+    }
+    fn append_imagined(&mut self, batch: &ImaginedBatch) {
         self.rollout_length = batch.rollout_length;
         self.d_model
             .set_capacity(self.pool.capacity(batch.rollout_length).max(1));
@@ -660,26 +717,65 @@ impl LearnerRole {
     pub fn steps(&self) -> u64 {
         self.steps
     }
-    /// The role's state (for checkpoints).
-    pub fn checkpoint(&self) -> LearnerState {
-        LearnerState {
+    /// The role's state (for checkpoints). D_model's rows are left out of it when the branches
+    /// that made them are known: then they come second, and the state's D_model holds only
+    /// the buffer's positions ([`crate::d_model_branches`]).
+    pub fn checkpoint(&self) -> (LearnerState, Option<DModelBranches>) {
+        let branches = self.branch_log.covering(self.d_model.len(), &self.d_env);
+        let state = LearnerState {
             sac: self.sac.checkpoint(),
             d_env: self.d_env.snapshot(),
-            d_model: self.d_model.snapshot(),
+            d_model: match branches {
+                Some(_) => self.d_model.positions(),
+                None => self.d_model.snapshot(),
+            },
             sample_rng: self.sample_rng.clone(),
             update_rng: self.update_rng.clone(),
             steps: self.steps,
             last_stats: self.last_stats,
             rollout_length: self.rollout_length,
-        }
+        };
+        (state, branches)
     }
-    /// Continue from [`LearnerRole::checkpoint`].
-    pub fn restore(&mut self, s: LearnerState) -> Result<(), TrainError> {
+    /// Continue from [`LearnerRole::checkpoint`]; D_model's `branches`, when the checkpoint
+    /// has them instead of its rows, are done again with `rollout` (a rollout generator of this
+    /// run; its state is left as it was).
+    pub fn restore(
+        &mut self,
+        s: LearnerState,
+        branches: Option<DModelBranches>,
+        rollout: Option<&mut RolloutRole>,
+    ) -> Result<(), TrainError> {
         let (o, a) = (self.d_env.obs_dim(), self.d_env.act_dim());
         self.d_env =
             ReplayBuffer::from_snapshot(&s.d_env, o, a).map_err(|e| restore_err("learner", e))?;
-        self.d_model =
-            ReplayBuffer::from_snapshot(&s.d_model, o, a).map_err(|e| restore_err("learner", e))?;
+        (self.d_model, self.branch_log) = match (branches, rollout) {
+            (None, _) => (
+                ReplayBuffer::from_snapshot(&s.d_model, o, a)
+                    .map_err(|e| restore_err("learner", e))?,
+                BranchLog::default(),
+            ),
+            (Some(branches), Some(rollout)) => {
+                let replayed = branches.replay(rollout, &self.d_env, &s.d_model)?;
+                tracing::info!(
+                    "D_model: {} rows from its {} branches done again{}",
+                    replayed.buffer.len(),
+                    branches.branches.len(),
+                    match replayed.differing {
+                        0 => String::new(),
+                        n => format!(", {n} of them with other rows than the run had"),
+                    }
+                );
+                (replayed.buffer, BranchLog::restore(&branches))
+            }
+            (Some(_), None) => {
+                return Err(restore_err(
+                    "learner",
+                    "its D_model is stored as the branches that made it and no rollout \
+                     generator was given to do them again",
+                ))
+            }
+        };
         self.sac
             .restore(s.sac)
             .map_err(|e| restore_err("learner", e))?;

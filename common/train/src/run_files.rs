@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 use crate::actor::EnvActor;
+use crate::d_model_branches::DModelBranches;
 use crate::mpc::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
 use crate::sac_trainer::TrainError;
@@ -113,6 +114,9 @@ pub struct LearnerCheckpoint {
     pub model_batches: u64,
     /// Model version of the newest imagined batch.
     pub model_version: u64,
+    /// D_model as the branches that made it, when `role`'s D_model holds only its positions
+    /// ([`crate::d_model_branches`]). Last, so a format-4 file is this one without it.
+    pub d_model_branches: Option<DModelBranches>,
 }
 
 /// A planning actor (MPC run) after T.

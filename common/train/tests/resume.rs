@@ -344,3 +344,132 @@ fn a_kept_checkpoint_is_continued_and_every_phase_is_counted() {
     );
     std::fs::remove_dir_all(&run).unwrap();
 }
+
+/// Steps `cfg` to its end in one process; at every `every` steps after the warm-up, writes the
+/// checkpoint, restores a fresh trainer from it and checks that its D_model is the running
+/// one's, slot for slot, and that it came from the stored branches when `expect_branches(t)`.
+/// Returns the rows of each stored branch.
+fn d_model_round_trips(
+    cfg: &ExperimentConfig,
+    name: &str,
+    every: u64,
+    expect_branches: impl Fn(u64) -> bool,
+) -> Vec<usize> {
+    use mbpo_train::checkpoint_writer::CheckpointFiles;
+    use mbpo_train::eval::Evaluator;
+    use mbpo_train::run_files::{file, kind, LearnerCheckpoint};
+    use mbpo_train::Mbpo;
+    let run = temp_dir(name);
+    let mut mbpo = Mbpo::new(cfg).unwrap();
+    let evaluator = Evaluator::new(cfg).unwrap();
+    let mut branch_rows = vec![];
+    for t in 1..=cfg.steps {
+        assert!(mbpo.step_unless(t, || false).unwrap());
+        if t <= cfg.mbpo.init_random_steps || t % every != 0 {
+            continue;
+        }
+        let dir = checkpoint::dir_for(&run, t);
+        let files: CheckpointFiles = mbpo
+            .encode_checkpoint(&dir, t, &evaluator, &mbpo.book)
+            .unwrap();
+        files.write().unwrap();
+        let learner: LearnerCheckpoint =
+            checkpoint::read(&dir.join(file::LEARNER), kind::LEARNER).unwrap();
+        assert_eq!(
+            learner.d_model_branches.is_some(),
+            expect_branches(t),
+            "step {t}"
+        );
+        if expect_branches(t) {
+            assert_eq!(
+                learner.role.d_model.slots.len, 0,
+                "step {t}: rows stored as well"
+            );
+        }
+        let branches = learner.d_model_branches.iter().flat_map(|d| &d.branches);
+        branch_rows.extend(branches.map(|b| b.rows));
+        let mut restored = Mbpo::new(cfg).unwrap();
+        restored.restore_checkpoint(&dir, t).unwrap();
+        let d_model = |m: &mut Mbpo| m.learner_mut().sac_and_buffers().2.clone();
+        let (now, back) = (d_model(&mut mbpo), d_model(&mut restored));
+        assert!(now.len() > 0);
+        assert!(
+            back == now,
+            "step {t}: D_model restored differs from the run's ({} / {} rows)",
+            back.len(),
+            now.len()
+        );
+        // The restore left the rollout generator as the checkpoint had it.
+        let rollout = |m: &mut Mbpo| m.rollout_mut().checkpoint();
+        assert_eq!(rollout(&mut restored), rollout(&mut mbpo), "step {t}");
+    }
+    std::fs::remove_dir_all(run).unwrap();
+    branch_rows
+}
+
+/// Pendulum with two retained epochs of four branches each and k growing from 1 to 3, so
+/// D_model is resized and wraps: the checkpoint stores the branches, not the rows, and the
+/// restore puts every row back in its slot.
+#[test]
+fn d_model_stored_as_its_branches_is_restored_slot_for_slot() {
+    let mut cfg = small_mbpo(450);
+    cfg.mbpo.retain_epochs = 2;
+    cfg.mbpo.model_train_freq = 50;
+    d_model_round_trips(&cfg, "d-model-branches", 50, |_| true);
+}
+
+/// Once D_env wraps (after 300 steps), a branch's start states are gone from it: the rows
+/// are stored.
+#[test]
+fn d_model_is_stored_as_rows_once_the_real_data_wrapped() {
+    let mut cfg = small_mbpo(350);
+    cfg.mbpo.replay_capacity = 300;
+    cfg.mbpo.model_train_freq = 50;
+    d_model_round_trips(&cfg, "d-model-rows", 50, |t| t <= 300);
+}
+
+/// Hopper's rollouts end early (its termination rule), so branches add different numbers of
+/// rows and the buffer's oldest branch is cut mid-way.
+#[cfg(feature = "mujoco")]
+#[test]
+fn hopper_d_model_with_early_ends_is_restored_slot_for_slot() {
+    let mut cfg = small_mbpo(450);
+    cfg.env = "Hopper-v5".into();
+    cfg.mbpo.retain_epochs = 2;
+    cfg.mbpo.model_train_freq = 50;
+    let rows = d_model_round_trips(&cfg, "d-model-hopper", 50, |_| true);
+    let rollouts = cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize;
+    assert!(
+        rows.iter().any(|r| r % rollouts != 0),
+        "no rollout ended early: {rows:?}"
+    );
+}
+
+/// A build that rounds differently computes other rows from a branch's inputs: the restore
+/// says how many branches differ and goes on with the recomputed rows.
+#[test]
+fn a_branch_done_again_with_other_rows_is_counted() {
+    use mbpo_train::run_files::{file, kind, LearnerCheckpoint};
+    use mbpo_train::Mbpo;
+    let mut cfg = small_mbpo(300);
+    cfg.mbpo.retain_epochs = 2;
+    cfg.mbpo.model_train_freq = 50;
+    let run = temp_dir("d-model-differing");
+    train_mbpo(&cfg, &run).unwrap();
+    let dir = checkpoint::dir_for(&run, 300);
+    let learner: LearnerCheckpoint =
+        checkpoint::read(&dir.join(file::LEARNER), kind::LEARNER).unwrap();
+    let mut branches = learner.d_model_branches.expect("stored as branches");
+    assert!(branches.branches.len() >= 2);
+    branches.branches[1].digest ^= 1;
+    let mut mbpo = Mbpo::new(&cfg).unwrap();
+    mbpo.restore_checkpoint(&dir, 300).unwrap();
+    let d_model = mbpo.learner_mut().sac_and_buffers().2.clone();
+    let d_env = mbpo.learner_mut().sac_and_buffers().1.clone();
+    let replayed = branches
+        .replay(mbpo.rollout_mut(), &d_env, &learner.role.d_model)
+        .unwrap();
+    assert_eq!(replayed.differing, 1);
+    assert!(replayed.buffer == d_model);
+    std::fs::remove_dir_all(run).unwrap();
+}

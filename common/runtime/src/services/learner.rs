@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use mbpo_core::rate_limit::RateLimiter;
 use mbpo_core::Batch;
 use mbpo_model::rollout_length;
-use mbpo_train::roles::{ImaginedBatch, LearnerRole};
+use mbpo_train::roles::{ImaginedBatch, LearnerRole, RolloutRole};
 use mbpo_wire::*;
 
 use crate::barrier::{self, LearnerCheckpoint};
@@ -65,7 +65,13 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
     );
     if let Some(dir) = &args.resume_from {
         let state: LearnerCheckpoint = file.read(dir)?;
-        role.restore(state.role)?;
+        // A checkpoint of `mbpo train` may store D_model as the branches that made it: this
+        // process does them again with a rollout generator of its own.
+        let mut replayer = match state.d_model_branches {
+            Some(_) => Some(RolloutRole::new(cfg, d.obs, d.act)?),
+            None => None,
+        };
+        role.restore(state.role, state.d_model_branches, replayer.as_mut())?;
         (consumed, published) = (state.consumed, state.consumed);
         (updates, model_batches) = (state.updates, state.model_batches);
         batch.model_version = state.model_version;
@@ -260,11 +266,13 @@ fn checkpoint_at(
     updates: u64,
     model_version: u64,
 ) -> LearnerCheckpoint {
+    let (role, d_model_branches) = role.checkpoint();
     LearnerCheckpoint {
-        role: role.checkpoint(),
+        role,
         consumed: cut.env_steps,
         updates,
         model_batches: cut.model_trainings,
         model_version,
+        d_model_branches,
     }
 }
