@@ -392,7 +392,7 @@ fn d_model_round_trips(
         restored.restore_checkpoint(&dir, t).unwrap();
         let d_model = |m: &mut Mbpo| m.learner_mut().sac_and_buffers().2.clone();
         let (now, back) = (d_model(&mut mbpo), d_model(&mut restored));
-        assert!(now.len() > 0);
+        assert!(!now.is_empty());
         assert!(
             back == now,
             "step {t}: D_model restored differs from the run's ({} / {} rows)",
