@@ -22,8 +22,8 @@ pub mod stats;
 
 pub use policy::{BatchPolicy, UniformPolicy};
 pub use replay::{
-    sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, SnapshotMismatch,
-    TransitionSink,
+    sample_mixed, Batch, FillFromNewest, LastTransition, ReplayBuffer, ReplaySnapshot,
+    SnapshotMismatch, TransitionSink,
 };
 pub use rng::{stream, Rng};
 pub use state_box::StateBox;

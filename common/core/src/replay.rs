@@ -318,26 +318,36 @@ impl ReplayBuffer {
     /// read) holding `rows`, oldest first: the inverse of [`ReplayBuffer::to_batch`] for a
     /// buffer whose rows a checkpoint did not store.
     pub fn from_age_order(layout: &ReplaySnapshot, rows: &Batch) -> Result<Self, SnapshotMismatch> {
-        let (capacity, head, len) = (layout.capacity, layout.head, rows.len);
+        let mut fill = Self::fill_from_newest(layout, rows.obs_dim, rows.act_dim, rows.len)?;
+        fill.prepend(rows);
+        fill.finish()
+    }
+
+    /// A buffer with `layout`'s positions that will hold `len` rows, to be filled newest
+    /// first ([`FillFromNewest::prepend`]): rows that come in pieces (D_model's branches) go
+    /// straight to their slots, and pieces older than the `len` newest rows are never needed.
+    pub fn fill_from_newest(
+        layout: &ReplaySnapshot,
+        obs_dim: usize,
+        act_dim: usize,
+        len: usize,
+    ) -> Result<FillFromNewest, SnapshotMismatch> {
+        let (capacity, head) = (layout.capacity, layout.head);
         let dims = (layout.slots.obs_dim, layout.slots.act_dim);
-        if (rows.obs_dim, rows.act_dim) != dims {
+        if (obs_dim, act_dim) != dims {
             return Err(SnapshotMismatch(format!(
-                "rows have obs/act dims {}/{}, the buffer {}/{}",
-                rows.obs_dim, rows.act_dim, dims.0, dims.1
+                "rows have obs/act dims {obs_dim}/{act_dim}, the buffer {}/{}",
+                dims.0, dims.1
             )));
         }
         if !layout_is_consistent(capacity, head, len, layout.pushed) {
             return Err(inconsistent(len, capacity, head, layout.pushed));
         }
-        let mut buf = Self::new(rows.obs_dim, rows.act_dim, capacity);
+        let mut buf = Self::new(obs_dim, act_dim, capacity);
         buf.len = len;
         buf.head = head;
         buf.pushed = layout.pushed;
-        for i in 0..len {
-            let slot = buf.slot(i);
-            buf.set_row(slot, rows, i);
-        }
-        Ok(buf)
+        Ok(FillFromNewest { buf, missing: len })
     }
 
     /// Write row `src` of `from` into slot `dst`.
@@ -349,6 +359,39 @@ impl ReplayBuffer {
         self.next_obs[dst * o..(dst + 1) * o]
             .copy_from_slice(&from.next_obs[src * o..(src + 1) * o]);
         self.terminated[dst] = from.terminated[src];
+    }
+}
+
+/// A [`ReplayBuffer`] being filled from its newest row back ([`ReplayBuffer::fill_from_newest`]).
+pub struct FillFromNewest {
+    buf: ReplayBuffer,
+    /// Rows not yet filled: ages `0..missing`.
+    missing: usize,
+}
+
+impl FillFromNewest {
+    /// Put the rows of `rows` in, older than every row put in so far: its last row goes to the
+    /// newest free age. Rows beyond what the buffer holds are left out. Returns the rows still
+    /// missing.
+    pub fn prepend(&mut self, rows: &Batch) -> usize {
+        let n = rows.len.min(self.missing);
+        for j in 0..n {
+            let slot = self.buf.slot(self.missing - 1 - j);
+            self.buf.set_row(slot, rows, rows.len - 1 - j);
+        }
+        self.missing -= n;
+        self.missing
+    }
+
+    /// The buffer, once every row is in.
+    pub fn finish(self) -> Result<ReplayBuffer, SnapshotMismatch> {
+        match self.missing {
+            0 => Ok(self.buf),
+            missing => Err(SnapshotMismatch(format!(
+                "{missing} of the buffer's {} rows are missing",
+                self.buf.len
+            ))),
+        }
     }
 }
 
@@ -527,6 +570,29 @@ mod tests {
         layout.head = 1;
         let err = ReplayBuffer::from_age_order(&layout, &buf.to_batch()).unwrap_err();
         assert!(err.0.contains("inconsistent"), "{err}");
+    }
+
+    #[test]
+    fn filled_from_newest_in_pieces_is_the_buffer() {
+        let mut original = ReplayBuffer::new(2, 1, 4);
+        push_n(&mut original, 0, 3);
+        let mut older = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut older, 0, 3); // rows 0-2: only row 2 is still held
+        push_n(&mut original, 3, 3);
+        let mut newer = ReplayBuffer::new(2, 1, 8);
+        push_n(&mut newer, 3, 3);
+        let layout = original.positions();
+        let mut fill = ReplayBuffer::fill_from_newest(&layout, 2, 1, 4).unwrap();
+        assert_eq!(fill.prepend(&newer.to_batch()), 1);
+        let mut short = ReplayBuffer::fill_from_newest(&layout, 2, 1, 4).unwrap();
+        short.prepend(&newer.to_batch());
+        assert!(short
+            .finish()
+            .unwrap_err()
+            .0
+            .contains("1 of the buffer's 4 rows are missing"));
+        assert_eq!(fill.prepend(&older.to_batch()), 0);
+        assert_eq!(fill.finish().unwrap(), original);
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! how much of D_env it drew its start states from (D_env only grows, so that is a prefix of
 //! today's) and its epoch (k). Rollouts are deterministic, so a checkpoint of the single-process
 //! trainer keeps those inputs ([`BranchInputs`]) instead of the rows, and a restore does the
-//! branches again, oldest first, and keeps the newest rows the buffer held, in its slots.
+//! branches again, newest first, putting each row in its slot until the buffer is full.
 //!
 //! Each branch's rows carry a digest. A build that rounds differently (another GEMM kernel)
 //! computes other rows from the same inputs: the restore then continues with them and warns,
@@ -18,7 +18,7 @@
 
 use crate::roles::RolloutRole;
 use crate::sac_trainer::TrainError;
-use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
+use mbpo_core::{ReplayBuffer, ReplaySnapshot, Rng};
 use mbpo_model::ModelWeights;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
@@ -131,10 +131,13 @@ impl DModelBranches {
                 self.len
             )));
         }
-        // The newest `len` rows of all branches, in order: a ring of exactly that size keeps them.
-        let mut newest = ReplayBuffer::new(d_env.obs_dim(), d_env.act_dim(), self.len);
+        // Newest branch first, each row straight to its slot: only one branch's rows are
+        // held besides the buffer, and a branch whose rows were all overwritten is not done.
+        let (o, a) = (d_env.obs_dim(), d_env.act_dim());
+        let mut fill =
+            ReplayBuffer::fill_from_newest(layout, o, a, self.len).map_err(|e| bad(e.0))?;
         let mut differing = 0;
-        for (i, inputs) in self.branches.iter().enumerate() {
+        for (i, inputs) in self.branches.iter().enumerate().rev() {
             let rows = rollout.replay(inputs, d_env)?;
             if rows.len != inputs.rows || rows.digest() != inputs.digest {
                 differing += 1;
@@ -150,18 +153,17 @@ impl DModelBranches {
                     inputs.rows
                 );
             }
-            newest.push_batch(&rows);
+            if fill.prepend(&rows) == 0 {
+                break;
+            }
         }
-        if newest.len() < self.len {
-            return Err(bad(format!(
-                "they gave {} rows, the buffer held {} (this build's rollouts end elsewhere: \
-                 resume with the build that wrote the checkpoint)",
-                newest.len(),
-                self.len
-            )));
-        }
-        let rows: Batch = newest.to_batch();
-        let buffer = ReplayBuffer::from_age_order(layout, &rows).map_err(|e| bad(e.0))?;
+        // Fewer rows than the run had: this build's rollouts end elsewhere.
+        let buffer = fill.finish().map_err(|e| {
+            bad(format!(
+                "{} (resume with the build that wrote the checkpoint)",
+                e.0
+            ))
+        })?;
         Ok(Replayed { buffer, differing })
     }
 }
