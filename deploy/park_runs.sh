@@ -19,11 +19,13 @@
 #
 # --with-checkpoints also packs each unfinished run's newest complete checkpoint
 # (checkpoint.tar.zst, zstd -19), so the benchmark continues it exactly where it was. It is not
-# the default because the checkpoint holds the model buffer, whose floats barely compress:
-# measured 4.6 MB for Hopper at 5000 steps, 37 MB at 11,000, 51 MB for Walker2d at 13,000 (41 MB of
-# it the learner's 400k imagined transitions), and Hopper's grows with its rollout length to
-# about 100 MB near 50k. Commit such a file only when the compute it saves is worth the
-# repository's growth. The TensorBoard file and the older checkpoints (the
+# the default because its floats barely compress. `mbpo train` now stores the model buffer as
+# the rollout branches that made it (common/train/src/d_model_branches.rs), so a checkpoint no
+# longer grows with the rollout length: Ant-v5 at 32k is 65 MB, 47 MB packed (it was 143 MB;
+# before that format: 37 MB packed for Hopper at 11,000, 51 MB for Walker2d at 13,000, about
+# 100 MB for Hopper near 50k). The rest is three copies of D_env and the models with their Adam
+# moments. Commit such a file only when the compute it saves is worth the repository's growth
+# (a seed past about 20k steps). The TensorBoard file and the older checkpoints (the
 # `checkpoint.keep_every` ones `bench breakdown`/`diagnose` start from) are never parked.
 #
 # Parking without --with-checkpoints keeps a checkpoint parked before (older than the run, it
