@@ -21,7 +21,7 @@
 # (checkpoint.tar.zst, zstd -19), so the benchmark continues it exactly where it was. It is not
 # the default because its floats barely compress. `mbpo train` now stores the model buffer as
 # the rollout branches that made it (common/train/src/d_model_branches.rs), so a checkpoint no
-# longer grows with the rollout length: Ant-v5 at 32k is 65 MB, 47 MB packed (it was 143 MB;
+# longer grows with the rollout length: Ant-v5 at 32k is 65 MB, 47 MB packed (143 MB at 28k with the rows;
 # before that format: 37 MB packed for Hopper at 11,000, 51 MB for Walker2d at 13,000, about
 # 100 MB for Hopper near 50k). The rest is three copies of D_env and the models with their Adam
 # moments. Commit such a file only when the compute it saves is worth the repository's growth

@@ -91,11 +91,11 @@ impl BranchLog {
         })
     }
 
-    /// Continue from a restored checkpoint's branches.
-    pub fn restore(branches: &DModelBranches) -> Self {
+    /// Continue from a restored checkpoint's branches (taken over, not copied).
+    pub fn restore(branches: DModelBranches) -> Self {
         Self {
             rows: branches.branches.iter().map(|b| b.rows).sum(),
-            branches: branches.branches.iter().cloned().collect(),
+            branches: branches.branches.into(),
         }
     }
 }

@@ -766,7 +766,7 @@ impl LearnerRole {
                         n => format!(", {n} of them with other rows than the run had"),
                     }
                 );
-                (replayed.buffer, BranchLog::restore(&branches))
+                (replayed.buffer, BranchLog::restore(branches))
             }
             (Some(_), None) => {
                 return Err(restore_err(
