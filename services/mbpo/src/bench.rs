@@ -3,6 +3,7 @@
 use crate::cli::{BenchCommand, BenchTime, EnvBenchArgs};
 use mbpo_core::rng::uniform_range_f32;
 use mbpo_envs::{make, ENV_IDS};
+use mbpo_nn::gemm::Op;
 use serde_json::json;
 use std::time::{Duration, Instant};
 
@@ -59,14 +60,41 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
 pub const GEMM_SHAPES: &[(usize, usize, usize)] =
     &[(256, 256, 256), (256, 23, 256), (256, 200, 200)];
 
+/// The products of one member's training minibatch in `bench model-train` (HalfCheetah: 23
+/// inputs, 4 x 200 hidden, 2 x 18 outputs; 256 rows), each layer's forward `X W`, weight
+/// gradient `X^T dZ` and input gradient `dZ W^T`: which of them keeps an epoch below the
+/// roofline.
+const MODEL_TRAIN_LAYERS: &[(usize, usize)] = &[(23, 200), (200, 200), (200, 36)];
+
 fn gemm(t: &BenchTime) -> anyhow::Result<()> {
+    let time = Duration::from_secs_f64(t.seconds);
     for &(m, k, n) in GEMM_SHAPES {
-        let gflops = mbpo_nn::bench::gemm_gflops(m, k, n, Duration::from_secs_f64(t.seconds));
+        let gflops = mbpo_nn::bench::gemm_gflops(m, k, n, time);
         println!(
             "{}",
             json!({"bench": "gemm", "m": m, "k": k, "n": n, "threads": 1,
                    "gflops": (gflops * 10.0).round() / 10.0})
         );
+    }
+    let batch = 256;
+    for &(n_in, n_out) in MODEL_TRAIN_LAYERS {
+        let products = [
+            ("forward X W", batch, n_in, n_out, Op::N, Op::N),
+            ("weight gradient X^T dZ", n_in, batch, n_out, Op::T, Op::N),
+            ("input gradient dZ W^T", batch, n_out, n_in, Op::N, Op::T),
+        ];
+        for (product, m, k, n, op_a, op_b) in products {
+            if product.starts_with("input") && n_in == 23 {
+                continue; // the first layer's input gradient is never computed
+            }
+            let gflops = mbpo_nn::bench::gemm_gflops_with(m, k, n, op_a, op_b, time);
+            println!(
+                "{}",
+                json!({"bench": "gemm", "model_train_layer": format!("{n_in}x{n_out}"),
+                       "product": product, "m": m, "k": k, "n": n, "threads": 1,
+                       "gflops": (gflops * 10.0).round() / 10.0})
+            );
+        }
     }
     Ok(())
 }
