@@ -30,6 +30,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::ModelTrain(r) => {
             let mut cfg = model_bench_config(&r.reps);
             cfg.model.threads = r.threads;
+            cfg.model.batch_size = r.batch_size;
             let report = mbpo_model::bench::model_train(10_000, &cfg)?;
             println!("{}", serde_json::to_string(&report)?);
             Ok(())

@@ -489,6 +489,9 @@ pub struct ModelBenchArgs {
     /// chunks in runs.
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
+    /// Rows per member's minibatch (`model.batch_size`; the paper's 256).
+    #[arg(long, default_value_t = 256)]
+    pub batch_size: usize,
 }
 
 #[derive(Debug, Args)]
