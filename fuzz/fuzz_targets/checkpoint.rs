@@ -32,7 +32,7 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
 
-/// `mbpo train`'s SAC checkpoint kind (private in `sac_trainer`; checked at start-up by
+/// `mbpo train`'s SAC checkpoint kind (crate-private in `sac_checkpoint`; checked at start-up by
 /// `sac_kind_is_right`).
 const SAC_KIND: &str = "mbpo.sac-trainer";
 
@@ -130,10 +130,11 @@ fn seeds() -> Vec<Vec<u8>> {
     book.wrote_row(20, -1200.0, 3.5, 0);
     book.episodes.push((200, -1500.0));
     book.models.insert(1, 0.02);
-    mbpo.write_checkpoint(&dir, 6, &evaluator, &book).unwrap();
+    let files = mbpo.encode_checkpoint(&dir, 6, &evaluator, &book).unwrap();
+    files.write().unwrap();
     let mpc = config("mpc");
-    let actor = mbpo_train::mpc::PlanningActorRole::new(&mpc, 0).unwrap();
-    let eval = mbpo_train::mpc::PlanningEvaluator::new(&mpc).unwrap();
+    let actor = mbpo_train::mpc_roles::PlanningActorRole::new(&mpc, 0).unwrap();
+    let eval = mbpo_train::mpc_roles::PlanningEvaluator::new(&mpc).unwrap();
     checkpoint::write(
         &dir.join("planning-actor"),
         kind::PLANNING_ACTOR,
@@ -233,15 +234,15 @@ fn check<T: Serialize + DeserializeOwned>(path: &Path, kind: &str) {
 
 /// The SAC trainer's state type is private: read it through its public reader.
 fn check_sac(dir: &Path) {
-    let _ = mbpo_train::sac_trainer::checkpointed_actor_params(dir);
+    let _ = mbpo_train::sac_checkpoint::checkpointed_actor_params(dir);
 }
 
 /// `SAC_KIND` is the kind `mbpo train` uses: a file of that kind with a payload that is no
 /// SAC state is refused for its content, not its kind.
 fn sac_kind_is_right(dir: &Path) {
-    let path = dir.join(mbpo_train::sac_trainer::SAC_CHECKPOINT_FILE);
+    let path = dir.join(mbpo_train::sac_checkpoint::SAC_CHECKPOINT_FILE);
     std::fs::write(&path, file_with(SAC_KIND, &[0xff; 4])).unwrap();
-    let err = mbpo_train::sac_trainer::checkpointed_actor_params(dir).unwrap_err();
+    let err = mbpo_train::sac_checkpoint::checkpointed_actor_params(dir).unwrap_err();
     assert!(err.to_string().contains("cannot decode"), "{err}");
 }
 
@@ -267,7 +268,7 @@ fuzz_target!(
         };
         let dir = dir();
         let path = match which {
-            10 => dir.join(mbpo_train::sac_trainer::SAC_CHECKPOINT_FILE),
+            10 => dir.join(mbpo_train::sac_checkpoint::SAC_CHECKPOINT_FILE),
             _ => dir.join("file"),
         };
         std::fs::write(&path, &bytes).unwrap();

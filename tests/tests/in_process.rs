@@ -118,7 +118,7 @@ fn assert_last_step_checkpointed(run: &std::path::Path, algo: Algo, actors: u16,
     let (dir, manifest) = mbpo_train::checkpoint::latest(run).unwrap().unwrap();
     assert_eq!(manifest.env_steps, steps, "{}", dir.display());
     let want: Vec<String> =
-        mbpo_runtime::barrier::pipeline_files(mbpo_runtime::pipeline::spec(algo).unwrap(), actors)
+        mbpo_runtime::pipeline::pipeline_files(mbpo_runtime::pipeline::spec(algo).unwrap(), actors)
             .into_iter()
             .map(|(name, _)| name)
             .collect();

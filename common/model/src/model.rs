@@ -8,7 +8,6 @@ use crate::grouped::{
 use crate::network::{members_mse, InferBuffers, Net};
 use crate::normalizer::InputNormalizer;
 use crate::parallel::{for_each_with_inference, members_loss_and_grads, MemberThreads};
-use crate::rollout::RolloutBuffers;
 use crate::simd::fill_standard_normal;
 use crate::termination::{TerminationClassifier, TerminationWeights};
 use mbpo_core::rng::index;
@@ -94,6 +93,17 @@ pub(crate) struct Workspace {
     /// Member per sample.
     pub(crate) members: Vec<usize>,
     pub(crate) rollout: RolloutBuffers,
+}
+
+/// The buffers of [`ProbabilisticEnsemble::rollout`] (`rollout.rs`), taken out of the model's
+/// workspace for the duration of a call.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct RolloutBuffers {
+    pub(crate) obs: Vec<f32>,
+    pub(crate) act: Vec<f32>,
+    pub(crate) next_obs: Vec<f32>,
+    pub(crate) reward: Vec<f32>,
+    pub(crate) done: Vec<bool>,
 }
 
 impl ProbabilisticEnsemble {

@@ -107,16 +107,6 @@ pub struct RolloutStats {
     pub clipped: usize,
 }
 
-/// Rollout buffers, taken out of the model's workspace for the duration of a call.
-#[derive(Debug, Clone, Default)]
-pub(crate) struct RolloutBuffers {
-    obs: Vec<f32>,
-    act: Vec<f32>,
-    next_obs: Vec<f32>,
-    reward: Vec<f32>,
-    done: Vec<bool>,
-}
-
 impl ProbabilisticEnsemble {
     /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
     /// `policy`, pushing every transition into `out` (the model buffer D_model); `termination`

@@ -2,10 +2,10 @@
 //! of the configured size (the cost does not depend on the weights' values).
 
 use crate::config::{PlannerConfig, PlannerKind};
+use crate::configured::build;
 use crate::error::PlanError;
 use crate::model::{EnsembleModel, RewardSource};
 use crate::mpc::Mpc;
-use crate::planner::build;
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_model::{ModelConfig, ProbabilisticEnsemble};
 use serde::{Deserialize, Serialize};

@@ -19,6 +19,7 @@
 pub mod bench;
 mod cem;
 mod config;
+mod configured;
 mod error;
 mod grad;
 mod model;
@@ -30,11 +31,12 @@ mod sampler;
 
 pub use cem::Cem;
 pub use config::{CemConfig, GradConfig, MppiConfig, PlannerConfig, PlannerKind, RandomConfig};
+pub use configured::build;
 pub use error::PlanError;
 pub use grad::GradientPlanner;
 pub use model::{EnsembleModel, PlanningModel, RewardSource};
 pub use mpc::{Mpc, MpcState};
 pub use mppi::Mppi;
-pub use planner::{build, Planner};
+pub use planner::Planner;
 pub use random::RandomShooting;
 pub use sampler::{deal_members, TrajectorySampler};

@@ -1,12 +1,7 @@
-//! The [`Planner`] interface and [`build`], which makes the configured planner.
+//! The [`Planner`] interface and the sequence helpers the planners share.
 
-use crate::cem::Cem;
-use crate::config::{PlannerConfig, PlannerKind};
 use crate::error::PlanError;
-use crate::grad::GradientPlanner;
 use crate::model::PlanningModel;
-use crate::mppi::Mppi;
-use crate::random::RandomShooting;
 use mbpo_core::Rng;
 
 /// An optimiser of action sequences `a_0 … a_{H−1}` (`H x A`, row-major, in [−1, 1]) that
@@ -64,22 +59,6 @@ pub(crate) fn restore_sequence(dst: &mut [f32], src: Option<&[f32]>) -> Result<(
             "planner warm start: missing (this planner always carries one)".into(),
         )),
     }
-}
-
-/// The planner `cfg.kind` for actions of width `act_dim`.
-pub fn build(cfg: &PlannerConfig, act_dim: usize) -> Result<Box<dyn Planner>, PlanError> {
-    cfg.validate()?;
-    if act_dim == 0 {
-        return Err(PlanError::Dims(
-            "actions must have at least one dimension".into(),
-        ));
-    }
-    Ok(match cfg.kind {
-        PlannerKind::Random => Box::new(RandomShooting::new(cfg, act_dim)),
-        PlannerKind::Cem => Box::new(Cem::new(cfg, act_dim)),
-        PlannerKind::Mppi => Box::new(Mppi::new(cfg, act_dim)),
-        PlannerKind::Grad => Box::new(GradientPlanner::new(cfg, act_dim)),
-    })
 }
 
 /// Copy `src` shifted by `k` steps of `a` values into itself, filling the tail with `fill`.

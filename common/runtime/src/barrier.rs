@@ -40,21 +40,9 @@ use serde::{de::DeserializeOwned, Serialize};
 
 use crate::error::ensure_protocol;
 use crate::inbox::{wait_for, ControlInbox, RealInbox};
-use crate::pipeline::PipelineSpec;
 use crate::{Result, RuntimeError};
 
-/// The Pause's `request_id` of a barrier the run stops after (SIGINT/SIGTERM); 0 for a
-/// periodic one. (Sent again when a stop is requested during a periodic barrier.)
-pub const PAUSE_TO_STOP: u64 = 1;
-
-/// The cut of a checkpoint barrier.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Cut {
-    /// Real env steps T every process holds.
-    pub env_steps: u64,
-    /// Model trainings K (= imagined batches) the cut holds.
-    pub model_trainings: u64,
-}
+pub use crate::inbox::{Cut, PAUSE_TO_STOP};
 
 /// The checkpoint files' names, kinds and contents: one format for `mbpo train` and `mbpo run`
 /// (`mbpo_train::run_files`), plus the launcher's own file.
@@ -75,29 +63,6 @@ pub mod kind {
 /// File names of a pipeline checkpoint (actors: [`actor_file`]).
 pub mod file {
     pub use mbpo_train::run_files::file::*;
-}
-
-/// The files a checkpoint of a run of `algo` with `actors` actors holds whichever command
-/// wrote it, with their kinds: one per role ([`crate::pipeline::roles`]) and the run book.
-pub fn role_files(pipeline: &PipelineSpec, actors: u16) -> Vec<(String, &'static str)> {
-    let roles = pipeline.roles(actors).into_iter();
-    let mut files: Vec<_> = roles.map(|r| (r.name, r.checkpoint_kind)).collect();
-    files.push((file::RUN_BOOK.into(), kind::RUN_BOOK));
-    files
-}
-
-/// Every file of a checkpoint written by the pipeline: [`role_files`] and the launcher's.
-pub fn pipeline_files(pipeline: &PipelineSpec, actors: u16) -> Vec<(String, &'static str)> {
-    let mut files = role_files(pipeline, actors);
-    files.push((file::SUPERVISOR.into(), kind::SUPERVISOR));
-    files
-}
-
-/// The processes that pause at a barrier and report a counter: the actors, the model trainer
-/// and (MBPO) the rollout generator. The learner and evaluator only follow the cut.
-pub fn pausing_processes(pipeline: &PipelineSpec, actors: u16) -> usize {
-    let roles = pipeline.roles(actors);
-    roles.iter().filter(|r| r.pauses()).count()
 }
 
 /// Report the pause with the process's own counter, then sleep until the cut arrives.
@@ -418,64 +383,5 @@ where
             pause_counter,
             |cut| self.serve_cut(inbox, role, cut),
         )
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::pipeline::spec;
-    use mbpo_train::Algo;
-
-    #[test]
-    fn checkpoint_files_and_pausing_processes_follow_the_algorithm() {
-        let names = |algo, actors| -> Vec<String> {
-            pipeline_files(spec(algo).unwrap(), actors)
-                .into_iter()
-                .map(|(n, _)| n)
-                .collect()
-        };
-        assert_eq!(
-            names(Algo::MBPO, 2),
-            [
-                "learner",
-                "model-trainer",
-                "rollout-generator",
-                "evaluator",
-                "actor-0",
-                "actor-1",
-                "run-book",
-                "supervisor"
-            ]
-        );
-        assert_eq!(
-            names(Algo::MPC, 1),
-            [
-                "model-trainer",
-                "evaluator",
-                "actor-0",
-                "run-book",
-                "supervisor"
-            ]
-        );
-        // A checkpoint of `mbpo train` holds the same files but the launcher's.
-        let sequential: Vec<String> = role_files(spec(Algo::MBPO).unwrap(), 1)
-            .into_iter()
-            .map(|(n, _)| n)
-            .collect();
-        assert_eq!(sequential, names(Algo::MBPO, 1)[..6]);
-        let kind_of = |algo, name: &str| {
-            pipeline_files(spec(algo).unwrap(), 1)
-                .into_iter()
-                .find(|(n, _)| n == name)
-                .unwrap()
-                .1
-        };
-        assert_eq!(kind_of(Algo::MPC, "actor-0"), kind::PLANNING_ACTOR);
-        assert_eq!(kind_of(Algo::MPC, "evaluator"), kind::PLANNING_EVALUATOR);
-        assert_eq!(kind_of(Algo::MBPO, "actor-0"), kind::ACTOR);
-        assert_eq!(kind_of(Algo::MBPO, "evaluator"), kind::EVALUATOR);
-        assert_eq!(pausing_processes(spec(Algo::MBPO).unwrap(), 3), 5);
-        assert_eq!(pausing_processes(spec(Algo::MPC).unwrap(), 3), 4);
     }
 }

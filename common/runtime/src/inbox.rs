@@ -15,6 +15,19 @@ use mbpo_wire::{
 
 use crate::Result;
 
+/// The Pause's `request_id` of a barrier the run stops after (SIGINT/SIGTERM); 0 for a
+/// periodic one. (Sent again when a stop is requested during a periodic barrier.)
+pub const PAUSE_TO_STOP: u64 = 1;
+
+/// The cut of a checkpoint barrier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Cut {
+    /// Real env steps T every process holds.
+    pub env_steps: u64,
+    /// Model trainings K (= imagined batches) the cut holds.
+    pub model_trainings: u64,
+}
+
 /// Stop requests and acknowledgements addressed to this process.
 pub struct ControlInbox<S: Transport> {
     /// The subscriber (attach it to the process's [`Waiter`]).
@@ -25,7 +38,7 @@ pub struct ControlInbox<S: Transport> {
     pause: Cell<bool>,
     /// The barrier under way ends in a stop (SIGINT/SIGTERM).
     pause_to_stop: Cell<bool>,
-    cut: Cell<Option<crate::barrier::Cut>>,
+    cut: Cell<Option<Cut>>,
     resume: Cell<bool>,
 }
 
@@ -56,13 +69,13 @@ impl<S: Transport> ControlInbox<S> {
                 }
                 Some(ControlCommand::Pause) => {
                     self.pause.set(true);
-                    if m.msg.request_id == crate::barrier::PAUSE_TO_STOP {
+                    if m.msg.request_id == PAUSE_TO_STOP {
                         self.pause_to_stop.set(true);
                     }
                 }
                 Some(ControlCommand::Checkpoint) => {
                     self.pause.set(true);
-                    self.cut.set(Some(crate::barrier::Cut {
+                    self.cut.set(Some(Cut {
                         env_steps: m.msg.step,
                         model_trainings: m.msg.request_id,
                     }));
@@ -102,7 +115,7 @@ impl<S: Transport> ControlInbox<S> {
         self.pause_to_stop.get()
     }
     /// The cut of the checkpoint barrier under way, once the supervisor sent it.
-    pub fn cut(&self) -> Option<crate::barrier::Cut> {
+    pub fn cut(&self) -> Option<Cut> {
         self.cut.get()
     }
     /// True when the supervisor said "resume" after a checkpoint (consumes it).

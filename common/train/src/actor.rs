@@ -1,7 +1,7 @@
 //! Acting in the real environment: the part of every trainer (and later of the actor
 //! process) that turns a policy into stored transitions.
 
-use crate::sac_trainer::TrainError;
+use crate::error::TrainError;
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{BatchPolicy, Rng, TransitionSink};
 use mbpo_envs::{Env, EnvError};

@@ -12,9 +12,9 @@ use std::path::Path;
 use std::sync::RwLock;
 
 use crate::config::{Algo, ExperimentConfig};
+use crate::error::TrainError;
 use crate::run_control::RunOptions;
 use crate::run_dir::Summary;
-use crate::sac_trainer::TrainError;
 
 /// Run an algorithm in one process: `cfg` into the run directory `out`.
 pub type TrainFn = fn(&ExperimentConfig, &Path, RunOptions) -> Result<Summary, TrainError>;
@@ -28,17 +28,18 @@ pub struct AlgorithmSpec {
     pub train: TrainFn,
 }
 
+/// The runs of [`Algo::BUILT_IN`].
 const BUILT_IN: [AlgorithmSpec; 3] = [
     AlgorithmSpec {
-        name: "sac",
+        name: Algo::SAC.name(),
         train: crate::sac_trainer::train_sac_with,
     },
     AlgorithmSpec {
-        name: "mbpo",
+        name: Algo::MBPO.name(),
         train: crate::mbpo_trainer::train_mbpo_with,
     },
     AlgorithmSpec {
-        name: "mpc",
+        name: Algo::MPC.name(),
         train: crate::mpc::train_mpc_with,
     },
 ];
@@ -48,38 +49,21 @@ static REGISTERED: RwLock<Vec<AlgorithmSpec>> = RwLock::new(Vec::new());
 
 /// Add an algorithm; returns its config key. A name already taken is refused.
 pub fn register(spec: AlgorithmSpec) -> Result<Algo, TrainError> {
+    // Held while the name is added, so a name is never without its run.
     let mut registered = REGISTERED.write().unwrap_or_else(|e| e.into_inner());
-    if lookup_in(&registered, spec.name).is_some() {
-        return Err(TrainError::Config(format!(
-            "an algorithm named '{}' is already registered: give yours another name",
-            spec.name
-        )));
-    }
+    let algo = Algo::register(spec.name).map_err(TrainError::Config)?;
     registered.push(spec);
-    Ok(Algo::of_registered(spec.name))
-}
-
-fn lookup_in(registered: &[AlgorithmSpec], name: &str) -> Option<AlgorithmSpec> {
-    BUILT_IN
-        .iter()
-        .chain(registered)
-        .find(|s| s.name == name)
-        .copied()
+    Ok(algo)
 }
 
 /// The algorithm called `name`.
 pub fn lookup(name: &str) -> Option<AlgorithmSpec> {
-    lookup_in(&REGISTERED.read().unwrap_or_else(|e| e.into_inner()), name)
-}
-
-/// The names of every algorithm, built-in first.
-pub fn names() -> Vec<&'static str> {
     let registered = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
     BUILT_IN
         .iter()
         .chain(registered.iter())
-        .map(|s| s.name)
-        .collect()
+        .find(|s| s.name == name)
+        .copied()
 }
 
 /// Run `cfg`'s algorithm in one process into `out` (what `mbpo train` does).
@@ -104,5 +88,8 @@ mod tests {
         assert!(err.contains("sac, mbpo, mpc"), "{err}");
         let dup = register(BUILT_IN[1]).unwrap_err().to_string();
         assert!(dup.contains("'mbpo' is already registered"), "{dup}");
+        for (spec, algo) in BUILT_IN.iter().zip(Algo::BUILT_IN) {
+            assert_eq!(spec.name, algo.name(), "every built-in name has its run");
+        }
     }
 }

@@ -15,8 +15,8 @@
 //! exactly from the epochs they ran ([`mbpo_model::elite_holdout_mse_if_capped`]).
 
 use crate::config::ExperimentConfig;
+use crate::error::TrainError;
 use crate::phase_times::{MsPerStep, PhaseTimes};
-use crate::sac_trainer::TrainError;
 use crate::schedule::Schedule;
 use crate::Mbpo;
 use mbpo_model::TrainReport;

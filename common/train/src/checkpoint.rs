@@ -39,13 +39,35 @@ const OLDEST_READABLE: u32 = 4;
 
 /// A payload of format `version` as this build's format reads it.
 fn upgraded_payload<'a>(version: u32, kind: &str, payload: &'a [u8]) -> std::borrow::Cow<'a, [u8]> {
-    if version == 4 && kind == crate::run_files::kind::LEARNER {
+    if version == 4 && kind == kind::LEARNER {
         // `d_model_branches: None`: bincode writes `None` as one zero byte.
         let mut upgraded = payload.to_vec();
         upgraded.push(0);
         return upgraded.into();
     }
     payload.into()
+}
+
+/// Kinds of the role files of a checkpoint (the `kind` field of a file's header; the files
+/// themselves are `run_files`' types). They live here because the format's history is per kind
+/// ([`upgraded_payload`]).
+pub mod kind {
+    /// `run_files::ActorCheckpoint`.
+    pub const ACTOR: &str = "mbpo.role.actor";
+    /// `run_files::EvaluatorCheckpoint`.
+    pub const EVALUATOR: &str = "mbpo.role.evaluator";
+    /// `run_files::ModelTrainerCheckpoint`.
+    pub const MODEL_TRAINER: &str = "mbpo.role.model-trainer";
+    /// `run_files::RolloutCheckpoint`.
+    pub const ROLLOUT: &str = "mbpo.role.rollout-generator";
+    /// `run_files::LearnerCheckpoint`.
+    pub const LEARNER: &str = "mbpo.role.learner";
+    /// `run_files::PlanningActorCheckpoint` (MPC runs).
+    pub const PLANNING_ACTOR: &str = "mbpo.role.planning-actor";
+    /// `run_files::PlanningEvaluatorCheckpoint` (MPC runs).
+    pub const PLANNING_EVALUATOR: &str = "mbpo.role.planning-evaluator";
+    /// `run_files::RunBook`.
+    pub const RUN_BOOK: &str = "mbpo.run-book";
 }
 
 /// Name of the marker that makes a checkpoint directory resumable.
@@ -461,7 +483,7 @@ pub(crate) mod tests {
     /// format 3 is refused by name.
     #[test]
     fn format_4_files_read_with_the_learner_s_new_field_absent() {
-        use crate::run_files::kind::{LEARNER, ROLLOUT};
+        use super::kind::{LEARNER, ROLLOUT};
         let dir = tmp("format-4");
         let path = dir.join("learner");
         let as_format = |version: u32, kind: &str, value: &(u64, Vec<f32>)| {

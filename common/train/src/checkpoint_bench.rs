@@ -7,8 +7,8 @@
 
 use crate::checkpoint;
 use crate::config::ExperimentConfig;
+use crate::error::TrainError;
 use crate::eval::Evaluator;
-use crate::sac_trainer::TrainError;
 use crate::Mbpo;
 use serde::Serialize;
 use std::path::Path;

@@ -6,12 +6,19 @@
 use mbpo_sac::SacConfig;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::RwLock;
 
-/// Which training algorithm a config runs: a key of the algorithm registry
+/// Which training algorithm a config runs: a name of the algorithm registry
 /// ([`crate::algorithm`]: `sac`, `mbpo` and `mpc` built in, more with
 /// [`crate::algorithm::register`]). In a config file it is the name, e.g. `algo = "mbpo"`.
+///
+/// The names are kept here, the runs they name in the registry: a config is checked against
+/// the names without knowing how any algorithm runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub struct Algo(&'static str);
+
+/// Names of the algorithms added at run time, in order ([`Algo::register`]).
+static REGISTERED_NAMES: RwLock<Vec<&'static str>> = RwLock::new(Vec::new());
 
 impl Algo {
     /// Model-free SAC on real data only.
@@ -20,27 +27,52 @@ impl Algo {
     pub const MBPO: Algo = Algo("mbpo");
     /// Model predictive control with a planner on the learned model (no policy network).
     pub const MPC: Algo = Algo("mpc");
+    /// The algorithms every build has.
+    pub const BUILT_IN: [Algo; 3] = [Algo::SAC, Algo::MBPO, Algo::MPC];
 
     /// Lower-case name (as in config files and run directory names).
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         self.0
     }
 
-    /// The registered algorithm called `name`, or an error that lists the known ones.
-    pub fn parse(name: &str) -> Result<Algo, String> {
-        crate::algorithm::lookup(name)
-            .map(|spec| Algo(spec.name))
-            .ok_or_else(|| {
-                format!(
-                    "unknown algorithm '{name}'; known: {}",
-                    crate::algorithm::names().join(", ")
-                )
-            })
+    /// The names of every algorithm, built-in first.
+    pub fn names() -> Vec<&'static str> {
+        let registered = REGISTERED_NAMES.read().unwrap_or_else(|e| e.into_inner());
+        Self::BUILT_IN
+            .iter()
+            .map(|a| a.0)
+            .chain(registered.iter().copied())
+            .collect()
     }
 
-    /// The key of a registered algorithm's name (the registry's own `&'static str`).
-    pub(crate) const fn of_registered(name: &'static str) -> Algo {
-        Algo(name)
+    /// The algorithm called `name`, or an error that lists the known ones.
+    pub fn parse(name: &str) -> Result<Algo, String> {
+        let names = Self::names();
+        match names.iter().find(|&&n| n == name) {
+            Some(&n) => Ok(Algo(n)),
+            None => Err(format!(
+                "unknown algorithm '{name}'; known: {}",
+                names.join(", ")
+            )),
+        }
+    }
+
+    /// Add `name` to the names (the registry's half of [`crate::algorithm::register`]); a
+    /// name already taken is refused.
+    pub(crate) fn register(name: &'static str) -> Result<Algo, String> {
+        let mut registered = REGISTERED_NAMES.write().unwrap_or_else(|e| e.into_inner());
+        if Self::BUILT_IN
+            .iter()
+            .map(|a| a.0)
+            .chain(registered.iter().copied())
+            .any(|n| n == name)
+        {
+            return Err(format!(
+                "an algorithm named '{name}' is already registered: give yours another name"
+            ));
+        }
+        registered.push(name);
+        Ok(Algo(name))
     }
 }
 
@@ -55,6 +87,22 @@ impl<'de> Deserialize<'de> for Algo {
         let name = String::deserialize(d)?;
         Algo::parse(&name).map_err(serde::de::Error::custom)
     }
+}
+
+/// The `[gym]` table: how to start a Python Gymnasium environment (`env = "gym:..."`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GymConfig {
+    /// The Python interpreter (default: `$MBPO_PYTHON`, else the project venv made by
+    /// `deploy/setup_python.sh`, else `python3`); add packages with its pip.
+    pub python: Option<String>,
+    /// A time limit for an env that has none (an entry point), or to override the registered one.
+    pub max_episode_steps: Option<usize>,
+    /// Folders where the env's Python module is, put before `PYTHONPATH`; relative ones are
+    /// relative to the config file's folder (the run directory's copy holds them absolute).
+    pub path: Vec<PathBuf>,
+    /// Keyword arguments of `gymnasium.make` or of the entry point.
+    pub kwargs: toml::Table,
 }
 
 /// Evaluation schedule.
@@ -242,7 +290,7 @@ pub struct ExperimentConfig {
     /// `"never"`; or a built-in task's id. A `gym:` env must set it.
     pub termination: Option<String>,
     /// Python Gymnasium environment settings (`env = "gym:..."`).
-    pub gym: crate::env_config::GymConfig,
+    pub gym: GymConfig,
     /// Run seed: every random stream derives from it.
     pub seed: u64,
     /// Total real environment steps.

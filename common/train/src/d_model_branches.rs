@@ -16,9 +16,8 @@
 //! cover them: in the multi-process pipeline (the learner never sees the model's weights),
 //! after a restore until enough branches were recorded again, or once D_env wrapped.
 
-use crate::roles::RolloutRole;
-use crate::sac_trainer::TrainError;
-use mbpo_core::{ReplayBuffer, ReplaySnapshot, Rng};
+use crate::error::TrainError;
+use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
 use mbpo_model::ModelWeights;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
@@ -109,14 +108,15 @@ pub struct Replayed {
 }
 
 impl DModelBranches {
-    /// Do every branch again with `rollout` (its own state is put back afterwards) from the
-    /// start states of `d_env`, and lay the newest `len` rows out in `layout`'s slots (its
-    /// capacity, write position and push count; its own rows are not read).
+    /// Do every branch again with `do_branch` (the rollout generator's
+    /// `RolloutRole::replay`, on `obs_dim`/`act_dim` rows), newest first, and lay the newest
+    /// `len` rows out in `layout`'s slots (its capacity, write position and push count; its own
+    /// rows are not read).
     pub fn replay(
         &self,
-        rollout: &mut RolloutRole,
-        d_env: &ReplayBuffer,
+        (obs_dim, act_dim): (usize, usize),
         layout: &ReplaySnapshot,
+        mut do_branch: impl FnMut(&BranchInputs) -> Result<Batch, TrainError>,
     ) -> Result<Replayed, TrainError> {
         let bad = |e: String| {
             TrainError::Config(format!(
@@ -133,12 +133,11 @@ impl DModelBranches {
         }
         // Newest branch first, each row straight to its slot: only one branch's rows are
         // held besides the buffer, and a branch whose rows were all overwritten is not done.
-        let (o, a) = (d_env.obs_dim(), d_env.act_dim());
-        let mut fill =
-            ReplayBuffer::fill_from_newest(layout, o, a, self.len).map_err(|e| bad(e.0))?;
+        let mut fill = ReplayBuffer::fill_from_newest(layout, obs_dim, act_dim, self.len)
+            .map_err(|e| bad(e.0))?;
         let mut differing = 0;
         for (i, inputs) in self.branches.iter().enumerate().rev() {
-            let rows = rollout.replay(inputs, d_env)?;
+            let rows = do_branch(inputs)?;
             if rows.len != inputs.rows || rows.digest() != inputs.digest {
                 differing += 1;
                 tracing::warn!(

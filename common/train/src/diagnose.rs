@@ -17,7 +17,7 @@
 //! streams are not touched (the episodes draw from their own `diagnose` stream).
 
 use crate::config::ExperimentConfig;
-use crate::sac_trainer::TrainError;
+use crate::error::TrainError;
 use crate::Mbpo;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, ReplayBuffer, Rng, StateBox};

@@ -14,26 +14,9 @@
 
 use mbpo_envs::{termination, Env, EnvError, GymSpec, TerminationFn, GYM_PREFIX};
 pub use mbpo_model::RolloutRule;
-use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 use crate::config::ExperimentConfig;
-
-/// The `[gym]` table: how to start a Python Gymnasium environment (`env = "gym:..."`).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct GymConfig {
-    /// The Python interpreter (default: `$MBPO_PYTHON`, else the project venv made by
-    /// `deploy/setup_python.sh`, else `python3`); add packages with its pip.
-    pub python: Option<String>,
-    /// A time limit for an env that has none (an entry point), or to override the registered one.
-    pub max_episode_steps: Option<usize>,
-    /// Folders where the env's Python module is, put before `PYTHONPATH`; relative ones are
-    /// relative to the config file's folder (the run directory's copy holds them absolute).
-    pub path: Vec<PathBuf>,
-    /// Keyword arguments of `gymnasium.make` or of the entry point.
-    pub kwargs: toml::Table,
-}
 
 /// How model rollouts decide that a predicted state is terminal.
 #[derive(Debug, Clone, PartialEq)]

@@ -13,8 +13,8 @@
 //! the run had spent by then ([`BudgetPoint`], [`BudgetSummary`]).
 
 use crate::config::{Algo, ExperimentConfig};
+use crate::error::TrainError;
 use crate::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
-use crate::sac_trainer::TrainError;
 use mbpo_core::stats::median;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -15,6 +15,8 @@
 //! * [`checkpoint_writer`]: a checkpoint written on its own thread while the training goes on.
 //! * [`checkpoint_bench`]: what checkpointing a run costs its training loop (`mbpo bench checkpoint`).
 //! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
+//! * [`error`]: the error of a training run, shared by every trainer and role.
+//! * [`sac_checkpoint`]: the checkpoint file of a SAC run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
@@ -22,8 +24,8 @@
 //! * [`termination_bench`]: the learned termination rule against a task's exact one.
 //! * [`phase_times`]: seconds per phase of an MBPO run (model training, rollouts, SAC, acting).
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
-//! * [`mpc`]: model predictive control on the learned model (planning actor, evaluator, the
-//!   single-process MPC run).
+//! * [`mpc_roles`]: the planning actor and evaluator of model predictive control.
+//! * [`mpc`]: model predictive control on the learned model in one process.
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
@@ -37,10 +39,12 @@ pub mod config;
 pub mod d_model_branches;
 pub mod diagnose;
 pub mod env_config;
+pub mod error;
 pub mod eval;
 pub mod learning_bench;
 pub mod mbpo_trainer;
 pub mod mpc;
+pub mod mpc_roles;
 pub mod phase_times;
 pub mod policy_file;
 pub mod progress;
@@ -48,15 +52,17 @@ pub mod roles;
 pub mod run_control;
 pub mod run_dir;
 pub mod run_files;
+pub mod sac_checkpoint;
 pub mod sac_trainer;
 pub mod schedule;
 pub mod tensorboard;
 pub mod termination_bench;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
+pub use error::TrainError;
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};
 pub use mpc::{train_mpc, train_mpc_with};
 pub use run_control::RunOptions;
 pub use run_dir::{policy_sha256, RunDir, Summary};
-pub use sac_trainer::{train_sac, train_sac_with, TrainError};
+pub use sac_trainer::{train_sac, train_sac_with};
 pub use schedule::Schedule;

@@ -23,6 +23,7 @@ use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::checkpoint_writer::{BackgroundWriter, CheckpointFiles};
 use crate::config::ExperimentConfig;
+use crate::error::TrainError;
 use crate::eval::Evaluator;
 use crate::phase_times::PhaseTimes;
 use crate::progress::{Display, Progress};
@@ -36,7 +37,6 @@ use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, ActorCheckpoint, EvaluatorCheckpoint,
     LearnerCheckpoint, ModelTrainerCheckpoint, RolloutCheckpoint, RunBook,
 };
-use crate::sac_trainer::TrainError;
 use mbpo_core::Rng;
 use mbpo_envs::EnvError;
 use mbpo_model::TrainReport;

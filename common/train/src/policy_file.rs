@@ -6,15 +6,20 @@
 //! ended with would be lost. A run that was stopped, crashed or is still running has its
 //! policy only in its newest checkpoint: the learner's file of an MBPO run (either command) or
 //! the SAC trainer's ([`newest_policy`] reads both and takes whichever of the two is newer).
+//! [`evaluate_run`] plays that policy (`mbpo eval`).
 
 use crate::checkpoint::{self, CheckpointError};
+use crate::config::ExperimentConfig;
+use crate::error::TrainError;
+use crate::eval::evaluate;
 use crate::run_files::{self, LearnerCheckpoint};
-use crate::sac_trainer::{checkpointed_actor_params, TrainError, SAC_CHECKPOINT_FILE};
+use crate::sac_checkpoint::{checkpointed_actor_params, SAC_CHECKPOINT_FILE};
+use mbpo_core::rng::stream;
+use mbpo_sac::ActorPolicy;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// File name of the final policy in a run directory.
-pub const FINAL_POLICY_FILE: &str = "policy.ckpt";
+pub use crate::run_dir::FINAL_POLICY_FILE;
 
 /// Checkpoint kind of [`FinalPolicy`].
 const FINAL_POLICY_KIND: &str = "mbpo.policy";
@@ -113,6 +118,86 @@ fn checkpointed_policy(
             actor_params,
         },
         file,
+    })
+}
+
+/// What `mbpo eval` reports.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    /// The run directory.
+    pub run: String,
+    /// Environment id.
+    pub env: String,
+    /// Env steps of the policy evaluated (the run's final policy or its newest checkpoint's).
+    pub policy_env_steps: u64,
+    /// The file the policy was read from.
+    pub policy_file: String,
+    /// Episodes run.
+    pub episodes: usize,
+    /// Mean return.
+    pub mean_return: f64,
+    /// Standard deviation of the returns (population).
+    pub std_return: f64,
+    /// Each episode's return.
+    pub returns: Vec<f64>,
+}
+
+/// Evaluate the newest policy of `run` (its final policy, or its newest complete checkpoint's
+/// while it has not completed: [`newest_policy`]; architecture from its
+/// `config.toml`) over `episodes` deterministic episodes with start states from stream
+/// `eval.cli` of `seed`.
+pub fn evaluate_run(
+    run: &std::path::Path,
+    episodes: usize,
+    seed: u64,
+) -> Result<EvalReport, TrainError> {
+    if episodes == 0 {
+        return Err(TrainError::Config("--episodes must be at least 1".into()));
+    }
+    let cfg = ExperimentConfig::load(&run.join("config.toml")).map_err(|e| {
+        TrainError::Config(format!("{} is not a run directory: {e}", run.display()))
+    })?;
+    if cfg.algo == crate::Algo::MPC {
+        return Err(TrainError::Config(format!(
+            "{} is an MPC run: it plans with its model and has no policy network to evaluate \
+             (its evaluations are in metrics.csv)",
+            run.display()
+        )));
+    }
+    let found = newest_policy(run)?;
+    let params = found.policy.actor_params;
+    let mut env = cfg.make_env()?;
+    let net = mbpo_sac::TanhGaussianActor::new(
+        env.obs_dim(),
+        env.act_dim(),
+        &cfg.sac.hidden,
+        cfg.sac.log_std_min,
+        cfg.sac.log_std_max,
+    );
+    if params.len() != net.num_params() {
+        return Err(TrainError::Config(format!(
+            "{}: the policy has {} parameters, the config's actor needs {}",
+            found.file.display(),
+            params.len(),
+            net.num_params()
+        )));
+    }
+    let mut policy = ActorPolicy::new(net, params, true);
+    let mut rng = stream(seed, "eval.cli", 0);
+    let returns: Vec<f64> = (0..episodes)
+        .map(|_| evaluate(&mut policy, env.as_mut(), 1, &mut rng))
+        .collect::<Result<_, _>>()?;
+    let mean = returns.iter().sum::<f64>() / episodes as f64;
+    let var = returns.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / episodes as f64;
+    Ok(EvalReport {
+        run: run.display().to_string(),
+        env: cfg.env.clone(),
+        policy_env_steps: found.policy.env_steps,
+        policy_file: found.file.display().to_string(),
+        episodes,
+        mean_return: mean,
+        std_return: var.sqrt(),
+        returns,
     })
 }
 

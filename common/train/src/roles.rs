@@ -18,7 +18,7 @@ use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::{ExperimentConfig, ImaginedStateClip};
 use crate::d_model_branches::{BranchInputs, BranchLog, DModelBranches};
 use crate::env_config::RolloutRule;
-use crate::sac_trainer::TrainError;
+use crate::error::TrainError;
 use mbpo_core::rng::stream;
 use mbpo_core::{
     sample_mixed, Batch, LastTransition, ReplayBuffer, ReplaySnapshot, Rng, StateBox,
@@ -756,7 +756,10 @@ impl LearnerRole {
                 BranchLog::default(),
             ),
             (Some(branches), Some(rollout)) => {
-                let replayed = branches.replay(rollout, &self.d_env, &s.d_model)?;
+                let dims = (self.d_env.obs_dim(), self.d_env.act_dim());
+                let replayed = branches.replay(dims, &s.d_model, |inputs| {
+                    rollout.replay(inputs, &self.d_env)
+                })?;
                 tracing::info!(
                     "D_model: {} rows from its {} branches done again{}",
                     replayed.buffer.len(),

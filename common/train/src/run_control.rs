@@ -4,8 +4,8 @@
 
 use crate::checkpoint;
 use crate::config::ExperimentConfig;
+use crate::error::TrainError;
 use crate::run_dir::RunDir;
-use crate::sac_trainer::TrainError;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 

@@ -56,6 +56,10 @@ pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
 /// Sub-directory of the run directory that holds the TensorBoard event files.
 pub const TENSORBOARD_DIR: &str = "tb";
 
+/// File name of the final policy in a run directory (written by `policy_file` when a run
+/// completes).
+pub const FINAL_POLICY_FILE: &str = "policy.ckpt";
+
 /// One row of `metrics.csv`; `None` prints as an empty cell.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct MetricsRow {
@@ -314,9 +318,7 @@ pub fn remove_earlier_run(dir: &Path) -> std::io::Result<()> {
         let _ = std::fs::remove_dir(&logs); // only when empty
     }
     not_found_ok(std::fs::remove_file(dir.join("summary.json")))?;
-    not_found_ok(std::fs::remove_file(
-        dir.join(crate::policy_file::FINAL_POLICY_FILE),
-    ))?;
+    not_found_ok(std::fs::remove_file(dir.join(FINAL_POLICY_FILE)))?;
     tracing::info!("--overwrite: removed the earlier run in {}", dir.display());
     Ok(())
 }
@@ -337,7 +339,7 @@ impl RunDir {
     pub fn create(path: &Path, config: &ExperimentConfig) -> std::io::Result<Self> {
         std::fs::create_dir_all(path)?;
         // An earlier run's final policy would pass for this run's (`mbpo eval`).
-        match std::fs::remove_file(path.join(crate::policy_file::FINAL_POLICY_FILE)) {
+        match std::fs::remove_file(path.join(FINAL_POLICY_FILE)) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
             _ => {}
         }
@@ -513,13 +515,13 @@ mod tests {
         std::fs::write(dir.join("logs/train.log"), "old log").unwrap();
         std::fs::write(dir.join("logs/actor-12.log"), "old log").unwrap();
         std::fs::write(dir.join("summary.json"), "{}").unwrap();
-        std::fs::write(dir.join(crate::policy_file::FINAL_POLICY_FILE), "old").unwrap();
+        std::fs::write(dir.join(FINAL_POLICY_FILE), "old").unwrap();
 
         remove_earlier_run(&dir).unwrap();
         assert!(!ckpt.exists() && !dir.join("logs/train.log").exists());
         assert!(!dir.join("logs/actor-12.log").exists());
         assert!(!dir.join("summary.json").exists());
-        assert!(!dir.join(crate::policy_file::FINAL_POLICY_FILE).exists());
+        assert!(!dir.join(FINAL_POLICY_FILE).exists());
         for kept in [
             "logs/notes.txt",
             "logs/my-tool.log",

@@ -17,9 +17,9 @@ use std::path::Path;
 
 use crate::actor::EnvActor;
 use crate::d_model_branches::DModelBranches;
-use crate::mpc::{PlanningActorState, PlanningEvaluatorState};
+use crate::error::TrainError;
+use crate::mpc_roles::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
-use crate::sac_trainer::TrainError;
 use crate::schedule::Schedule;
 
 /// File names in a checkpoint directory (actors: [`actor_file`]).
@@ -43,25 +43,7 @@ pub fn actor_file(index: u16) -> String {
     format!("actor-{index}")
 }
 
-/// Kinds of the files (the `kind` field of a checkpoint file's header).
-pub mod kind {
-    /// [`super::ActorCheckpoint`].
-    pub const ACTOR: &str = "mbpo.role.actor";
-    /// [`super::EvaluatorCheckpoint`].
-    pub const EVALUATOR: &str = "mbpo.role.evaluator";
-    /// [`super::ModelTrainerCheckpoint`].
-    pub const MODEL_TRAINER: &str = "mbpo.role.model-trainer";
-    /// [`super::RolloutCheckpoint`].
-    pub const ROLLOUT: &str = "mbpo.role.rollout-generator";
-    /// [`super::LearnerCheckpoint`].
-    pub const LEARNER: &str = "mbpo.role.learner";
-    /// [`super::PlanningActorCheckpoint`] (MPC runs).
-    pub const PLANNING_ACTOR: &str = "mbpo.role.planning-actor";
-    /// [`super::PlanningEvaluatorCheckpoint`] (MPC runs).
-    pub const PLANNING_EVALUATOR: &str = "mbpo.role.planning-evaluator";
-    /// [`super::RunBook`].
-    pub const RUN_BOOK: &str = "mbpo.run-book";
-}
+pub use crate::checkpoint::kind;
 
 /// An actor after T: the role (env episode in progress, streams, policy) and its local steps.
 #[derive(Debug, Clone, Serialize, Deserialize)]

@@ -5,90 +5,19 @@
 //! Every random draw comes from a named stream of the run seed, so a seed reproduces a run bit
 //! for bit.
 
-use crate::actor::{Behaviour, EnvActor, EnvActorState};
+use crate::actor::{Behaviour, EnvActor};
 use crate::checkpoint;
 use crate::config::ExperimentConfig;
-use crate::eval::{Evaluator, EvaluatorState};
+use crate::error::TrainError;
+use crate::eval::Evaluator;
 use crate::progress::{Display, Progress};
 use crate::run_control::{checkpoint_due, log_stopped, open_run, RunOptions};
 use crate::run_dir::Summary;
+use crate::sac_checkpoint::{SacRunState, SAC_CHECKPOINT_FILE, SAC_CHECKPOINT_KIND};
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, ReplayBuffer, ReplaySnapshot, Rng};
-use mbpo_sac::{Sac, SacState, SacStats};
-use serde::{Deserialize, Serialize};
+use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_sac::{Sac, SacStats};
 use std::path::Path;
-
-/// Errors of a training run.
-#[derive(Debug, thiserror::Error)]
-pub enum TrainError {
-    /// The environment could not be built.
-    #[error(transparent)]
-    Env(#[from] mbpo_envs::EnvError),
-    /// The run directory could not be written.
-    #[error("run directory: {0}")]
-    Io(#[from] std::io::Error),
-    /// A component rejected its configuration or input.
-    #[error("{0}")]
-    Config(String),
-    /// A checkpoint could not be written or read.
-    #[error(transparent)]
-    Checkpoint(#[from] crate::checkpoint::CheckpointError),
-    /// A results file could not be encoded.
-    #[error("results file: {0}")]
-    Json(#[from] serde_json::Error),
-    /// The environment failed at a step (an exception in a Python env); what the run had before
-    /// it is kept in a checkpoint.
-    #[error(
-        "the environment failed at env step {step}: {error}\n{kept}. Fix the environment, then \
-         continue the run with --resume"
-    )]
-    EnvFailed {
-        /// The env step that failed.
-        step: u64,
-        /// What was kept (`the run stopped with a checkpoint after step N`).
-        kept: String,
-        /// The environment's error (with the Python traceback).
-        error: mbpo_envs::EnvError,
-    },
-    /// NaN or infinity where a number must be finite: the run stops where it appeared (its
-    /// last complete checkpoint stays as it was).
-    #[error(
-        "{role}: {quantity} is {value} at {at}; the run stops here (its last complete checkpoint \
-         is kept). Check the environment's observations and rewards, or lower the learning rates"
-    )]
-    NonFinite {
-        /// The role that met it (`actor`, `learner`, `model trainer`).
-        role: &'static str,
-        /// What was not finite.
-        quantity: String,
-        /// Its value.
-        value: f64,
-        /// Where: env step, update or training.
-        at: String,
-    },
-}
-
-/// The checkpoint file of a SAC run.
-pub const SAC_CHECKPOINT_FILE: &str = "sac-trainer.ckpt";
-const SAC_CHECKPOINT_KIND: &str = "mbpo.sac-trainer";
-
-/// Everything a SAC run needs to continue exactly.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-struct SacRunState {
-    actor: EnvActorState,
-    sac: SacState,
-    replay: ReplaySnapshot,
-    sample_rng: Rng,
-    update_rng: Rng,
-    stats: SacStats,
-    evaluator: EvaluatorState,
-}
-
-/// The actor parameters stored in a SAC run's checkpoint directory.
-pub fn checkpointed_actor_params(dir: &Path) -> Result<Vec<f32>, TrainError> {
-    let state: SacRunState = checkpoint::read(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND)?;
-    Ok(state.sac.actor_params)
-}
 
 /// Run SAC per `cfg`, writing the run directory `out`; returns the summary.
 pub fn train_sac(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {

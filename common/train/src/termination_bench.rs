@@ -12,7 +12,7 @@ use mbpo_model::termination::Confusion;
 use mbpo_model::TerminationClassifier;
 use serde::Serialize;
 
-use crate::sac_trainer::TrainError;
+use crate::error::TrainError;
 
 /// The report of [`termination_benchmark`].
 #[derive(Debug, Clone, Serialize)]

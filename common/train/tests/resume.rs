@@ -466,8 +466,12 @@ fn a_branch_done_again_with_other_rows_is_counted() {
     mbpo.restore_checkpoint(&dir, 300).unwrap();
     let d_model = mbpo.learner_mut().sac_and_buffers().2.clone();
     let d_env = mbpo.learner_mut().sac_and_buffers().1.clone();
+    let rollout = mbpo.rollout_mut();
+    let dims = (d_env.obs_dim(), d_env.act_dim());
     let replayed = branches
-        .replay(mbpo.rollout_mut(), &d_env, &learner.role.d_model)
+        .replay(dims, &learner.role.d_model, |inputs| {
+            rollout.replay(inputs, &d_env)
+        })
         .unwrap();
     assert_eq!(replayed.differing, 1);
     assert!(replayed.buffer == d_model);

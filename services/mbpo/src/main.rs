@@ -38,7 +38,8 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Eval(args) => {
-            let report = mbpo_train::eval::evaluate_run(&args.run, args.episodes, args.seed)?;
+            let report =
+                mbpo_train::policy_file::evaluate_run(&args.run, args.episodes, args.seed)?;
             println!("{}", serde_json::to_string(&report)?);
             Ok(())
         }

@@ -52,7 +52,7 @@ pub struct Barrier {
     paused: BTreeMap<ProducerId, u64>,
     cut: Option<Cut>,
     written: BTreeSet<ProducerId>,
-    /// Pause reports the cut needs ([`barrier::pausing_processes`]).
+    /// Pause reports the cut needs ([`pipeline::pausing_processes`]).
     pausing: usize,
     /// Files the processes write (every file of the checkpoint but the supervisor's).
     files: usize,
@@ -73,7 +73,7 @@ impl Barrier {
             paused: BTreeMap::new(),
             cut: None,
             written: BTreeSet::new(),
-            pausing: barrier::pausing_processes(pipeline, actors),
+            pausing: pipeline::pausing_processes(pipeline, actors),
             files: pipeline.roles(actors).len(),
             warnings: 0,
             pipeline,
@@ -174,7 +174,7 @@ pub fn finish(
         barrier::kind::SUPERVISOR,
         state,
     )?;
-    let files = barrier::pipeline_files(pipeline, state.actors);
+    let files = pipeline::pipeline_files(pipeline, state.actors);
     let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
     checkpoint::mark_complete(&dir, cut.env_steps, &names)?;
     checkpoint::prune(run, keep.keep, keep.keep_every)?;
@@ -200,8 +200,8 @@ pub fn latest_verified(run: &Path, algo: Algo) -> Result<ResumePoint> {
     };
     let actors = supervisor.map_or(1, |s| s.actors);
     let files = match supervisor {
-        Some(_) => barrier::pipeline_files(pipeline, actors),
-        None => barrier::role_files(pipeline, actors),
+        Some(_) => pipeline::pipeline_files(pipeline, actors),
+        None => pipeline::role_files(pipeline, actors),
     };
     for (name, kind) in files {
         let path = dir.join(&name);

@@ -22,7 +22,7 @@ use std::time::{Duration, Instant};
 
 use mbpo_model::ProbabilisticEnsemble;
 use mbpo_train::actor::Behaviour;
-use mbpo_train::mpc::{PlanningActorRole, PlanningEvaluator};
+use mbpo_train::mpc_roles::{PlanningActorRole, PlanningEvaluator};
 use mbpo_train::Schedule;
 use mbpo_wire::*;
 
