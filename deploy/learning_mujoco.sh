@@ -8,10 +8,12 @@
 #                                  [--out results] [--set KEY=VALUE]...
 #
 # Two lanes run side by side, one core each (sac.threads = model.threads = 1, as
-# `mbpo bench learning` sets them for seeds run in parallel), each seed after the other; the
-# tasks alternate between them: by default Hopper then HalfCheetah, and Walker2d then Ant. So both
-# cores stay busy to the last seed (one benchmark of 3 seeds on 2 cores would leave one idle for
-# its third seed).
+# `mbpo bench learning` sets them for seeds run in parallel), taking seeds from one list in
+# turn: first the seeds under way (with a checkpoint), then the others task by task. So both
+# cores stay busy to the last seed whatever each task costs (a HalfCheetah seed, G = 40, costs
+# far more than a Walker2d one). Each seed runs as `mbpo bench learning --only-seeds S`; the lane that
+# completes a task's last seed writes <out>/learning-<env>.json (the benchmark over all seeds,
+# which reuses their runs) and the plot.
 #
 # A variant of the paper's config goes to its own --out, e.g. the clipped imagined states on
 # Walker2d and Hopper:
@@ -51,6 +53,8 @@ for task in $tasks; do
         exit 2
     fi
 done
+budgets=$steps
+if [ "$steps" -gt 20000 ]; then budgets="20000,$steps"; fi
 bash deploy/setup_mujoco.sh >&2
 cargo build --release --locked -p mbpo --features mujoco >&2
 mbpo=./target/release/mbpo
@@ -58,24 +62,61 @@ mkdir -p "$out/runs"
 bash deploy/park_runs.sh --restore
 
 # Learn every task named, seeds one after another on one core, and plot each.
-lane() {
-    # A stop signal is for the benchmark, which checkpoints; the lane waits for it to exit.
-    trap 'true' INT TERM
-    for task in "$@"; do
-        local config=deploy/configs/$task.toml
-        "$mbpo" bench learning --config "$config" --steps "$steps" --seeds 3 --threads 1 \
-            --budgets "20000,$steps" --set checkpoint.keep_every=5000 --set eval.episodes=5 \
-            --set sac.threads=1 --set model.threads=1 "${sets[@]}" --out "$out"
-        local id
-        id=$(sed -n 's/^env = "\(.*\)"/\1/p' "$config")
-        "$mbpo" plot "$out"/runs/mbpo-"$id"-s0 "$out"/runs/mbpo-"$id"-s1 \
-            "$out"/runs/mbpo-"$id"-s2 --out "$out/learning-$id.png" \
-            --title "MBPO $id, 3 seeds (mean, min..max)"
+# The benchmark of one task (a config name), with the lanes' settings; more arguments appended.
+bench() {
+    local task=$1
+    shift
+    "$mbpo" bench learning --config "deploy/configs/$task.toml" --steps "$steps" --seeds 3 \
+        --threads 1 --budgets "$budgets" --set checkpoint.keep_every=5000 \
+        --set eval.episodes=5 --set sac.threads=1 --set model.threads=1 "${sets[@]}" \
+        --out "$out" "$@"
+}
+
+env_id() { sed -n 's/^env = "\(.*\)"/\1/p' "deploy/configs/$1.toml"; }
+run_of() { echo "$out/runs/mbpo-$(env_id "$1")-s$2"; }
+completed() { [ -f "$1/summary.json" ] && grep -q '"status": *"completed"' "$1/summary.json"; }
+under_way() { compgen -G "$1/checkpoints/*/COMPLETE" >/dev/null; }
+
+# Every seed of every task not completed yet, one "task seed" per line: those under way (with a
+# checkpoint) first, so they go on where they were, then the others in task order.
+jobs() {
+    local pass task seed run
+    for pass in under-way fresh; do
+        for task in $tasks; do
+            for seed in 2 1 0; do
+                run=$(run_of "$task" "$seed")
+                if completed "$run"; then continue; fi
+                if under_way "$run"; then
+                    [ "$pass" = under-way ] && echo "$task $seed"
+                else
+                    [ "$pass" = fresh ] && echo "$task $seed"
+                fi
+            done
+        done
     done
 }
 
-# Wait for lane `$1` to exit and return its status. A signal to this script interrupts `wait`
-# (the trap below), not the lane: its benchmark checkpoints first, so wait again until it is gone.
+# A lane takes the next seed no lane has taken (mkdir is the claim: atomic), runs it, and when
+# that completed its task's last seed, writes the task's results file (the same benchmark over
+# all seeds reuses the completed runs) and plots it. A seed that stops or fails ends the lane.
+lane() {
+    # A stop signal is for the benchmark, which checkpoints; the lane waits for it to exit.
+    trap 'true' INT TERM
+    local task seed id
+    while read -r task seed; do
+        mkdir "$claims/$task-s$seed" 2>/dev/null || continue
+        bench "$task" --only-seeds "$seed"
+        if completed "$(run_of "$task" 0)" && completed "$(run_of "$task" 1)" &&
+            completed "$(run_of "$task" 2)"; then
+            bench "$task"
+            id=$(env_id "$task")
+            "$mbpo" plot "$out/runs/mbpo-$id-s0" "$out/runs/mbpo-$id-s1" \
+                "$out/runs/mbpo-$id-s2" --out "$out/learning-$id.png" \
+                --title "MBPO $id, 3 seeds (mean, min..max)"
+        fi
+    done < "$claims/jobs"
+}
+
 wait_for() {
     local status=0
     while true; do
@@ -84,19 +125,15 @@ wait_for() {
     done
 }
 
-# Tasks 1, 3, ... on lane 1 and 2, 4, ... on lane 2.
-lane_tasks() {
-    local i=0 task
-    for task in $tasks; do
-        if [ $((i % 2)) = "$1" ]; then echo "$task"; fi
-        i=$((i + 1))
-    done
-}
-# shellcheck disable=SC2046 # one word per task
-lane $(lane_tasks 0) > "$out/runs/lane-1.log" 2>&1 &
+# Claims of an earlier start are void: this script is the only one running the lanes.
+claims="$out/runs/.claims"
+rm -rf "$claims"
+mkdir -p "$claims"
+jobs > "$claims/jobs"
+echo "seeds to run, in order: $(tr '\n' ',' < "$claims/jobs" | sed 's/,$//; s/,/, /g')" >&2
+lane > "$out/runs/lane-1.log" 2>&1 &
 first=$!
-# shellcheck disable=SC2046
-lane $(lane_tasks 1) > "$out/runs/lane-2.log" 2>&1 &
+lane > "$out/runs/lane-2.log" 2>&1 &
 second=$!
 trap 'echo "stopping: the seeds under way checkpoint, then they are parked" >&2' INT TERM
 status=0

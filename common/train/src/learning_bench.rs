@@ -226,26 +226,30 @@ fn one_core_per_seed(cfg: &ExperimentConfig, parallel: usize) -> ExperimentConfi
     cfg
 }
 
-/// [`learning_benchmark`] that also reports eval return and wall-clock at env-step `budgets`.
-pub fn learning_benchmark_at(
+/// The name of `cfg`'s entry in its results file and of its run directories' prefix: the
+/// algorithm's, per planner for MPC (mpc-cem, mpc-mppi, ...), so each keeps its own results.
+fn entry_name(cfg: &ExperimentConfig) -> String {
+    match cfg.algo {
+        Algo::MPC => format!("mpc-{}", cfg.mpc.planner.kind.name()),
+        other => other.name().to_string(),
+    }
+}
+
+/// Run `cfg` for `seeds` on `threads` threads, with run directories under `out/runs/`, and
+/// return each seed's result, in seed order; no results file is written. What
+/// `mbpo bench learning --only-seeds` runs: seeds of one benchmark shared out between processes
+/// (`deploy/learning_mujoco.sh`'s lanes), whose file a run over all seeds writes afterwards
+/// (it reuses the completed runs).
+pub fn run_seeds(
     cfg: &ExperimentConfig,
-    config_name: &str,
     seeds: &[u64],
     threads: usize,
     out: &Path,
     train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
     budgets: &[u64],
-) -> Result<AlgoResult, TrainError> {
-    // MPC entries are per planner (mpc-cem, mpc-mppi, ...), so each keeps its own results.
-    let algo = match cfg.algo {
-        Algo::MPC => format!("mpc-{}", cfg.mpc.planner.kind.name()),
-        other => other.name().to_string(),
-    };
+) -> Result<Vec<SeedResult>, TrainError> {
+    let algo = entry_name(cfg);
     let target = cfg.target_return();
-    let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
-    // A results file that cannot be merged into must stop the benchmark before hours of work,
-    // not be found unreadable at the end.
-    read_results(&file)?;
     let cfg = &one_core_per_seed(cfg, threads);
     let queue = std::sync::Mutex::new(seeds.to_vec());
     let results = std::sync::Mutex::new(Vec::new());
@@ -284,6 +288,26 @@ pub fn learning_benchmark_at(
         .into_iter()
         .collect::<Result<Vec<_>, _>>()?;
     per_seed.sort_by_key(|r| r.seed);
+    Ok(per_seed)
+}
+
+/// [`learning_benchmark`] that also reports eval return and wall-clock at env-step `budgets`.
+pub fn learning_benchmark_at(
+    cfg: &ExperimentConfig,
+    config_name: &str,
+    seeds: &[u64],
+    threads: usize,
+    out: &Path,
+    train: fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>,
+    budgets: &[u64],
+) -> Result<AlgoResult, TrainError> {
+    let algo = entry_name(cfg);
+    let target = cfg.target_return();
+    let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
+    // A results file that cannot be merged into must stop the benchmark before hours of work,
+    // not be found unreadable at the end.
+    read_results(&file)?;
+    let per_seed = run_seeds(cfg, seeds, threads, out, train, budgets)?;
     let mut finals: Vec<f64> = per_seed.iter().map(|r| r.final_return).collect();
     let entry = AlgoResult {
         config: config_name.to_string(),
@@ -449,6 +473,29 @@ mod tests {
         for dir in [out, out2] {
             std::fs::remove_dir_all(dir).unwrap();
         }
+    }
+
+    #[test]
+    fn seeds_run_apart_write_no_results_file_and_their_runs_are_the_benchmark_s() {
+        let out = temp_out("only-seeds");
+        let cfg = ExperimentConfig {
+            algo: Algo::SAC,
+            ..Default::default()
+        };
+        let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
+        let some = run_seeds(&cfg, &[2, 0], 1, &out, fake_run, &[]).unwrap();
+        assert_eq!(some.iter().map(|r| r.seed).collect::<Vec<_>>(), [0, 2]);
+        assert!(!file.exists(), "a share of the seeds writes no results file");
+        for seed in [0, 2] {
+            let dir = out.join("runs").join(format!("sac-Pendulum-v1-s{seed}"));
+            assert_eq!(some[seed as usize / 2].run_dir, dir);
+            assert!(dir.join("metrics.csv").exists());
+        }
+        let all = learning_benchmark(&cfg, "c.toml", &[0, 1, 2], 1, &out, fake_run).unwrap();
+        assert_eq!(all.seeds.len(), 3);
+        assert!(file.exists());
+        assert_eq!(all.seeds[2].final_return, some[1].final_return);
+        std::fs::remove_dir_all(out).unwrap();
     }
 
     #[test]

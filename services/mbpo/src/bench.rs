@@ -179,6 +179,31 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
             cfg.steps
         );
     }
+    if let Some(&s) = args.only_seeds.iter().find(|&&s| s >= args.seeds) {
+        anyhow::bail!(
+            "--only-seeds: seed {s} is not one of the benchmark's seeds 0..{} (raise --seeds)",
+            args.seeds
+        );
+    }
+    if !args.only_seeds.is_empty() {
+        let done = mbpo_train::learning_bench::run_seeds(
+            &cfg,
+            &args.only_seeds,
+            args.threads,
+            &args.out,
+            crate::train_cmd::bench_run,
+            &args.budgets,
+        )?;
+        println!(
+            "{}",
+            json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
+                   "only_seeds": args.only_seeds,
+                   "final_returns": done.iter().map(|s| s.final_return).collect::<Vec<_>>(),
+                   "wall_seconds": done.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
+                   "results": "none written: run without --only-seeds once every seed is done"})
+        );
+        return Ok(());
+    }
     let r = mbpo_train::learning_bench::learning_benchmark_at(
         &cfg,
         &name,

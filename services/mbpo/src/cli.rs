@@ -324,6 +324,11 @@ pub struct LearningArgs {
     /// the last evaluation at or before each budget, and the wall-clock seconds to get there.
     #[arg(long, value_delimiter = ',')]
     pub budgets: Vec<u64>,
+    /// Run only these of the seeds 0..N, comma-separated, and write no results file: for
+    /// sharing one benchmark's seeds out between processes (each its own seeds). The same
+    /// command without it then writes the file, reusing the completed runs.
+    #[arg(long, value_delimiter = ',')]
+    pub only_seeds: Vec<u64>,
 }
 
 #[derive(Debug, Args)]
