@@ -485,7 +485,10 @@ mod tests {
         let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
         let some = run_seeds(&cfg, &[2, 0], 1, &out, fake_run, &[]).unwrap();
         assert_eq!(some.iter().map(|r| r.seed).collect::<Vec<_>>(), [0, 2]);
-        assert!(!file.exists(), "a share of the seeds writes no results file");
+        assert!(
+            !file.exists(),
+            "a share of the seeds writes no results file"
+        );
         for seed in [0, 2] {
             let dir = out.join("runs").join(format!("sac-Pendulum-v1-s{seed}"));
             assert_eq!(some[seed as usize / 2].run_dir, dir);
