@@ -6,8 +6,9 @@
 //! `dY W^T`) are free views, never copies.
 //!
 //! Products whose output width is not a multiple of 16 (the dynamics model's 200-wide layers)
-//! run, on AVX-512 CPUs, through [`ragged`], a kernel that gives faer's results bit for bit
-//! without faer's slow 8-row tail; the environment variable `MBPO_GEMM_FAER=1` sends them back to
+//! and whose `B` is used as stored (forward passes and weight gradients) run, on AVX-512 CPUs,
+//! through [`ragged`], a kernel that gives faer's results bit for bit without faer's slow
+//! 8-row tail; the environment variable `MBPO_GEMM_FAER=1` sends them back to
 //! faer, for measuring one against the other.
 
 use faer::linalg::matmul::matmul;
@@ -48,14 +49,14 @@ pub fn gemm(
         // update; this loop is a fraction of that. Each element is one product, as in faer.
         return outer(&mut c[..m * n], &a[..m], &b[..n], accumulate);
     }
+    // Only with `B` as stored: `Bᵀ`'s rows are `B`'s columns, strided, and packing them costs
+    // more than faer loses on its tail (`dZ Wᵀ` for a 200 x 200 layer: faer 162-166 GFLOP/s,
+    // faer plus the kernel on a packed tail 157, the kernel on a packed whole 144).
     #[cfg(target_arch = "x86_64")]
-    if !accumulate && n >= 96 && !n.is_multiple_of(16) && use_ragged() {
+    if !accumulate && op_b == Op::N && n >= 96 && !n.is_multiple_of(16) && use_ragged() {
         let (a, (rs_a, cs_a)) = (&a[..m * k], strides(op_a, m, k));
-        return match op_b {
-            // SAFETY: `use_ragged` checked the CPU for AVX-512F.
-            Op::N => unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) },
-            Op::T => ragged_tail(c, a, op_a, b, m, k, n),
-        };
+        // SAFETY: `use_ragged` checked the CPU for AVX-512F.
+        return unsafe { ragged::gemm(c, n, a, rs_a, cs_a, b, n, m, k, n) };
     }
     let c = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
     let accum = if accumulate {
@@ -82,49 +83,6 @@ fn strides(op: Op, rows: usize, cols: usize) -> (usize, usize) {
         Op::N => (cols, 1),
         Op::T => (1, rows),
     }
-}
-
-/// `C = A' Bᵀ` for an output width `n` that is not a multiple of 16 (see [`ragged`]): `Bᵀ`'s
-/// columns are strided, so faer computes the first `16·⌊n/16⌋` columns (whole 96-row kernels
-/// of its own) and only the last few go through [`ragged`], from a packed copy of their
-/// `k x (n mod 16)` slice. Bit-identical to faer.
-#[cfg(target_arch = "x86_64")]
-fn ragged_tail(c: &mut [f32], a: &[f32], op_a: Op, b: &[f32], m: usize, k: usize, n: usize) {
-    let (a_view, (rs_a, cs_a)) = (operand(a, op_a, m, k), strides(op_a, m, k));
-    let whole = n - n % 16;
-    let rest = n - whole;
-    let stored = MatRef::from_row_major_slice(&b[..k * n], n, k);
-    let c_all = MatMut::from_row_major_slice_mut(&mut c[..m * n], m, n);
-    let (c_whole, _) = c_all.split_at_col_mut(whole);
-    let b_whole = stored.subrows(0, whole).transpose();
-    matmul(c_whole, Accum::Replace, a_view, b_whole, 1.0f32, Par::Seq);
-    let b_rest = stored.subrows(whole, rest);
-    PACKED.with_borrow_mut(|packed| {
-        packed.clear();
-        packed.extend((0..k).flat_map(|p| (0..rest).map(move |j| b_rest[(j, p)])));
-        // SAFETY: as above; the last `rest` columns of C are rows `n` apart from column `whole`.
-        unsafe {
-            ragged::gemm(
-                &mut c[whole..m * n],
-                n,
-                a,
-                rs_a,
-                cs_a,
-                packed,
-                rest,
-                m,
-                k,
-                rest,
-            )
-        };
-    });
-}
-
-#[cfg(target_arch = "x86_64")]
-thread_local! {
-    /// The `k x (n mod 16)` slice of a transposed `B` that [`ragged_tail`] packs (allocated
-    /// once per thread and shape).
-    static PACKED: std::cell::RefCell<Vec<f32>> = const { std::cell::RefCell::new(Vec::new()) };
 }
 
 /// Whether ragged widths go through [`ragged`]: on AVX-512 CPUs unless `MBPO_GEMM_FAER` is set
