@@ -7,7 +7,7 @@
 //!
 //! Products whose output width is not a multiple of 16 (the dynamics model's 200-wide layers)
 //! and whose `B` is used as stored (forward passes and weight gradients) run, on AVX-512 CPUs,
-//! through [`ragged`], a kernel that gives faer's results bit for bit without faer's slow
+//! through `ragged`, a kernel that gives faer's results bit for bit without faer's slow
 //! 8-row tail; the environment variable `MBPO_GEMM_FAER=1` sends them back to
 //! faer, for measuring one against the other.
 

@@ -95,7 +95,7 @@ pub struct FileTarget {
 }
 
 impl FileTarget {
-    /// The file `file` (see [`file`], [`actor_file`]) of kind `kind` in checkpoints of `run_dir`.
+    /// The file `file` (see [`mod@file`], [`actor_file`]) of kind `kind` in checkpoints of `run_dir`.
     pub fn new(run_dir: &Path, file: impl Into<String>, kind: &'static str) -> Self {
         Self {
             run_dir: run_dir.to_path_buf(),

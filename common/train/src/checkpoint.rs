@@ -50,7 +50,7 @@ fn upgraded_payload<'a>(version: u32, kind: &str, payload: &'a [u8]) -> std::bor
 
 /// Kinds of the role files of a checkpoint (the `kind` field of a file's header; the files
 /// themselves are `run_files`' types). They live here because the format's history is per kind
-/// ([`upgraded_payload`]).
+/// (`upgraded_payload`).
 pub mod kind {
     /// `run_files::ActorCheckpoint`.
     pub const ACTOR: &str = "mbpo.role.actor";
