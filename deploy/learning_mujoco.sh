@@ -28,6 +28,9 @@
 # at the start whatever the run directories lack. Results: <out>/learning-<env>.json,
 # <out>/learning-<env>.png (+ -losses.png), runs in <out>/runs/mbpo-<env>-s<seed>, each lane's
 # log in <out>/runs/lane-<n>.log.
+# The whole script is one group, read before it runs: bash reads a script as it goes, so an edit
+# (or a git pull) while the lanes run hours would otherwise change the lines it has yet to run.
+{
 set -euo pipefail
 cd "$(dirname "$0")/.."
 steps=50000
@@ -142,3 +145,4 @@ wait_for "$second" || status=$?
 bash deploy/park_runs.sh
 [ "$status" = 0 ] || echo "a lane stopped (exit $status): see $out/runs/lane-*.log; rerun to continue" >&2
 exit "$status"
+}
