@@ -40,6 +40,24 @@ fn config_show_applies_overrides_and_rejects_bad_ones_by_name() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// A reader that closes the pipe early (`mbpo bench gemm | head -1`) ends the command quietly:
+/// success and no panic trace (`println!` would panic on the broken pipe).
+#[test]
+fn output_into_a_closed_pipe_ends_quietly() {
+    let mut child = mbpo()
+        .args(["bench", "gemm", "--seconds", "0.05"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Gone before the first line: each line is printed after 0.05 s of measurement.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(out.status.success(), "{:?}: {err}", out.status);
+    assert!(!err.contains("panicked"), "{err}");
+}
+
 #[test]
 fn sigint_stops_with_a_checkpoint_and_resume_finishes_the_run() {
     let dir = scratch("cli-resume");

@@ -24,7 +24,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
                 args.test_steps,
                 args.seed,
             )?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         }
         BenchCommand::ModelTrain(r) => {
@@ -32,14 +32,14 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             cfg.model.threads = r.threads;
             cfg.model.batch_size = r.batch_size;
             let report = mbpo_model::bench::model_train(10_000, &cfg)?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         }
         BenchCommand::ModelRollout(r) => {
             let mut cfg = model_bench_config(&r.reps);
             cfg.model.threads = r.threads;
             let report = mbpo_model::bench::model_rollout(100_000, &cfg)?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         }
         BenchCommand::SacUpdate(t) => {
@@ -51,7 +51,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
                 t.threads.max(1),
                 Duration::from_secs_f64(t.seconds),
             );
-            println!("{}", serde_json::to_string(&r)?);
+            out!("{}", serde_json::to_string(&r)?)?;
             Ok(())
         }
     }
@@ -71,11 +71,11 @@ fn gemm(t: &BenchTime) -> anyhow::Result<()> {
     let time = Duration::from_secs_f64(t.seconds);
     for &(m, k, n) in GEMM_SHAPES {
         let gflops = mbpo_nn::bench::gemm_gflops(m, k, n, time);
-        println!(
+        out!(
             "{}",
             json!({"bench": "gemm", "m": m, "k": k, "n": n, "threads": 1,
                    "gflops": (gflops * 10.0).round() / 10.0})
-        );
+        )?;
     }
     let batch = 256;
     for &(n_in, n_out) in MODEL_TRAIN_LAYERS {
@@ -89,12 +89,12 @@ fn gemm(t: &BenchTime) -> anyhow::Result<()> {
                 continue; // the first layer's input gradient is never computed
             }
             let gflops = mbpo_nn::bench::gemm_gflops_with(m, k, n, op_a, op_b, time);
-            println!(
+            out!(
                 "{}",
                 json!({"bench": "gemm", "model_train_layer": format!("{n_in}x{n_out}"),
                        "product": product, "m": m, "k": k, "n": n, "threads": 1,
                        "gflops": (gflops * 10.0).round() / 10.0})
-            );
+            )?;
         }
     }
     Ok(())
@@ -142,11 +142,11 @@ fn env(args: &EnvBenchArgs) -> anyhow::Result<()> {
             true => "gymnasium-over-bridge",
             false => "rust",
         };
-        println!(
+        out!(
             "{}",
             json!({"bench": "env", "impl": implementation, "env": id,
                    "steps_per_sec": (steps as f64 / secs).round(), "episodes": episodes, "threads": 1})
-        );
+        )?;
     }
     Ok(())
 }
@@ -194,14 +194,14 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
             crate::train_cmd::bench_run,
             &args.budgets,
         )?;
-        println!(
+        out!(
             "{}",
             json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
                    "only_seeds": args.only_seeds,
                    "final_returns": done.iter().map(|s| s.final_return).collect::<Vec<_>>(),
                    "wall_seconds": done.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                    "results": "none written: run without --only-seeds once every seed is done"})
-        );
+        )?;
         return Ok(());
     }
     let r = mbpo_train::learning_bench::learning_benchmark_at(
@@ -213,7 +213,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         crate::train_cmd::bench_run,
         &args.budgets,
     )?;
-    println!(
+    out!(
         "{}",
         json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
                "median_final_return": r.median_final_return,
@@ -224,7 +224,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
                "budgets": r.budgets,
                "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                "results": args.out.join(format!("learning-{}.json", cfg.env_file_name()))})
-    );
+    )?;
     Ok(())
 }
 
@@ -255,7 +255,7 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
         let p = breakdown_at(&cfg, &args.run, at, args.window)?;
         eprintln!("{}", p.summary_line());
         eprintln!("{}", p.epoch_caps_line());
-        println!("{}", serde_json::to_string(&p)?);
+        out!("{}", serde_json::to_string(&p)?)?;
         if let Some(mode) = args.pipeline {
             let ipc = pipeline_ipc(&cfg, &args.run, at, args.window, mode)?;
             eprintln!("at {at:>6}: mbpo run --mode {}: {ipc}", mode.name());
@@ -309,10 +309,10 @@ fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
         &scratch,
     )?;
     eprintln!("{}", cost.summary_line());
-    println!(
+    out!(
         "{}",
         json!({"bench": "checkpoint", "env": cfg.env, "run": args.run, "cost": cost})
-    );
+    )?;
     Ok(())
 }
 
@@ -343,7 +343,7 @@ fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
                 m.transitions
             );
         }
-        println!("{}", serde_json::to_string(&d)?);
+        out!("{}", serde_json::to_string(&d)?)?;
         points.push(d);
     }
     if args.out.as_os_str() != "-" {
@@ -461,6 +461,6 @@ fn plan_latency(args: &crate::cli::PlanLatencyArgs) -> anyhow::Result<()> {
         plans: args.plans,
     };
     let report = mbpo_plan::bench::plan_latency(&cfg)?;
-    println!("{}", serde_json::to_string(&report)?);
+    out!("{}", serde_json::to_string(&report)?)?;
     Ok(())
 }

@@ -49,11 +49,11 @@ pub fn run(args: &ChaosArgs) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for r in 0..args.runs {
         let report = one_run(args, &config, &cfg, r, reference.as_deref())?;
-        println!("{report}");
+        out!("{report}")?;
         reports.push(report);
     }
     let all = totals(&reports, args);
-    println!("{all}");
+    out!("{all}")?;
     let file = args.out.join("chaos.json");
     let text = serde_json::to_string_pretty(&json!({"runs": reports, "totals": all}))?;
     std::fs::write(&file, text).with_context(|| format!("writing {}", file.display()))?;

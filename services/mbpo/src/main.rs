@@ -1,6 +1,16 @@
 //! `mbpo`: the command-line entry point. It parses the command line, sets up logging and calls
 //! the command's `run`; everything testable lives in the `common/` crates.
 
+/// `println!` that returns the write's error instead of panicking: piped into a reader that
+/// stops early (`mbpo bench gemm | head -1`), a command ends quietly (see [`closed_pipe`])
+/// rather than with a panic trace.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*)
+    }};
+}
+
 mod bench;
 mod chaos;
 mod cli;
@@ -17,11 +27,22 @@ fn main() -> ExitCode {
     logging::init();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
+        Err(err) if closed_pipe(&err) => ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {}", mbpo_runtime::error_chain(err.as_ref()));
             ExitCode::FAILURE
         }
     }
+}
+
+/// Whether the command failed only because its reader closed stdout (as `head` does): the
+/// output it still had is unwanted, so that is no error.
+fn closed_pipe(err: &anyhow::Error) -> bool {
+    err.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    })
 }
 
 fn run(cli: cli::Cli) -> anyhow::Result<()> {
@@ -34,13 +55,16 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         cli::Command::Config(cli::ConfigCommand::Show(source)) => {
             let cfg =
                 mbpo_train::ExperimentConfig::resolve(source.config.as_deref(), &source.overrides)?;
-            print!("{}", cfg.to_toml());
+            {
+                use std::io::Write as _;
+                write!(std::io::stdout().lock(), "{}", cfg.to_toml())?;
+            }
             Ok(())
         }
         cli::Command::Eval(args) => {
             let report =
                 mbpo_train::policy_file::evaluate_run(&args.run, args.episodes, args.seed)?;
-            println!("{}", serde_json::to_string(&report)?);
+            out!("{}", serde_json::to_string(&report)?)?;
             Ok(())
         }
         cli::Command::Plot(args) => {
@@ -61,7 +85,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             let text =
                 mbpo_report::learning_table(&args.runs, args.table_every, reference.as_ref())?;
             std::fs::write(&table, format!("### {}\n\n{text}", args.title))?;
-            println!(
+            out!(
                 "{}",
                 serde_json::json!({
                     "plot": curves.out,
@@ -72,7 +96,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
                     "groups": curves.groups,
                     "loss_panels_with_data": losses.panels_with_data,
                 })
-            );
+            )?;
             Ok(())
         }
         cli::Command::Bench(cmd) => bench::run(cmd),

@@ -172,7 +172,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     };
     let summary =
         algorithm::train(&cfg, &out, opts).with_context(|| format!("run {}", out.display()))?;
-    println!("{}", serde_json::to_string(&summary)?);
+    out!("{}", serde_json::to_string(&summary)?)?;
     Ok(())
 }
 
