@@ -1,14 +1,13 @@
 //! `mbpo`: the command-line entry point. It parses the command line, sets up logging and calls
 //! the command's `run`; everything testable lives in the `common/` crates.
 
-/// `println!` that returns the write's error instead of panicking: piped into a reader that
-/// stops early (`mbpo bench gemm | head -1`), a command ends quietly (see [`closed_pipe`])
-/// rather than with a panic trace.
+/// `println!` that returns an error instead of panicking: piped into a reader that stops early
+/// (`mbpo bench gemm | head -1`), a command ends quietly rather than with a panic trace (see
+/// [`write_stdout`]).
 macro_rules! out {
-    ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        writeln!(std::io::stdout().lock(), $($arg)*)
-    }};
+    ($($arg:tt)*) => {
+        crate::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+    };
 }
 
 mod bench;
@@ -27,7 +26,7 @@ fn main() -> ExitCode {
     logging::init();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(err) if closed_pipe(&err) => ExitCode::SUCCESS,
+        Err(err) if err.chain().any(|cause| cause.is::<StdoutClosed>()) => ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {}", mbpo_runtime::error_chain(err.as_ref()));
             ExitCode::FAILURE
@@ -35,14 +34,28 @@ fn main() -> ExitCode {
     }
 }
 
-/// Whether the command failed only because its reader closed stdout (as `head` does): the
-/// output it still had is unwanted, so that is no error.
-fn closed_pipe(err: &anyhow::Error) -> bool {
-    err.chain().any(|cause| {
-        cause
-            .downcast_ref::<std::io::Error>()
-            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
-    })
+/// The reader of stdout went away (as `head` does once it has its lines): the output the
+/// command still had is unwanted, so it ends with success. Only a write to stdout reports this;
+/// a broken pipe anywhere else (a child process, the Python env bridge) stays an error.
+#[derive(Debug)]
+struct StdoutClosed;
+
+impl std::fmt::Display for StdoutClosed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("stdout was closed by its reader")
+    }
+}
+
+impl std::error::Error for StdoutClosed {}
+
+/// Write to stdout; a closed pipe becomes [`StdoutClosed`], any other failure (a full disk)
+/// its own error.
+fn write_stdout(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    match std::io::stdout().lock().write_fmt(text) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(StdoutClosed.into()),
+        other => Ok(other?),
+    }
 }
 
 fn run(cli: cli::Cli) -> anyhow::Result<()> {
@@ -55,11 +68,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         cli::Command::Config(cli::ConfigCommand::Show(source)) => {
             let cfg =
                 mbpo_train::ExperimentConfig::resolve(source.config.as_deref(), &source.overrides)?;
-            {
-                use std::io::Write as _;
-                write!(std::io::stdout().lock(), "{}", cfg.to_toml())?;
-            }
-            Ok(())
+            write_stdout(format_args!("{}", cfg.to_toml()))
         }
         cli::Command::Eval(args) => {
             let report =
