@@ -18,7 +18,7 @@ args=("$@")
 if [[ " ${args[*]-} " != *" --config "* ]]; then
   args=(--config deploy/configs/pendulum.toml "${args[@]}")
 fi
-features=()
+source deploy/build_features.sh
 for ((i = 0; i + 1 < ${#args[@]}; i++)); do
   if [[ ${args[i]} == --config ]] \
     && grep -qE '^[[:space:]]*env[[:space:]]*=[[:space:]]*"(InvertedPendulum|HalfCheetah|Hopper|Walker2d|Ant)-v5"' "${args[i + 1]}"; then

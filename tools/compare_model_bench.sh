@@ -27,10 +27,7 @@ cd "$repo"
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-torch.txt
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -r tools/requirements-mbrl.txt
-# With MuJoCo set up, build the binary with its feature: the learning lanes start
-# target/release/mbpo for every seed, and a build without it would replace theirs.
-features=()
-[ -d .mujoco/lib ] && features=(--features mujoco)
+source deploy/build_features.sh
 cargo build --release --locked -p mbpo "${features[@]}" >&2
 
 log="$(mktemp /tmp/model-bench-compare.XXXXXX)"

@@ -21,10 +21,7 @@ if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-torch.txt
-# With MuJoCo set up, build the binary with its feature: the learning lanes start
-# target/release/mbpo for every seed, and a build without it would replace theirs.
-features=()
-[ -d .mujoco/lib ] && features=(--features mujoco)
+source deploy/build_features.sh
 cargo build --release --locked -p mbpo "${features[@]}" >&2
 
 log="$(mktemp /tmp/sac-update-compare.XXXXXX)"
