@@ -19,6 +19,8 @@
 # Walker2d and Hopper:
 #   bash deploy/learning_mujoco.sh --tasks "walker2d hopper" --out results/clip-real-box \
 #       --set mbpo.clip_imagined_states=real_box
+# or is a config of its own whose env id differs, e.g. walker2d-v2-feet (gym:Walker2d-v5 with
+# v2's feet): its runs and results files are named by that id beside the others.
 #
 # Hours per seed: it is meant to run niced in the background across sessions. Ctrl-C (or
 # SIGTERM to the process group) checkpoints the seeds under way and stops; the same command
@@ -75,7 +77,9 @@ bench() {
         --out "$out" "$@"
 }
 
-env_id() { sed -n 's/^env = "\(.*\)"/\1/p' "deploy/configs/$1.toml"; }
+# The env id as run directories and results files spell it (`mbpo` turns `:` and `/` into `-`:
+# gym:Walker2d-v5 -> gym-Walker2d-v5).
+env_id() { sed -n 's/^env = "\(.*\)"/\1/p' "deploy/configs/$1.toml" | tr ':/' '--'; }
 run_of() { echo "$out/runs/mbpo-$(env_id "$1")-s$2"; }
 completed() { [ -f "$1/summary.json" ] && grep -q '"status": *"completed"' "$1/summary.json"; }
 under_way() { compgen -G "$1/checkpoints/*/COMPLETE" >/dev/null; }
