@@ -58,6 +58,9 @@ pub struct Barrier {
     files: usize,
     /// Warnings logged about a slow barrier.
     pub warnings: u32,
+    /// Control subscribers counted just before the barrier's messages last went out: one that
+    /// appears later (a role still starting when Ctrl-C came) has not got them.
+    pub control_subscribers: usize,
     pipeline: &'static PipelineSpec,
 }
 
@@ -76,8 +79,14 @@ impl Barrier {
             pausing: pipeline::pausing_processes(pipeline, actors),
             files: pipeline.roles(actors).len(),
             warnings: 0,
+            control_subscribers: 0,
             pipeline,
         }
+    }
+
+    /// The cut, once sent.
+    pub fn cut(&self) -> Option<Cut> {
+        self.cut
     }
 
     /// Take one report.

@@ -237,12 +237,14 @@ impl Coordinator {
         let Some(b) = self.barrier.as_mut() else {
             return Ok(Phase::Running);
         };
+        resend_barrier_to_late_subscribers(ports, b)?;
         if let Some(cut) = b.take_cut(&self.schedule, self.plan.mode) {
             tracing::info!(
                 "checkpoint cut: after step {} with {} model trainings",
                 cut.env_steps,
                 cut.model_trainings
             );
+            b.control_subscribers = ports.control.subscribers();
             send(
                 ports,
                 ControlCommand::Checkpoint,
@@ -385,12 +387,10 @@ impl Coordinator {
         ports: &CoordinatorPorts<S>,
         stop_after: bool,
     ) -> Result<()> {
+        let mut barrier = Barrier::new(self.plan.pipeline, self.plan.actors, stop_after);
+        barrier.control_subscribers = ports.control.subscribers();
         send_pause(ports, stop_after)?;
-        self.barrier = Some(Barrier::new(
-            self.plan.pipeline,
-            self.plan.actors,
-            stop_after,
-        ));
+        self.barrier = Some(barrier);
         Ok(())
     }
 
@@ -457,6 +457,37 @@ fn send<S: Transport>(
 ) -> Result<()> {
     let msg = ControlMsg::request(command, request_id, CONTROL_TARGET_ALL, step);
     ports.control.send(&msg)?;
+    Ok(())
+}
+
+/// Send the barrier's messages again (the Pause, and the cut once sent) when a control
+/// subscriber appeared since they went out: the control channel keeps no history, so a role
+/// still starting when the barrier began (Ctrl-C right after `mbpo run`) never got them, and
+/// the barrier would wait for its report forever. A role that has them is unchanged by them
+/// again (the pause is a flag, the cut the same), and the channel delivers in order, so they
+/// arrive before the Resume. A count that fell (a process gone) is followed down, so its
+/// replacement counts as new.
+fn resend_barrier_to_late_subscribers<S: Transport>(
+    ports: &CoordinatorPorts<S>,
+    b: &mut Barrier,
+) -> Result<()> {
+    let now = ports.control.subscribers();
+    if now > b.control_subscribers {
+        tracing::info!(
+            "{} control subscriber(s) joined during the checkpoint barrier: sending it again",
+            now - b.control_subscribers
+        );
+        send_pause(ports, b.stop_after)?;
+        if let Some(cut) = b.cut() {
+            send(
+                ports,
+                ControlCommand::Checkpoint,
+                cut.model_trainings,
+                cut.env_steps,
+            )?;
+        }
+    }
+    b.control_subscribers = now;
     Ok(())
 }
 
