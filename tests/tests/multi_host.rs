@@ -421,7 +421,16 @@ fn a_peer_without_the_credentials_is_refused_and_the_run_goes_on() {
     let head = start_head(&hosts, &dir, &input, &creds, pipelined(0, 1));
     let intruder = start_worker(&hosts, &dir, "intruder", Some(&wrong), 1);
     let anonymous = start_worker(&hosts, &dir, "anonymous", None, 1);
-    std::thread::sleep(Duration::from_secs(5));
+    // Both were refused while the head listened (a worker says so after 5 s without an
+    // answer), before the good worker starts the run; a fixed wait raced that 5 s.
+    for name in ["intruder", "anonymous"] {
+        let log = dir.join(format!("{name}.log"));
+        assert!(
+            wait_for_text(&log, "no answer from the head", TIMEOUT),
+            "{name} did not say why it was not let in: {}",
+            text(&log)
+        );
+    }
     let good = start_worker(&hosts, &dir, "good", Some(&creds), 1);
     let o = wait_output(head.child, TIMEOUT);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
