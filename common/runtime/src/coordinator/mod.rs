@@ -245,12 +245,7 @@ impl Coordinator {
                 cut.model_trainings
             );
             b.control_subscribers = ports.control.subscribers();
-            send(
-                ports,
-                ControlCommand::Checkpoint,
-                cut.model_trainings,
-                cut.env_steps,
-            )?;
+            send_cut(ports, cut)?;
         }
         let Some(cut) = b.complete() else {
             if b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1) {
@@ -479,16 +474,21 @@ fn resend_barrier_to_late_subscribers<S: Transport>(
         );
         send_pause(ports, b.stop_after)?;
         if let Some(cut) = b.cut() {
-            send(
-                ports,
-                ControlCommand::Checkpoint,
-                cut.model_trainings,
-                cut.env_steps,
-            )?;
+            send_cut(ports, cut)?;
         }
     }
     b.control_subscribers = now;
     Ok(())
+}
+
+/// Broadcast the barrier's cut: every role runs on to exactly "after T with K trainings".
+fn send_cut<S: Transport>(ports: &CoordinatorPorts<S>, cut: crate::barrier::Cut) -> Result<()> {
+    send(
+        ports,
+        ControlCommand::Checkpoint,
+        cut.model_trainings,
+        cut.env_steps,
+    )
 }
 
 /// Broadcast a Pause, saying whether the run stops after the barrier (roles may then abandon
