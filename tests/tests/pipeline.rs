@@ -201,32 +201,45 @@ fn sigint_stops_the_run_cleanly() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// Ctrl-C while the processes are still starting. The control channel keeps no history, so a
-/// role that subscribes after the stop's checkpoint barrier began has not got its Pause; the
-/// coordinator sends the barrier again when it sees a new control subscriber. Before it did,
-/// the barrier waited for that role's report forever (a Ctrl-C 50 ms after `mbpo run` hung).
-/// Several moments of start-up; each run must stop with a complete checkpoint.
+/// Ctrl-C while the run starts. While the supervisor sets the run up, the signal is captured
+/// from its first line on (it used to kill the process, leaving a run directory without a
+/// summary). While the processes start: the control channel keeps no history, so a role that
+/// subscribes after the stop's checkpoint barrier began has not got its Pause; the coordinator
+/// sends the barrier again when it sees a new control subscriber (before, the barrier waited
+/// for that role's report forever: a Ctrl-C 50 ms after `mbpo run` hung). Several moments of
+/// start-up; each run must stop with a complete checkpoint.
 #[test]
 fn sigint_during_start_up_still_checkpoints_and_stops() {
     let cfg = tiny_config(20_000);
     let dir = scratch("sigint-start-up");
     let input = write_config(&cfg, &dir);
-    for delay_ms in [0u64, 20, 60, 150] {
-        let root = ipc_root(&format!("ss{delay_ms}"));
-        let out = dir.join(format!("run-{delay_ms}"));
+    // (what has started, milliseconds after it): the run directory (the supervisor is setting
+    // the run up), then the first role process (the supervisor made its ports; roles start).
+    let moments = [
+        ("config.toml", 0),
+        ("a role's log", 0),
+        ("a role's log", 20),
+        ("a role's log", 60),
+        ("a role's log", 150),
+    ];
+    for (case, (after, delay_ms)) in moments.into_iter().enumerate() {
+        let root = ipc_root(&format!("ss{case}"));
+        let out = dir.join(format!("run-{case}"));
         let mut child = spawn_run(&run_args(&input, &out, &root, &[]));
-        // The supervisor handles signals from when it made its ports, before it started the
-        // first role process (which makes the role's log).
         let logs = out.join("logs");
+        let started = || match after {
+            "config.toml" => out.join("config.toml").exists(),
+            _ => std::fs::read_dir(&logs).map_or(0, |d| d.count()) >= 2,
+        };
         let t = Instant::now();
-        while std::fs::read_dir(&logs).map_or(0, |d| d.count()) < 2 {
+        while !started() {
             if child.try_wait().unwrap().is_some() {
                 let o = child.wait_with_output().unwrap();
-                panic!("{delay_ms} ms: mbpo run ended at start-up: {o:?}");
+                panic!("{after}: mbpo run ended at start-up: {o:?}");
             }
             assert!(
                 t.elapsed() < TIMEOUT,
-                "{delay_ms} ms: no role process started"
+                "{after}: not there within {TIMEOUT:?}"
             );
             std::thread::sleep(Duration::from_millis(1));
         }
@@ -235,17 +248,20 @@ fn sigint_during_start_up_still_checkpoints_and_stops() {
         unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
         let o = wait_output(child, TIMEOUT);
         let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{delay_ms} ms: {stderr}");
+        assert!(o.status.success(), "{delay_ms} ms after {after}: {stderr}");
         let s = summary(&out);
-        assert_eq!(s["status"], "stopped", "{delay_ms} ms: {stderr}");
+        assert_eq!(
+            s["status"], "stopped",
+            "{delay_ms} ms after {after}: {stderr}"
+        );
         assert!(
             mbpo_train::checkpoint::latest(&out).unwrap().is_some(),
-            "{delay_ms} ms: no complete checkpoint after the stop: {stderr}"
+            "{delay_ms} ms after {after}: no complete checkpoint after the stop: {stderr}"
         );
         let left = leftovers(&run_id(&s), &root);
         assert!(
             left.is_empty(),
-            "{delay_ms} ms: shared-memory leftovers: {left:?}"
+            "{delay_ms} ms after {after}: shared-memory leftovers: {left:?}"
         );
     }
     let _ = std::fs::remove_dir_all(dir);

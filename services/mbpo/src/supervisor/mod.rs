@@ -183,6 +183,11 @@ pub fn gateway(command: &str, args: &[String]) -> anyhow::Result<()> {
 
 /// Run the pipeline per `args`.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
+    // iceoryx2 captures SIGINT/SIGTERM from its first look at them on: from here on a Ctrl-C
+    // is not fatal (it would kill this process while it sets the run up, leaving a run
+    // directory without a summary) but a request the coordinator answers once it runs: a
+    // checkpoint, then a clean stop.
+    mbpo_wire::termination_requested();
     let (args, cfg, out, resume) = plan_run(args)?;
     let args = &args;
     let mut run_dir = open_run_dir(args, &cfg, &out, resume.as_ref())?;
