@@ -61,8 +61,12 @@ impl ChannelQos {
             Channel::Model => (2, 8, 16, 1),
             // Everyone -> supervisor.
             Channel::Stats => (32, 2, 40, 256),
-            // Supervisor -> everyone, and acknowledgements back.
-            Channel::Control => (32, 32, 40, 16),
+            // Supervisor -> everyone, and acknowledgements back. The queue holds a barrier's
+            // Pause, cut and Resume plus the coordinator's resend of Pause and cut for each
+            // subscriber that joins during the barrier (at most 32): a role still starting
+            // (waiting for its own consumers) reads none of them yet, and a full queue would
+            // block the coordinator.
+            Channel::Control => (32, 32, 40, 2 * 32 + 8),
         };
         ChannelQos {
             max_publishers,
