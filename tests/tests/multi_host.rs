@@ -384,6 +384,106 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// A process of the head host (its SAC learner) is SIGKILLed mid-run: the supervisor rolls
+/// the pipeline back to its newest checkpoint and the remote actors, told to stop for the
+/// rollback and not for the end of the run, stay in it: the worker joins the next attempt and
+/// the run completes with nothing lost. (Before, the rollback's Stop ended the worker as if the
+/// run were over, and the next attempt waited for a worker that had left.)
+#[test]
+fn a_head_process_killed_mid_run_rolls_back_with_the_worker_still_in() {
+    head_process_killed_mid_run("learner", "mbpo-sac-learner");
+}
+
+/// The head's own gateway is SIGKILLed mid-run, so no Stop reaches the worker at all: the new
+/// attempt's gateway refuses the heartbeats of the old attempt's worker, and the worker takes
+/// that as the head having restarted and joins at once, not after `--head-timeout` (60 s).
+#[test]
+fn the_head_gateway_killed_mid_run_is_restarted_and_the_worker_rejoins_at_once() {
+    let log = head_process_killed_mid_run("gateway", "mbpo-gateway");
+    assert!(log.contains("the head restarted"), "{log}");
+    assert!(
+        !log.contains("--head-timeout"),
+        "the worker waited for the old head to go silent: {log}"
+    );
+}
+
+/// Kill the head's process `victim` (its command line names `binary`) after the first
+/// checkpoint of a pipelined run with one local and one remote actor and `--restart
+/// on-failure`; the run must complete with nothing lost, the worker in the next attempt.
+/// Returns the worker's log.
+fn head_process_killed_mid_run(victim: &str, binary: &str) -> String {
+    let test = format!("head process {victim} killed");
+    let Some(hosts) = hosts(&test) else {
+        return String::new();
+    };
+    let dir = scratch(&format!("net-{victim}kill"));
+    let mut cfg = tiny_config(1000);
+    cfg.checkpoint.every = 200;
+    let input = write_config(&cfg, &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let head = start_head(
+        &hosts,
+        &dir,
+        &input,
+        &creds,
+        Actors {
+            mode: "pipelined",
+            local: 1,
+            remote: 1,
+            restart: true,
+        },
+    );
+    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
+    // Mid-run: after the first checkpoint, which holds the remote actor's file.
+    let first = head.out.join("checkpoints");
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(300) {
+        let complete = std::fs::read_dir(&first)
+            .map(|d| d.flatten().any(|e| e.path().join("COMPLETE").is_file()))
+            .unwrap_or(false);
+        if complete {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let pids: Vec<i32> = mbpo_runtime::processes_mentioning(head.out.to_str().unwrap())
+        .iter()
+        .filter(|p| p.contains(binary))
+        .filter_map(|p| p.split(':').next()?.parse().ok())
+        .collect();
+    assert_eq!(pids.len(), 1, "the head's {victim}: {pids:?}");
+    // SAFETY: kill(2) of a process this test's run started.
+    unsafe { libc::kill(pids[0], libc::SIGKILL) };
+    let o = wait_output(head.child, TIMEOUT);
+    let worker_log = || text(&dir.join("w1.log"));
+    assert!(
+        o.status.success(),
+        "{}\nworker:\n{}",
+        String::from_utf8_lossy(&o.stderr),
+        worker_log()
+    );
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_no_loss(&s, 1000);
+    assert!(s["restarts"].as_u64().unwrap_or(0) >= 1, "{s}");
+    let w = wait_output(worker, TIMEOUT);
+    assert!(w.status.success(), "{}", worker_log());
+    // The worker's report (its last stdout line); the head's hosts.json misses an attempt
+    // whose gateway was killed before it wrote the file.
+    let stdout = String::from_utf8_lossy(&w.stdout);
+    let report: serde_json::Value =
+        serde_json::from_str(stdout.lines().last().unwrap_or_default()).unwrap_or_default();
+    assert!(
+        report["attempts"].as_u64().unwrap_or(0) >= 2,
+        "the worker did not join the attempt after the rollback: {stdout}\n{}",
+        worker_log()
+    );
+    let log = worker_log();
+    let _ = std::fs::remove_dir_all(dir);
+    log
+}
+
 /// SIGKILL `pid` and every descendant; returns how many.
 fn kill_tree(pid: i32) -> usize {
     let mut all = vec![pid];

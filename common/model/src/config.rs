@@ -175,6 +175,21 @@ impl ModelConfigError {
 }
 
 impl ModelConfig {
+    /// Whether `n` transitions can be split into a non-empty holdout (`min(int(ratio n),
+    /// max_holdout)`) and a non-empty training split: the one rule for "enough data to train".
+    pub fn can_train_on(&self, n: usize) -> bool {
+        let h = crate::train::holdout_size(n, self.holdout_ratio, self.max_holdout);
+        h >= 1 && n > h
+    }
+
+    /// The fewest transitions a training call accepts (5 with the paper's holdout ratio 0.2);
+    /// `usize::MAX` for settings that never split (caught by [`ModelConfig::validate`]).
+    pub fn min_training_transitions(&self) -> usize {
+        (2..=1_000_000)
+            .find(|&n| self.can_train_on(n))
+            .unwrap_or(usize::MAX)
+    }
+
     /// Check the settings for a model with the given dimensions.
     pub fn validate(&self, obs_dim: usize, act_dim: usize) -> Result<(), ModelConfigError> {
         if obs_dim == 0 || act_dim == 0 {

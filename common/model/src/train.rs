@@ -460,17 +460,11 @@ impl ProbabilisticEnsemble {
                 });
             }
         }
-        let (ratio, cap) = (self.config.holdout_ratio, self.config.max_holdout);
-        let usable = |n: usize| {
-            let h = holdout_size(n, ratio, cap);
-            h >= 1 && n > h
-        };
-        if !usable(n) {
-            let required = (2..=1_000_000).find(|&m| usable(m)).unwrap_or(usize::MAX);
+        if !self.config.can_train_on(n) {
             return Err(TrainError::TooFewTransitions {
                 found: n,
-                required,
-                ratio,
+                required: self.config.min_training_transitions(),
+                ratio: self.config.holdout_ratio,
             });
         }
         Ok(())

@@ -21,6 +21,11 @@
 //! actor) ends the gateway with an error: the supervisor then restarts the whole pipeline from
 //! its newest checkpoint (`--restart on-failure`), exactly as for a local process, and the
 //! worker rejoins the new attempt, its actors resuming from their checkpoint files.
+//!
+//! A rollback that starts on the head (one of its own processes crashed) reaches the remote
+//! actors as a Stop with [`StopReason::RollBack`]: the gateway forwards it, answers no more
+//! hellos, and ends once the workers have it; the workers stop their actors and join the next
+//! attempt. Only a Stop with [`StopReason::RunOver`] ends the workers ([`Item::Finished`]).
 
 use std::collections::{HashMap, VecDeque};
 use std::path::{Path, PathBuf};
@@ -68,8 +73,10 @@ struct Shared {
     owner: Vec<Option<u64>>,
     /// Control commands for slots no worker holds yet.
     pending: Vec<VecDeque<ControlMsg>>,
-    /// Remote slots told to stop.
+    /// Remote slots told to stop: the run is over.
     stopped: Vec<bool>,
+    /// Remote slots told to stop for a rollback: this attempt is over, the run goes on.
+    rolled_back: Vec<bool>,
     /// The newest weights: version and encoded envelope.
     weights: Option<(u64, Arc<Vec<u8>>)>,
     /// Per worker: newest weight version it has, and when we last sent it one.
@@ -130,6 +137,7 @@ pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
             owner: vec![None; remote],
             pending: vec![VecDeque::new(); remote],
             stopped: vec![false; remote],
+            rolled_back: vec![false; remote],
             weights: None,
             weights_seen: HashMap::new(),
             failure: None,
@@ -232,6 +240,7 @@ fn from_workers(
         .map_err(|e| GatewayError::Zenoh(format!("subscribing to workers: {e}")))?;
     let consumers = pipeline.real_consumers();
     let mut finished_at: Option<Instant> = None;
+    let mut rolled_back_at: Option<Instant> = None;
     loop {
         if termination_requested() {
             tracing::info!("stopped by a signal");
@@ -251,6 +260,17 @@ fn from_workers(
                 }
                 st.finished_sent = true;
                 finished_at = Some(Instant::now());
+            }
+            // A rollback: end once every worker has the Stop (they join the next attempt).
+            if st.rolled_back.iter().all(|&r| r) {
+                let t = *rolled_back_at.get_or_insert_with(Instant::now);
+                let delivered = st.workers.values().all(|w| w.outstanding() == 0);
+                if delivered || t.elapsed() > Duration::from_secs(5) {
+                    tracing::info!(
+                        "the pipeline rolls back to its newest checkpoint: the gateway ends, the workers join the next attempt"
+                    );
+                    return Ok(());
+                }
             }
             if let Some(t) = finished_at {
                 let all_bye = st.workers.keys().all(|w| st.said_bye.contains(w));
@@ -421,6 +441,10 @@ fn admit(
     actors: u16,
 ) -> Result<(), GatewayError> {
     let mut st = lock(&gate.state);
+    if st.rolled_back.iter().any(|&r| r) {
+        // This attempt is over: the worker's hello is for the next one.
+        return Ok(());
+    }
     if let Some(w) = st.workers.get_mut(&from) {
         // Our Welcome was lost: it comes again below from the stored assignment.
         w.last_heard = Instant::now();
@@ -781,7 +805,7 @@ fn publish_weights(gate: &Gate, version: u64, msg: WeightsMsg) -> Result<(), Gat
 fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), GatewayError> {
     let st = lock(&gate.state);
     let i = st.slot_index(slot).expect("a remote slot");
-    let is_stop = msg.control_command() == Some(ControlCommand::Stop);
+    let stop = msg.stop_reason();
     let (mut st, ok) = wait_until(
         &gate.space,
         st,
@@ -794,8 +818,10 @@ fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), Gatewa
     if !ok {
         return Ok(());
     }
-    if is_stop {
-        st.stopped[i] = true;
+    match stop {
+        Some(StopReason::RunOver) => st.stopped[i] = true,
+        Some(StopReason::RollBack) => st.rolled_back[i] = true,
+        None => {}
     }
     match st.owner[i].and_then(|w| st.workers.contains_key(&w).then_some(w)) {
         Some(w) => {

@@ -99,6 +99,9 @@ struct Attempt {
     actors: Vec<ActorProc>,
     stop: Arc<AtomicBool>,
     to_head: Option<std::thread::JoinHandle<Result<u64, GatewayError>>>,
+    /// When the head's supervisor rolled this attempt back (a process of the head crashed):
+    /// once the actors have exited the worker leaves it and joins the next attempt.
+    rolled_back: Option<Instant>,
 }
 
 struct Shared {
@@ -234,6 +237,12 @@ fn receive(
                 }
             }
             // Not a member: say hello every HELLO_PERIOD, and say it when nobody answers.
+            if rolled_back_and_stopped(&st) {
+                drop(st);
+                leave(gate, &mut local, report);
+                last_hello = None;
+                continue;
+            }
             if st.attempt.is_none() && st.head.is_none() {
                 let waited = started.elapsed();
                 if waited > next_complaint {
@@ -274,9 +283,12 @@ fn receive(
             }
         };
         let head = env.session;
-        // A head we do not know: a new attempt (or the first).
+        // A head we do not know: a new attempt (or the first). Its Refused counts too: a new
+        // head answers the heartbeats of a worker still in the old attempt with one (its old
+        // gateway crashed and never told us), and waiting for --head-timeout instead would
+        // hold the whole run for a minute.
         let current = lock(&gate.state).head.as_ref().map(|p| p.session);
-        if current.is_some_and(|c| c != head) && !matches!(env.body, Body::Refused { .. }) {
+        if current.is_some_and(|c| c != head) {
             tracing::warn!(
                 "the head restarted (session {head:016x}): stopping the actors, joining again"
             );
@@ -379,13 +391,19 @@ fn deliver(gate: &Gate, out: &mut LocalOut, item: Item) -> Result<(), GatewayErr
                     .map_err(RuntimeError::from)?;
                 out.actors_listening = true;
             }
-            if msg.control_command() == Some(ControlCommand::Stop) {
+            if let Some(why) = msg.stop_reason() {
                 let mut st = lock(&gate.state);
                 if let Some(a) = st.attempt.as_mut() {
                     a.actors
                         .iter_mut()
                         .filter(|p| p.slot == slot)
                         .for_each(|p| p.told_to_stop = true);
+                    if why == StopReason::RollBack && a.rolled_back.is_none() {
+                        tracing::info!(
+                            "the head rolls back to its newest checkpoint: stopping the actors, then joining the next attempt"
+                        );
+                        a.rolled_back = Some(Instant::now());
+                    }
                 }
             }
             // Each actor gets its own copy, addressed to it.
@@ -522,6 +540,7 @@ fn start_attempt(
         actors,
         stop,
         to_head: Some(thread),
+        rolled_back: None,
     });
     Ok(LocalOut {
         head,
@@ -531,6 +550,16 @@ fn start_attempt(
         actors_listening: false,
         weights_seen: 0,
         _node: node,
+    })
+}
+
+/// Whether the current attempt was rolled back and its actors have exited (or had 5 s to):
+/// the worker leaves it for the head's next attempt. (The old head ignores its hellos.)
+fn rolled_back_and_stopped(st: &Shared) -> bool {
+    st.attempt.as_ref().is_some_and(|a| {
+        a.rolled_back.is_some_and(|t| {
+            a.actors.iter().all(|p| p.reported) || t.elapsed() > Duration::from_secs(5)
+        })
     })
 }
 

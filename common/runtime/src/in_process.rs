@@ -9,7 +9,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use mbpo_train::{ExperimentConfig, RunDir};
-use mbpo_wire::{local, RunIpc, WaitOutcome, Waiter};
+use mbpo_wire::{local, RunIpc, StopReason, WaitOutcome, Waiter};
 
 use crate::coordinator::collect::PipelineSummary;
 use crate::coordinator::{self, Coordinator, CoordinatorPorts, Phase, RunPlan};
@@ -109,7 +109,7 @@ fn coordinate(
     // removes the run's shared memory.
     let outcome = start_roles(cfg, &args, &mut threads)
         .and_then(|()| drive(&mut coord, &ports, &mut threads, how, run_dir, started));
-    coord.send_stop(&ports, threads.len());
+    coord.send_stop(&ports, threads.len(), StopReason::RunOver);
     let ended = join_roles(&mut threads, STOP_DEADLINE);
     outcome?;
     ended?;

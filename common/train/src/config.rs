@@ -571,6 +571,23 @@ impl ExperimentConfig {
                 let (field, expected, found) = e.parts();
                 bad(&format!("model.{field}"), &expected, found)
             })?;
+            // The first model trains on the warm-up's transitions alone.
+            let (key, warm_up) = match self.algo {
+                Algo::MPC => ("mpc.init_random_steps", self.mpc.init_random_steps),
+                _ => ("mbpo.init_random_steps", self.mbpo.init_random_steps),
+            };
+            let need = self.model.min_training_transitions();
+            if warm_up < need as u64 {
+                return Err(bad(
+                    key,
+                    &format!(
+                        "at least {need}: the first model trains on the warm-up's transitions \
+                         alone, and model.holdout_ratio = {} needs {need} to hold some out",
+                        self.model.holdout_ratio
+                    ),
+                    warm_up.to_string(),
+                ));
+            }
         }
         for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
             if !(v > 0.0 && v <= 1.0) {
@@ -723,13 +740,6 @@ impl ExperimentConfig {
         if m.model_train_freq == 0 {
             return Err(bad("mpc.model_train_freq", "a positive number", "0".into()));
         }
-        if m.init_random_steps == 0 {
-            return Err(bad(
-                "mpc.init_random_steps",
-                "a positive number (the first model needs data)",
-                "0".into(),
-            ));
-        }
         if m.reward == PlanReward::Known && mbpo_envs::reward_fn(&self.env).is_none() {
             return Err(bad(
                 "mpc.reward",
@@ -837,6 +847,19 @@ mod tests {
             (
                 "[model]\nholdout_ratio = 1.5\n",
                 "`model.holdout_ratio` must be in (0, 1), found 1.5",
+            ),
+            // The first model trains on the warm-up alone: 4 rows hold none out at ratio 0.2.
+            (
+                "[mbpo]\ninit_random_steps = 4\n",
+                "`mbpo.init_random_steps` must be at least 5",
+            ),
+            (
+                "[mbpo]\ninit_random_steps = 0\n",
+                "the first model trains on the warm-up's transitions alone",
+            ),
+            (
+                "[model]\nholdout_ratio = 0.05\n[mbpo]\ninit_random_steps = 19\n",
+                "`mbpo.init_random_steps` must be at least 20",
             ),
         ];
         for (text, want) in cases {

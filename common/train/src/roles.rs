@@ -139,6 +139,8 @@ pub struct ActorRole {
     actor: EnvActor,
     policy: ActorPolicy,
     policy_version: u64,
+    /// Whether `policy` holds a received snapshot (see [`ActorRole::has_policy`]).
+    policy_received: bool,
     staged: LastTransition,
 }
 
@@ -159,6 +161,7 @@ impl ActorRole {
             actor,
             policy: ActorPolicy::new(net, params, false),
             policy_version: 0,
+            policy_received: false,
             staged: LastTransition::new(o, a),
         })
     }
@@ -171,10 +174,18 @@ impl ActorRole {
     pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
         self.policy.params.copy_from_slice(params);
         self.policy_version = version;
+        self.policy_received = true;
     }
     /// Version of the policy acting.
     pub fn policy_version(&self) -> u64 {
         self.policy_version
+    }
+    /// Whether the role acts with a received policy of at least `version`. The placeholder
+    /// zeros it starts with are not the learner's version 0 (its random initialisation), and
+    /// a restored role waits for the learner's republished version too: a checkpoint taken in
+    /// the warm-up holds those zeros.
+    pub fn has_policy(&self, version: u64) -> bool {
+        self.policy_received && self.policy_version >= version
     }
     /// The env actor (episode counters).
     pub fn env_actor(&self) -> &EnvActor {
@@ -203,6 +214,7 @@ impl ActorRole {
         self.actor.restore(s.actor)?;
         self.policy.params = s.policy;
         self.policy_version = s.policy_version;
+        self.policy_received = false;
         Ok(())
     }
     /// One real env step; returns the transition as a one-row batch (no allocation).
@@ -363,6 +375,8 @@ pub struct RolloutRole {
     model_version: u64,
     policy: ActorPolicy,
     policy_version: u64,
+    /// Whether `policy` holds a received snapshot (see [`RolloutRole::has_policy`]).
+    policy_received: bool,
     /// How rollouts end: the task's rule, the model's learned one or a Python function.
     termination: RolloutRule,
     schedule: [usize; 4],
@@ -402,6 +416,7 @@ impl RolloutRole {
             // the count): a rollout's states are 100k rows, as many as the model's.
             policy: ActorPolicy::new(net, params, false).with_threads(cfg.model.threads),
             policy_version: 0,
+            policy_received: false,
             termination,
             schedule: cfg.mbpo.rollout_schedule,
             clip: cfg.mbpo.clip_imagined_states,
@@ -442,6 +457,12 @@ impl RolloutRole {
     pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
         self.policy.params.copy_from_slice(params);
         self.policy_version = version;
+        self.policy_received = true;
+    }
+    /// Whether the rollouts branch with a received policy of at least `version` (as
+    /// [`ActorRole::has_policy`]: never the placeholder zeros, nor a restored copy of them).
+    pub fn has_policy(&self, version: u64) -> bool {
+        self.policy_received && self.policy_version >= version
     }
     /// The model the rollouts use.
     pub fn model_mut(&mut self) -> &mut ProbabilisticEnsemble {
@@ -494,6 +515,7 @@ impl RolloutRole {
         self.model_version = s.model_version;
         self.policy.params = s.policy;
         self.policy_version = s.policy_version;
+        self.policy_received = false;
         self.rng = s.rng;
         Ok(())
     }

@@ -210,7 +210,11 @@ const CASES: &[(&str, &[&str])] = &[
     ),
     (
         "algo = \"mpc\"\n[mpc]\ninit_random_steps = 0",
-        &["`mpc.init_random_steps`", "a positive number"],
+        &["`mpc.init_random_steps`", "at least 5", "found 0"],
+    ),
+    (
+        "algo = \"mbpo\"\n[mbpo]\ninit_random_steps = 3",
+        &["`mbpo.init_random_steps`", "at least 5", "found 3"],
     ),
 ];
 

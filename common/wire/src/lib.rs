@@ -79,7 +79,7 @@ pub use names::{Channel, ProducerId, Role, SCHEMA_VERSION};
 pub use reliable::{PublisherStats, SendReport, SubscriberStats};
 pub use run::{run_hash, ChannelQos, RunIpc, StaleCleanup, WireNode};
 pub use schema::{
-    ControlCommand, ControlMsg, MsgHeader, RowLayout, RowRef, StatsKind, StatsRecord,
+    ControlCommand, ControlMsg, MsgHeader, RowLayout, RowRef, StatsKind, StatsRecord, StopReason,
     TransitionHeader, WeightsCounters, WeightsHeader, WeightsKind, CONTROL_TARGET_ALL,
 };
 pub use stats::{

@@ -254,6 +254,19 @@ impl ControlCommand {
     }
 }
 
+/// Why a [`ControlCommand::Stop`] is sent (its `request_id`). Every role stops alike; the
+/// difference is for a gateway to other hosts: their actors leave the run only when it is over,
+/// and stay to join the next attempt when the supervisor rolls back to a checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u64)]
+pub enum StopReason {
+    /// The run ended (completed, stopped, interrupted or failed).
+    RunOver = 1,
+    /// A process crashed and `--restart on-failure` starts every role again from the newest
+    /// checkpoint: this attempt ends, the run goes on.
+    RollBack = 2,
+}
+
 /// Target value of a [`ControlMsg`] addressed to every process.
 pub const CONTROL_TARGET_ALL: u32 = u32::MAX;
 
@@ -299,6 +312,24 @@ impl ControlMsg {
             status: 0,
             acked_command: 0,
         }
+    }
+    /// A Stop for everyone at `step`, saying why (see [`StopReason`]).
+    pub fn stop(reason: StopReason, step: u64) -> Self {
+        Self::request(
+            ControlCommand::Stop,
+            reason as u64,
+            CONTROL_TARGET_ALL,
+            step,
+        )
+    }
+    /// Why this Stop was sent; `None` for any other command. (An unknown reason is taken for
+    /// the end of the run: actors that leave too early are reported; ones left waiting are not.)
+    pub fn stop_reason(&self) -> Option<StopReason> {
+        let reason = match self.request_id {
+            id if id == StopReason::RollBack as u64 => StopReason::RollBack,
+            _ => StopReason::RunOver,
+        };
+        (self.control_command() == Some(ControlCommand::Stop)).then_some(reason)
     }
     /// The acknowledgement of `req` with the producer's current `step` and `status`.
     pub fn ack(req: &ControlMsg, step: u64, status: u32, supervisor: crate::ProducerId) -> Self {

@@ -20,8 +20,8 @@ use std::time::{Duration, Instant};
 use mbpo_train::{policy_sha256, ExperimentConfig, RunDir, Schedule};
 use mbpo_wire::{
     policy_wire_version, ControlCommand, ControlMsg, ControlPublisher, EnvFailed, ProducerId, Role,
-    Stats, StatsSubscriber, Transport, Waiter, WeightsKind, WeightsSubscriber, WireNode,
-    CONTROL_TARGET_ALL,
+    Stats, StatsSubscriber, StopReason, Transport, Waiter, WeightsKind, WeightsSubscriber,
+    WireNode, CONTROL_TARGET_ALL,
 };
 
 use crate::args::{Mode, Slack};
@@ -390,12 +390,18 @@ impl Coordinator {
     }
 
     /// Tell every role to stop (they wait for it after their work, so nothing in flight is
-    /// lost), after giving the `roles` still alive up to 2 s to be connected.
-    pub fn send_stop<S: Transport>(&self, ports: &CoordinatorPorts<S>, roles: usize) {
+    /// lost), after giving the `roles` still alive up to 2 s to be connected. `why` tells a
+    /// gateway whether its remote actors leave the run or stay for the next attempt.
+    pub fn send_stop<S: Transport>(
+        &self,
+        ports: &CoordinatorPorts<S>,
+        roles: usize,
+        why: StopReason,
+    ) {
         let _ = ports
             .control
             .wait_for_subscribers(roles, Duration::from_secs(2));
-        if let Err(e) = send(ports, ControlCommand::Stop, 1, self.cfg.steps) {
+        if let Err(e) = ports.control.send(&ControlMsg::stop(why, self.cfg.steps)) {
             tracing::warn!("sending stop: {e}");
         }
     }

@@ -94,7 +94,7 @@ pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
                     if let Some(w) = policy.receive_latest()? {
                         role.set_policy_params(w.params(), policy_version_of(w.version()));
                     }
-                    Ok(role.policy_version() >= need || control.pause_requested())
+                    Ok(role.has_policy(need) || control.pause_requested())
                 },
             )?;
             if !ok {

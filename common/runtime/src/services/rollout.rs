@@ -87,9 +87,7 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
             if let Some(w) = policy.receive_latest()? {
                 role.set_policy_params(w.params(), policy_version_of(w.version()));
             }
-            Ok(model_version >= v
-                && role.policy_version() >= need_policy
-                && inbox.received() >= t - 1)
+            Ok(model_version >= v && role.has_policy(need_policy) && inbox.received() >= t - 1)
         };
         if !gate.wait_until(&mut inbox, &mut role, branches, t - 1, &what, ready)? {
             return Ok(());

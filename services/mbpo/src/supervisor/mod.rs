@@ -26,7 +26,7 @@ use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, P
 use mbpo_runtime::{configure_run, pipeline, Mode};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::RunDir;
-use mbpo_wire::{ipc, RunIpc, WaitOutcome, Waiter};
+use mbpo_wire::{ipc, RunIpc, StopReason, WaitOutcome, Waiter};
 
 use crate::cli::{RestartPolicy, RunArgs};
 use crate::train_cmd::{fresh_run_dir, overwrite_earlier_run, resolve_config, resumed_config};
@@ -580,7 +580,15 @@ fn supervise(
     let from = resume.map(|p| (p.env_steps, p.book));
     let mut coord = Coordinator::new(cx.cfg, dims, plan, cx.out, from, restarts.total());
     let end = coordinate(cx, &ports, &mut coord, &mut procs, run_dir, restarts)?;
-    coord.send_stop(&ports, procs.iter().filter(|p| p.child.is_some()).count());
+    let why = match end.crashed {
+        Some(_) => StopReason::RollBack,
+        None => StopReason::RunOver,
+    };
+    coord.send_stop(
+        &ports,
+        procs.iter().filter(|p| p.child.is_some()).count(),
+        why,
+    );
     stop_processes(&mut procs, end.interrupted)?;
     if let Some(process) = end.crashed {
         return Ok(Attempt::RollBack { process });
