@@ -326,36 +326,7 @@ fn a_worker_killed_and_started_again_rejoins_and_nothing_is_lost() {
         return;
     };
     let dir = scratch("net-kill");
-    let mut cfg = tiny_config(1000);
-    cfg.checkpoint.every = 200;
-    let input = write_config(&cfg, &dir);
-    let creds = credentials(&dir, "right");
-    bin_dir();
-    let head = start_head(
-        &hosts,
-        &dir,
-        &input,
-        &creds,
-        Actors {
-            mode: "pipelined",
-            local: 1,
-            remote: 1,
-            restart: true,
-        },
-    );
-    let mut worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
-    // Mid-run: after the first checkpoint, which holds the remote actor's file.
-    let first = head.out.join("checkpoints");
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(300) {
-        let complete = std::fs::read_dir(&first)
-            .map(|d| d.flatten().any(|e| e.path().join("COMPLETE").is_file()))
-            .unwrap_or(false);
-        if complete {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let (head, mut worker, creds) = restartable_run_past_its_first_checkpoint(&hosts, &dir);
     // SIGKILL every process of the worker host: `ip netns exec`'s tree.
     let victims = mbpo_runtime::processes_mentioning(dir.join("work-w1").to_str().unwrap());
     assert!(!victims.is_empty(), "no worker processes found");
@@ -417,36 +388,7 @@ fn head_process_killed_mid_run(victim: &str, binary: &str) -> String {
         return String::new();
     };
     let dir = scratch(&format!("net-{victim}kill"));
-    let mut cfg = tiny_config(1000);
-    cfg.checkpoint.every = 200;
-    let input = write_config(&cfg, &dir);
-    let creds = credentials(&dir, "right");
-    bin_dir();
-    let head = start_head(
-        &hosts,
-        &dir,
-        &input,
-        &creds,
-        Actors {
-            mode: "pipelined",
-            local: 1,
-            remote: 1,
-            restart: true,
-        },
-    );
-    let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
-    // Mid-run: after the first checkpoint, which holds the remote actor's file.
-    let first = head.out.join("checkpoints");
-    let t = Instant::now();
-    while t.elapsed() < Duration::from_secs(300) {
-        let complete = std::fs::read_dir(&first)
-            .map(|d| d.flatten().any(|e| e.path().join("COMPLETE").is_file()))
-            .unwrap_or(false);
-        if complete {
-            break;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let (head, worker, _) = restartable_run_past_its_first_checkpoint(&hosts, &dir);
     let pids: Vec<i32> = mbpo_runtime::processes_mentioning(head.out.to_str().unwrap())
         .iter()
         .filter(|p| p.contains(binary))
@@ -482,6 +424,45 @@ fn head_process_killed_mid_run(victim: &str, binary: &str) -> String {
     let log = worker_log();
     let _ = std::fs::remove_dir_all(dir);
     log
+}
+
+/// A pipelined run of 1000 steps (checkpoints every 200) with one local and one remote actor
+/// and `--restart on-failure`, its worker joined, once its first checkpoint (which holds the
+/// remote actor's file) is complete: the head, the worker and their credentials.
+fn restartable_run_past_its_first_checkpoint(
+    hosts: &TwoHosts,
+    dir: &Path,
+) -> (Run, Child, PathBuf) {
+    let mut cfg = tiny_config(1000);
+    cfg.checkpoint.every = 200;
+    let input = write_config(&cfg, dir);
+    let creds = credentials(dir, "right");
+    bin_dir();
+    let head = start_head(
+        hosts,
+        dir,
+        &input,
+        &creds,
+        Actors {
+            mode: "pipelined",
+            local: 1,
+            remote: 1,
+            restart: true,
+        },
+    );
+    let worker = start_worker(hosts, dir, "w1", Some(&creds), 1);
+    let checkpoints = head.out.join("checkpoints");
+    let t = Instant::now();
+    while t.elapsed() < Duration::from_secs(300) {
+        let complete = std::fs::read_dir(&checkpoints)
+            .map(|d| d.flatten().any(|e| e.path().join("COMPLETE").is_file()))
+            .unwrap_or(false);
+        if complete {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    (head, worker, creds)
 }
 
 /// SIGKILL `pid` and every descendant; returns how many.
