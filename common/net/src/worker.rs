@@ -236,13 +236,14 @@ fn receive(
                     return Ok(());
                 }
             }
-            // Not a member: say hello every HELLO_PERIOD, and say it when nobody answers.
+            // The head rolled this attempt back: leave it for the next one.
             if rolled_back_and_stopped(&st) {
                 drop(st);
                 leave(gate, &mut local, report);
                 last_hello = None;
                 continue;
             }
+            // Not a member: say hello every HELLO_PERIOD, and say it when nobody answers.
             if st.attempt.is_none() && st.head.is_none() {
                 let waited = started.elapsed();
                 if waited > next_complaint {
