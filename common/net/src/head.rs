@@ -73,10 +73,9 @@ struct Shared {
     owner: Vec<Option<u64>>,
     /// Control commands for slots no worker holds yet.
     pending: Vec<VecDeque<ControlMsg>>,
-    /// Remote slots told to stop: the run is over.
-    stopped: Vec<bool>,
-    /// Remote slots told to stop for a rollback: this attempt is over, the run goes on.
-    rolled_back: Vec<bool>,
+    /// Per remote slot, the Stop it was told and why: the run is over, or this attempt is
+    /// rolled back and the run goes on.
+    stopped: Vec<Option<StopReason>>,
     /// The newest weights: version and encoded envelope.
     weights: Option<(u64, Arc<Vec<u8>>)>,
     /// Per worker: newest weight version it has, and when we last sent it one.
@@ -93,6 +92,10 @@ impl Shared {
         slot.checked_sub(self.first_slot)
             .map(usize::from)
             .filter(|&i| i < self.owner.len())
+    }
+    /// Whether every remote slot was told to stop for `why`.
+    fn all_stopped(&self, why: StopReason) -> bool {
+        self.stopped.iter().all(|&s| s == Some(why))
     }
     fn fail(&mut self, why: String) {
         if self.failure.is_none() {
@@ -136,8 +139,7 @@ pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
             workers: HashMap::new(),
             owner: vec![None; remote],
             pending: vec![VecDeque::new(); remote],
-            stopped: vec![false; remote],
-            rolled_back: vec![false; remote],
+            stopped: vec![None; remote],
             weights: None,
             weights_seen: HashMap::new(),
             failure: None,
@@ -253,7 +255,7 @@ fn from_workers(
         // when each said Bye (its actors exited, its last data and logs are in; or after 10 s).
         {
             let mut st = lock(&gate.state);
-            let all_stopped = st.stopped.iter().all(|&s| s);
+            let all_stopped = st.all_stopped(StopReason::RunOver);
             if all_stopped && !st.finished_sent {
                 for w in st.workers.values_mut() {
                     w.send_item(Item::Finished)?;
@@ -262,7 +264,7 @@ fn from_workers(
                 finished_at = Some(Instant::now());
             }
             // A rollback: end once every worker has the Stop (they join the next attempt).
-            if st.rolled_back.iter().all(|&r| r) {
+            if st.all_stopped(StopReason::RollBack) {
                 let t = *rolled_back_at.get_or_insert_with(Instant::now);
                 let delivered = st.workers.values().all(|w| w.outstanding() == 0);
                 if delivered || t.elapsed() > Duration::from_secs(5) {
@@ -441,7 +443,7 @@ fn admit(
     actors: u16,
 ) -> Result<(), GatewayError> {
     let mut st = lock(&gate.state);
-    if st.rolled_back.iter().any(|&r| r) {
+    if st.stopped.contains(&Some(StopReason::RollBack)) {
         // This attempt is over: the worker's hello is for the next one.
         return Ok(());
     }
@@ -818,10 +820,8 @@ fn forward_control(gate: &Gate, slot: u16, msg: ControlMsg) -> Result<(), Gatewa
     if !ok {
         return Ok(());
     }
-    match stop {
-        Some(StopReason::RunOver) => st.stopped[i] = true,
-        Some(StopReason::RollBack) => st.rolled_back[i] = true,
-        None => {}
+    if stop.is_some() {
+        st.stopped[i] = stop;
     }
     match st.owner[i].and_then(|w| st.workers.contains_key(&w).then_some(w)) {
         Some(w) => {

@@ -37,6 +37,53 @@ fn restore_err(role: &str, e: impl std::fmt::Display) -> TrainError {
     ))
 }
 
+/// The policy a role acts with, as received from the learner: its parameters, its version and
+/// whether any snapshot arrived at all. The placeholder zeros a role starts with are not the
+/// learner's version 0 (its random initialisation), and a restored role waits for the learner's
+/// republished version too: a checkpoint taken in the warm-up holds those zeros.
+struct ReceivedPolicy {
+    net: ActorPolicy,
+    version: u64,
+    received: bool,
+}
+
+impl ReceivedPolicy {
+    fn new(net: ActorPolicy) -> Self {
+        Self {
+            net,
+            version: 0,
+            received: false,
+        }
+    }
+    /// Take `version` from `params` (one copy, out of shared memory).
+    fn set(&mut self, params: &[f32], version: u64) {
+        self.net.params.copy_from_slice(params);
+        self.version = version;
+        self.received = true;
+    }
+    /// Whether a received policy of at least `version` is in place.
+    fn has(&self, version: u64) -> bool {
+        self.received && self.version >= version
+    }
+    /// Continue from a checkpoint's `params` and `version` (then wait for the learner's).
+    fn restore(&mut self, role: &str, params: Vec<f32>, version: u64) -> Result<(), TrainError> {
+        if params.len() != self.net.params.len() {
+            return Err(restore_err(
+                role,
+                format!(
+                    "policy has {} parameters, expected {}",
+                    params.len(),
+                    self.net.params.len()
+                ),
+            ));
+        }
+        self.net.params = params;
+        self.version = version;
+        self.received = false;
+        Ok(())
+    }
+}
+
 /// A checkpointed [`ActorRole`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ActorState {
@@ -137,10 +184,7 @@ pub struct ImaginedBatch {
 /// Acting in the real environment.
 pub struct ActorRole {
     actor: EnvActor,
-    policy: ActorPolicy,
-    policy_version: u64,
-    /// Whether `policy` holds a received snapshot (see [`ActorRole::has_policy`]).
-    policy_received: bool,
+    policy: ReceivedPolicy,
     staged: LastTransition,
 }
 
@@ -159,9 +203,7 @@ impl ActorRole {
         let params = vec![0.0; net.num_params()];
         Ok(Self {
             actor,
-            policy: ActorPolicy::new(net, params, false),
-            policy_version: 0,
-            policy_received: false,
+            policy: ReceivedPolicy::new(ActorPolicy::new(net, params, false)),
             staged: LastTransition::new(o, a),
         })
     }
@@ -172,20 +214,16 @@ impl ActorRole {
     /// Take policy `version` straight from `params` (a receiver copies a snapshot once, out
     /// of shared memory into the policy).
     pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
-        self.policy.params.copy_from_slice(params);
-        self.policy_version = version;
-        self.policy_received = true;
+        self.policy.set(params, version);
     }
     /// Version of the policy acting.
     pub fn policy_version(&self) -> u64 {
-        self.policy_version
+        self.policy.version
     }
-    /// Whether the role acts with a received policy of at least `version`. The placeholder
-    /// zeros it starts with are not the learner's version 0 (its random initialisation), and
-    /// a restored role waits for the learner's republished version too: a checkpoint taken in
-    /// the warm-up holds those zeros.
+    /// Whether the role acts with a received policy of at least `version` (never the
+    /// placeholder zeros it starts with, nor a restored copy of them).
     pub fn has_policy(&self, version: u64) -> bool {
-        self.policy_received && self.policy_version >= version
+        self.policy.has(version)
     }
     /// The env actor (episode counters).
     pub fn env_actor(&self) -> &EnvActor {
@@ -195,32 +233,20 @@ impl ActorRole {
     pub fn checkpoint(&self) -> ActorState {
         ActorState {
             actor: self.actor.checkpoint(),
-            policy: self.policy.params.clone(),
-            policy_version: self.policy_version,
+            policy: self.policy.net.params.clone(),
+            policy_version: self.policy.version,
         }
     }
     /// Continue from [`ActorRole::checkpoint`].
     pub fn restore(&mut self, s: ActorState) -> Result<(), TrainError> {
-        if s.policy.len() != self.policy.params.len() {
-            return Err(restore_err(
-                "actor",
-                format!(
-                    "policy has {} parameters, expected {}",
-                    s.policy.len(),
-                    self.policy.params.len()
-                ),
-            ));
-        }
+        self.policy.restore("actor", s.policy, s.policy_version)?;
         self.actor.restore(s.actor)?;
-        self.policy.params = s.policy;
-        self.policy_version = s.policy_version;
-        self.policy_received = false;
         Ok(())
     }
     /// One real env step; returns the transition as a one-row batch (no allocation).
     pub fn act(&mut self, behaviour: Behaviour) -> Result<&Batch, TrainError> {
         self.actor
-            .step(behaviour, &mut self.policy, &mut self.staged)?;
+            .step(behaviour, &mut self.policy.net, &mut self.staged)?;
         Ok(self.staged.batch())
     }
     /// One real env step whose transition goes straight into `sink` (a pipeline actor's
@@ -230,7 +256,7 @@ impl ActorRole {
         behaviour: Behaviour,
         sink: &mut dyn TransitionSink,
     ) -> Result<(), TrainError> {
-        self.actor.step(behaviour, &mut self.policy, sink)
+        self.actor.step(behaviour, &mut self.policy.net, sink)
     }
 }
 
@@ -373,10 +399,7 @@ pub struct RolloutRole {
     d_env: ReplayBuffer,
     model: ProbabilisticEnsemble,
     model_version: u64,
-    policy: ActorPolicy,
-    policy_version: u64,
-    /// Whether `policy` holds a received snapshot (see [`RolloutRole::has_policy`]).
-    policy_received: bool,
+    policy: ReceivedPolicy,
     /// How rollouts end: the task's rule, the model's learned one or a Python function.
     termination: RolloutRule,
     schedule: [usize; 4],
@@ -414,9 +437,9 @@ impl RolloutRole {
             model_version: 0,
             // The rollouts' policy acts on the model's threads (its actions do not depend on
             // the count): a rollout's states are 100k rows, as many as the model's.
-            policy: ActorPolicy::new(net, params, false).with_threads(cfg.model.threads),
-            policy_version: 0,
-            policy_received: false,
+            policy: ReceivedPolicy::new(
+                ActorPolicy::new(net, params, false).with_threads(cfg.model.threads),
+            ),
             termination,
             schedule: cfg.mbpo.rollout_schedule,
             clip: cfg.mbpo.clip_imagined_states,
@@ -455,14 +478,12 @@ impl RolloutRole {
     /// Take policy `version` straight from `params` (a receiver copies a snapshot once, out
     /// of shared memory into the policy).
     pub fn set_policy_params(&mut self, params: &[f32], version: u64) {
-        self.policy.params.copy_from_slice(params);
-        self.policy_version = version;
-        self.policy_received = true;
+        self.policy.set(params, version);
     }
-    /// Whether the rollouts branch with a received policy of at least `version` (as
-    /// [`ActorRole::has_policy`]: never the placeholder zeros, nor a restored copy of them).
+    /// Whether the rollouts branch with a received policy of at least `version` (never the
+    /// placeholder zeros, nor a restored copy of them).
     pub fn has_policy(&self, version: u64) -> bool {
-        self.policy_received && self.policy_version >= version
+        self.policy.has(version)
     }
     /// The model the rollouts use.
     pub fn model_mut(&mut self) -> &mut ProbabilisticEnsemble {
@@ -487,8 +508,8 @@ impl RolloutRole {
             d_env: self.d_env.snapshot(),
             model: (self.model_version > 0).then(|| self.model.weights()),
             model_version: self.model_version,
-            policy: self.policy.params.clone(),
-            policy_version: self.policy_version,
+            policy: self.policy.net.params.clone(),
+            policy_version: self.policy.version,
             rng: self.rng.clone(),
         }
     }
@@ -502,26 +523,15 @@ impl RolloutRole {
                 .load_weights(w)
                 .map_err(|e| restore_err("rollout generator", e))?;
         }
-        if s.policy.len() != self.policy.params.len() {
-            return Err(restore_err(
-                "rollout generator",
-                format!(
-                    "policy has {} parameters, expected {}",
-                    s.policy.len(),
-                    self.policy.params.len()
-                ),
-            ));
-        }
+        self.policy
+            .restore("rollout generator", s.policy, s.policy_version)?;
         self.model_version = s.model_version;
-        self.policy.params = s.policy;
-        self.policy_version = s.policy_version;
-        self.policy_received = false;
         self.rng = s.rng;
         Ok(())
     }
     /// Version of the policy it branches with.
     pub fn policy_version(&self) -> u64 {
-        self.policy_version
+        self.policy.version
     }
     /// Version of the model it branches with.
     pub fn model_version(&self) -> u64 {
@@ -538,7 +548,7 @@ impl RolloutRole {
             epoch,
             d_env_rows: self.d_env.pushed(),
             model: self.model.weights(),
-            policy: self.policy.params.clone(),
+            policy: self.policy.net.params.clone(),
             rng: self.rng.clone(),
             rows: 0,
             digest: 0,
@@ -582,7 +592,7 @@ impl RolloutRole {
             ImaginedStateClip::Off => None,
             ImaginedStateClip::RealBox => Some(StateBox::of(&self.d_env)),
         };
-        let (model, policy, rng) = (&mut self.model, &mut self.policy, &mut self.rng);
+        let (model, policy, rng) = (&mut self.model, &mut self.policy.net, &mut self.rng);
         let (starts, staged) = (&self.starts.obs, &mut self.staged);
         let stats = self
             .termination
@@ -602,7 +612,7 @@ impl RolloutRole {
         self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
         Ok(ImaginedBatch {
             model_version: self.model_version,
-            policy_version: self.policy_version,
+            policy_version: self.policy.version,
             rollout_length: k,
             rows,
         })
