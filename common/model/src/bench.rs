@@ -21,6 +21,7 @@
 use crate::{ModelConfig, ModelConfigError, ProbabilisticEnsemble, RolloutTermination, TrainError};
 use mbpo_core::rng::{normal_f32, uniform_range_f32};
 use mbpo_core::{stream, Batch, ReplayBuffer, UniformPolicy};
+use mbpo_nn::simd::{cap_simd_level, SimdLevel};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
 
@@ -59,6 +60,8 @@ pub struct ModelBenchReport {
     pub act_dim: usize,
     /// Threads used.
     pub threads: usize,
+    /// The element-wise kernels' instruction-set level (`baseline`, `avx2`, `avx512`).
+    pub simd: String,
 }
 
 /// Why a benchmark could not run.
@@ -71,6 +74,9 @@ pub enum ModelBenchError {
     /// Training rejected the synthetic data (e.g. too few transitions for a holdout).
     #[error("training failed: {0}")]
     Train(#[from] TrainError),
+    /// A `--simd` level the CPU cannot run, or none.
+    #[error("--simd: {0}")]
+    Simd(String),
 }
 
 /// Settings shared by both benchmarks.
@@ -82,6 +88,10 @@ pub struct ModelBenchConfig {
     pub roofline_time: Duration,
     /// Model configuration (MBPO's by default).
     pub model: ModelConfig,
+    /// The element-wise kernels' levels to time, interleaved within each repetition (so a
+    /// busy moment of the machine hits all of them alike); one report per level. Each must be
+    /// supported by the CPU.
+    pub simd: Vec<SimdLevel>,
 }
 
 impl Default for ModelBenchConfig {
@@ -90,6 +100,7 @@ impl Default for ModelBenchConfig {
             repetitions: 5,
             roofline_time: Duration::from_secs(2),
             model: ModelConfig::default(),
+            simd: vec![SimdLevel::best_supported()],
         }
     }
 }
@@ -118,11 +129,31 @@ pub fn synthetic_transitions(n: usize, seed: u64) -> Batch {
     b
 }
 
+/// `cfg.repetitions` rounds of a roofline slice and then `timed` once on each of `cfg.simd`'s
+/// levels; the best roofline and each level's seconds, in `cfg.simd`'s order. The cap on the
+/// level is put back as it was.
+fn time_on_levels(cfg: &ModelBenchConfig, mut timed: impl FnMut() -> f64) -> (f64, Vec<Vec<f64>>) {
+    let reps = cfg.repetitions.max(1);
+    let mut roofline = 0.0f64;
+    let mut seconds = vec![Vec::with_capacity(reps); cfg.simd.len()];
+    let before = cap_simd_level(SimdLevel::Avx512);
+    for _ in 0..reps {
+        roofline = roofline.max(roofline_slice(cfg, reps));
+        for (level, s) in cfg.simd.iter().zip(&mut seconds) {
+            cap_simd_level(*level);
+            s.push(timed());
+        }
+    }
+    cap_simd_level(before);
+    (roofline, seconds)
+}
+
 /// One of `reps` slices of the roofline measurement (the hidden-layer GEMM shape).
 fn roofline_slice(cfg: &ModelBenchConfig, reps: usize) -> f64 {
     mbpo_nn::bench::gemm_gflops(256, 200, 200, cfg.roofline_time / reps as u32)
 }
 
+#[allow(clippy::too_many_arguments)]
 fn report(
     bench: &str,
     what: String,
@@ -131,6 +162,7 @@ fn report(
     roofline: f64,
     model: &ModelConfig,
     threads: usize,
+    simd: SimdLevel,
 ) -> ModelBenchReport {
     let seconds = seconds_all.iter().copied().fold(f64::INFINITY, f64::min);
     let gflop = flops as f64 / 1e9;
@@ -149,6 +181,7 @@ fn report(
         obs_dim: OBS_DIM,
         act_dim: ACT_DIM,
         threads,
+        simd: simd.name().to_string(),
     }
 }
 
@@ -159,7 +192,8 @@ fn report(
 pub fn model_train(
     transitions: usize,
     cfg: &ModelBenchConfig,
-) -> Result<ModelBenchReport, ModelBenchError> {
+) -> Result<Vec<ModelBenchReport>, ModelBenchError> {
+    check_levels(cfg)?;
     let model_cfg = ModelConfig {
         max_epochs: Some(1),
         ..cfg.model.clone()
@@ -170,14 +204,16 @@ pub fn model_train(
     // Warm-up: sizes every buffer and faer's packing memory.
     let warm = model.train(&data, &mut rng)?;
     let (n_train, n_hold) = (warm.n_train, warm.n_holdout);
-    let reps = cfg.repetitions.max(1);
-    let mut roofline = 0.0f64;
-    let mut seconds = Vec::new();
-    for _ in 0..reps {
-        roofline = roofline.max(roofline_slice(cfg, reps));
+    let mut failed = None;
+    let (roofline, seconds) = time_on_levels(cfg, || {
         let start = Instant::now();
-        model.train(&data, &mut rng)?;
-        seconds.push(start.elapsed().as_secs_f64());
+        if let Err(e) = model.train(&data, &mut rng) {
+            failed = Some(e);
+        }
+        start.elapsed().as_secs_f64()
+    });
+    if let Some(e) = failed {
+        return Err(e.into());
     }
     // Every member: one training step per minibatch, then one holdout pass.
     let b = model_cfg.batch_size;
@@ -189,18 +225,26 @@ pub fn model_train(
         start += rows;
     }
     let flops = model_cfg.members as u64 * (step_flops + model.net.forward_flops(n_hold));
-    Ok(report(
-        "model-train",
-        format!(
-            "one training epoch over {transitions} transitions ({n_train} train, {n_hold} holdout)"
-        ),
-        seconds,
-        flops,
-        roofline,
-        &model_cfg,
-        // Threads beyond the members have no block to run.
-        model_cfg.threads.min(model_cfg.members),
-    ))
+    Ok(cfg
+        .simd
+        .iter()
+        .zip(seconds)
+        .map(|(&level, seconds)| {
+            report(
+                "model-train",
+                format!(
+                    "one training epoch over {transitions} transitions ({n_train} train, {n_hold} holdout)"
+                ),
+                seconds,
+                flops,
+                roofline,
+                &model_cfg,
+                // Threads beyond the members have no block to run.
+                model_cfg.threads.min(model_cfg.members),
+                level,
+            )
+        })
+        .collect())
 }
 
 /// (b) `rollouts` one-step model rollouts (MBPO: 100 000 per model training): the whole
@@ -209,7 +253,8 @@ pub fn model_train(
 pub fn model_rollout(
     rollouts: usize,
     cfg: &ModelBenchConfig,
-) -> Result<ModelBenchReport, ModelBenchError> {
+) -> Result<Vec<ModelBenchReport>, ModelBenchError> {
+    check_levels(cfg)?;
     let mut rng = stream(0, "bench.model.rollout", 0);
     let mut model = ProbabilisticEnsemble::new(OBS_DIM, ACT_DIM, cfg.model.clone(), &mut rng)?;
     let start_obs: Vec<f32> = (0..rollouts * OBS_DIM)
@@ -238,22 +283,39 @@ pub fn model_rollout(
         start.elapsed().as_secs_f64()
     };
     run(&mut model, &mut rng);
-    let reps = cfg.repetitions.max(1);
-    let mut roofline = 0.0f64;
-    let mut seconds = Vec::new();
-    for _ in 0..reps {
-        roofline = roofline.max(roofline_slice(cfg, reps));
-        seconds.push(run(&mut model, &mut rng));
-    }
+    let (roofline, seconds) = time_on_levels(cfg, || run(&mut model, &mut rng));
     let flops = model.net.forward_flops(rollouts);
-    Ok(report(
-        "model-rollout",
-        format!("{rollouts} one-step model rollouts"),
-        seconds,
-        flops,
-        roofline,
-        &cfg.model,
-        // The runs of chunks use the training's threads: at most two per member.
-        cfg.model.threads.min(2 * cfg.model.members),
-    ))
+    Ok(cfg
+        .simd
+        .iter()
+        .zip(seconds)
+        .map(|(&level, seconds)| {
+            report(
+                "model-rollout",
+                format!("{rollouts} one-step model rollouts"),
+                seconds,
+                flops,
+                roofline,
+                &cfg.model,
+                // The runs of chunks use the training's threads: at most two per member.
+                cfg.model.threads.min(2 * cfg.model.members),
+                level,
+            )
+        })
+        .collect())
+}
+
+/// Refuses levels this CPU cannot run (their kernels would fault) and an empty list.
+fn check_levels(cfg: &ModelBenchConfig) -> Result<(), ModelBenchError> {
+    if cfg.simd.is_empty() {
+        return Err(ModelBenchError::Simd("no SIMD level to time".into()));
+    }
+    match cfg.simd.iter().find(|l| !l.supported()) {
+        Some(l) => Err(ModelBenchError::Simd(format!(
+            "this CPU cannot run the `{}` kernels; it supports up to `{}`",
+            l.name(),
+            SimdLevel::best_supported().name()
+        ))),
+        None => Ok(()),
+    }
 }

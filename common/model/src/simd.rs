@@ -1,13 +1,14 @@
-//! Element-wise kernels of the dynamics model, compiled twice and chosen at run time.
+//! Element-wise kernels of the dynamics model, compiled three times and chosen at run time.
 //!
 //! The workspace builds for the x86-64 baseline (SSE2, no FMA), so a plain loop over `exp`
 //! runs four lanes at a time. Every kernel here is an `#[inline(always)]` function over slices
-//! that the compiler vectorises, wrapped once in an AVX2+FMA `#[target_feature]` function and
-//! once without; [`dispatch!`] picks the AVX2 copy when the CPU has it (faer dispatches its GEMM
-//! kernels the same way). Both copies perform the same IEEE operations in the same order: fused
-//! multiply-adds are written as `mul_add`, which is one instruction in the AVX2+FMA copy and a
-//! correctly rounded libm call in the baseline copy (slow, but only CPUs without FMA take it),
-//! and rustc never contracts anything else into an FMA; so results do not depend on the path.
+//! that the compiler vectorises, wrapped in an AVX-512F and an AVX2+FMA `#[target_feature]`
+//! function and once without; [`dispatch!`] picks the widest copy the CPU has (the level rule is
+//! [`mbpo_nn::simd`]'s; faer dispatches its GEMM kernels the same way). All copies perform the
+//! same IEEE operations in the same order: fused multiply-adds are written as `mul_add`, which is
+//! one instruction in the AVX copies and a correctly rounded libm call in the baseline copy
+//! (slow, but only CPUs without FMA take it), and rustc never contracts anything else into an
+//! FMA; so results do not depend on the path.
 //!
 //! The kernels fuse what would otherwise be separate passes over the `batch x 200` activations:
 //! bias + SiLU in one pass (keeping σ(z) for the backward pass, which then needs no division),
@@ -18,16 +19,20 @@
 //! is not inlined into the `#[target_feature]` twin is compiled for the baseline, and a
 //! non-inlined `mul_add` there becomes a libm call per element.
 
-/// Call `kernel(args..)` through an AVX2+FMA-compiled copy when the CPU has it.
+/// Call `kernel(args..)` through the copy compiled for [`mbpo_nn::simd::simd_level`]: AVX-512F,
+/// AVX2+FMA or the baseline (one rule for the whole workspace).
 macro_rules! dispatch {
     ($kernel:ident($($arg:expr),* $(,)?)) => {{
         #[cfg(target_arch = "x86_64")]
         {
-            if $crate::simd::has_avx2() {
-                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-                unsafe { $crate::simd::avx2::$kernel($($arg),*) }
-            } else {
-                $crate::simd::$kernel($($arg),*)
+            match mbpo_nn::simd::simd_level() {
+                // SAFETY: `simd_level` returns a level only on a CPU that supports it.
+                mbpo_nn::simd::SimdLevel::Avx512 => unsafe {
+                    $crate::simd::avx512::$kernel($($arg),*)
+                },
+                // SAFETY: as above.
+                mbpo_nn::simd::SimdLevel::Avx2 => unsafe { $crate::simd::avx2::$kernel($($arg),*) },
+                mbpo_nn::simd::SimdLevel::Baseline => $crate::simd::$kernel($($arg),*),
             }
         }
         #[cfg(not(target_arch = "x86_64"))]
@@ -41,15 +46,9 @@ pub(crate) use dispatch;
 // The shared vectorisable exp and log1p (one implementation for the whole workspace).
 pub use mbpo_nn::math::{exp_neg_f32, log1p_unit};
 
-/// Whether the CPU has AVX2 and FMA (std caches the detection).
-#[cfg(target_arch = "x86_64")]
-#[inline]
-pub(crate) fn has_avx2() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-}
-
-/// Declares each kernel's AVX2+FMA twin in `mod avx2`, forwarding to the inline body.
-macro_rules! avx2_twins {
+/// Declares each kernel's AVX2+FMA twin in `mod avx2` and its AVX-512F twin in `mod avx512`,
+/// both forwarding to the inline body.
+macro_rules! simd_twins {
     ($(fn $name:ident($($arg:ident: $ty:ty),* $(,)?) $(-> $ret:ty)?;)*) => {
         #[cfg(target_arch = "x86_64")]
         pub(crate) mod avx2 {
@@ -63,10 +62,22 @@ macro_rules! avx2_twins {
                 }
             )*
         }
+        #[cfg(target_arch = "x86_64")]
+        pub(crate) mod avx512 {
+            #[allow(unused_imports)]
+            use super::*;
+            $(
+                #[target_feature(enable = "avx512f,avx2,fma")]
+                #[allow(clippy::too_many_arguments)]
+                pub(crate) unsafe fn $name($($arg: $ty),*) $(-> $ret)? {
+                    super::$name($($arg),*)
+                }
+            )*
+        }
     };
 }
 
-avx2_twins! {
+simd_twins! {
     fn bias_silu(z: &mut [f32], sig: Option<&mut [f32]>, bias: &[f32]);
     fn silu_backward_bias_grad(g: &mut [f32], a: &[f32], sig: &[f32], db: &mut [f32]);
     fn add_bias(y: &mut [f32], bias: &[f32]);
@@ -511,6 +522,8 @@ mod tests {
         Baseline,
         #[cfg(target_arch = "x86_64")]
         Avx2,
+        #[cfg(target_arch = "x86_64")]
+        Avx512,
     }
 
     /// A hidden layer's bias + SiLU and its backward pass, then the Gaussian NLL pass, through
@@ -558,6 +571,12 @@ mod tests {
                     avx2::silu_backward_bias_grad(&mut g, &z, &sig, &mut db);
                     avx2::gaussian_nll_rows(&mut y, &target, &out_bias, &bounds, 0.01, &mut acc)
                 }
+                #[cfg(target_arch = "x86_64")]
+                Copy::Avx512 => {
+                    avx512::bias_silu(&mut z, Some(&mut sig), &bias);
+                    avx512::silu_backward_bias_grad(&mut g, &z, &sig, &mut db);
+                    avx512::gaussian_nll_rows(&mut y, &target, &out_bias, &bounds, 0.01, &mut acc)
+                }
             }
         };
         let wide = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<_>>();
@@ -574,7 +593,7 @@ mod tests {
         ]
     }
 
-    /// Every compiled copy of the hot kernels (baseline and AVX2+FMA) gives the same
+    /// Every compiled copy of the hot kernels (baseline, AVX2+FMA, AVX-512F) gives the same
     /// bits: what a run computes must not depend on the CPU it lands on.
     #[test]
     fn every_compiled_copy_of_the_kernels_agrees_bit_for_bit() {
@@ -586,10 +605,17 @@ mod tests {
         let want = bits(hot_kernels(Copy::Baseline));
         #[cfg(target_arch = "x86_64")]
         {
-            if has_avx2() {
+            use mbpo_nn::simd::SimdLevel;
+            if SimdLevel::Avx2.supported() {
                 assert!(
                     bits(hot_kernels(Copy::Avx2)) == want,
                     "AVX2+FMA copy differs"
+                );
+            }
+            if SimdLevel::Avx512.supported() {
+                assert!(
+                    bits(hot_kernels(Copy::Avx512)) == want,
+                    "AVX-512F copy differs"
                 );
             }
         }

@@ -796,6 +796,63 @@ mod tests {
     }
 
     #[test]
+    fn an_update_gives_the_same_bits_on_every_simd_level() {
+        // Activations, Adam and the tanh-Gaussian head run through the widest instruction set
+        // the CPU has; the bits must not depend on it (a run resumed on another CPU goes on
+        // the same). Odd widths leave tails in every vector width.
+        use mbpo_nn::simd::{cap_simd_level, SimdLevel};
+        let config = SacConfig {
+            batch_size: 37,
+            hidden: vec![45, 45],
+            ..SacConfig::default()
+        };
+        let mut g = stream(6, "test.batch", 0);
+        let mut batch = Batch::new(11, 3, 37);
+        for v in batch
+            .obs
+            .iter_mut()
+            .chain(&mut batch.next_obs)
+            .chain(&mut batch.reward)
+        {
+            *v = normal_f32(&mut g);
+        }
+        for v in batch.act.iter_mut() {
+            *v = normal_f32(&mut g).tanh();
+        }
+        batch.terminated[5] = 1.0;
+        let run = |level| {
+            cap_simd_level(level);
+            let mut sac = Sac::new(11, 3, config.clone(), &mut stream(7, "test.init", 0));
+            let mut rng = stream(8, "upd", 0);
+            let mut losses = Vec::new();
+            for _ in 0..3 {
+                let stats = sac.update(&batch, &mut rng);
+                losses.extend([stats.critic_loss, stats.actor_loss, stats.alpha].map(f32::to_bits));
+            }
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            (
+                bits(&sac.critic_params),
+                bits(&sac.target_params),
+                bits(&sac.actor_params),
+                losses,
+            )
+        };
+        let levels: Vec<SimdLevel> = SimdLevel::ALL
+            .into_iter()
+            .filter(|l| l.supported())
+            .collect();
+        let results: Vec<_> = levels.iter().map(|&l| run(l)).collect();
+        cap_simd_level(SimdLevel::Avx512);
+        for (level, r) in levels.iter().zip(&results) {
+            assert!(
+                *r == results[0],
+                "{} differs from the baseline",
+                level.name()
+            );
+        }
+    }
+
+    #[test]
     fn td_target_bootstraps_through_truncation_and_stops_at_termination() {
         let mut sac = small_sac(3);
         let mut batch = random_batch(6, 4);

@@ -31,15 +31,19 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
             let mut cfg = model_bench_config(&r.reps);
             cfg.model.threads = r.threads;
             cfg.model.batch_size = r.batch_size;
-            let report = mbpo_model::bench::model_train(10_000, &cfg)?;
-            out!("{}", serde_json::to_string(&report)?)?;
+            set_simd_levels(&mut cfg, &r.simd);
+            for report in mbpo_model::bench::model_train(10_000, &cfg)? {
+                out!("{}", serde_json::to_string(&report)?)?;
+            }
             Ok(())
         }
         BenchCommand::ModelRollout(r) => {
             let mut cfg = model_bench_config(&r.reps);
             cfg.model.threads = r.threads;
-            let report = mbpo_model::bench::model_rollout(100_000, &cfg)?;
-            out!("{}", serde_json::to_string(&report)?)?;
+            set_simd_levels(&mut cfg, &r.simd);
+            for report in mbpo_model::bench::model_rollout(100_000, &cfg)? {
+                out!("{}", serde_json::to_string(&report)?)?;
+            }
             Ok(())
         }
         BenchCommand::SacUpdate(t) => {
@@ -421,6 +425,16 @@ fn pipeline_ipc(
         json!({"at": at, "window": window, "wall_ms_per_step": per_step(wall),
               "ipc_ms_per_step": ipc}),
     )
+}
+
+/// `--simd`'s levels, when given (the config's default is the widest the CPU has).
+fn set_simd_levels(
+    cfg: &mut mbpo_model::bench::ModelBenchConfig,
+    levels: &[mbpo_nn::simd::SimdLevel],
+) {
+    if !levels.is_empty() {
+        cfg.simd = levels.to_vec();
+    }
 }
 
 fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBenchConfig {

@@ -497,6 +497,11 @@ pub struct ModelBenchArgs {
     /// Rows per member's minibatch (`model.batch_size`; the paper's 256).
     #[arg(long, default_value_t = 256)]
     pub batch_size: usize,
+    /// Element-wise kernels' instruction sets to time, comma-separated (`baseline`, `avx2`,
+    /// `avx512`), interleaved within each repetition; one JSON line each. Default: the widest
+    /// this CPU has.
+    #[arg(long, value_delimiter = ',')]
+    pub simd: Vec<mbpo_nn::simd::SimdLevel>,
 }
 
 #[derive(Debug, Args)]
