@@ -411,15 +411,21 @@ fn head_process_killed_mid_run(victim: &str, binary: &str) -> String {
     assert!(s["restarts"].as_u64().unwrap_or(0) >= 1, "{s}");
     let w = wait_output(worker, TIMEOUT);
     assert!(w.status.success(), "{}", worker_log());
-    // The worker's report (its last stdout line); the head's hosts.json misses an attempt
-    // whose gateway was killed before it wrote the file.
+    // The worker's report (its last stdout line) and the head's account (hosts.json, in the
+    // summary) agree: a killed gateway's attempt is in the account too.
     let stdout = String::from_utf8_lossy(&w.stdout);
     let report: serde_json::Value =
         serde_json::from_str(stdout.lines().last().unwrap_or_default()).unwrap_or_default();
+    let attempts = report["attempts"].as_u64().unwrap_or(0);
     assert!(
-        report["attempts"].as_u64().unwrap_or(0) >= 2,
+        attempts >= 2,
         "the worker did not join the attempt after the rollback: {stdout}\n{}",
         worker_log()
+    );
+    assert_eq!(
+        s["hosts"]["w1"]["attempts"].as_u64(),
+        Some(attempts),
+        "the head's account of the worker's attempts: {s}\nworker: {stdout}"
     );
     let log = worker_log();
     let _ = std::fs::remove_dir_all(dir);

@@ -181,18 +181,14 @@ pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
             .map_err(|e| GatewayError::Failed(format!("starting a thread: {e}")))?
     };
     let mut counts = HashMap::new();
-    let result = from_workers(&gate, &session, opts, pipeline, dims, &mut counts);
+    let account = HostsAccount::load(&args.run_dir);
+    let result = from_workers(&gate, &session, opts, pipeline, dims, &account, &mut counts);
     gate.quit.store(true, Ordering::Relaxed);
     gate.space.notify_all();
     let _ = heart.join();
     let _ = to_workers.join();
     let _ = session.close().wait();
-    {
-        let st = lock(&gate.state);
-        if let Err(e) = write_hosts(&opts.service.run_dir, &st, &counts) {
-            tracing::warn!("writing {}: {e}", mbpo_runtime::HOSTS_FILE);
-        }
-    }
+    account.write_or_warn(&lock(&gate.state), &counts);
     result?;
     let failure = lock(&gate.state).failure.take();
     match failure {
@@ -218,6 +214,7 @@ fn from_workers(
     opts: &HeadOptions,
     pipeline: &'static PipelineSpec,
     dims: Dims,
+    account: &HostsAccount,
     counts: &mut HashMap<u16, u64>,
 ) -> Result<(), GatewayError> {
     let args = &opts.service;
@@ -243,7 +240,19 @@ fn from_workers(
     let consumers = pipeline.real_consumers();
     let mut finished_at: Option<Instant> = None;
     let mut rolled_back_at: Option<Instant> = None;
+    // (workers when last written, when)
+    let mut account_written: Option<(usize, Instant)> = None;
     loop {
+        {
+            let st = lock(&gate.state);
+            let due = account_written.is_none_or(|(workers, at)| {
+                workers != st.workers.len() || at.elapsed() >= HOSTS_REWRITE
+            });
+            if due && !st.workers.is_empty() {
+                account.write_or_warn(&st, counts);
+                account_written = Some((st.workers.len(), Instant::now()));
+            }
+        }
         if termination_requested() {
             tracing::info!("stopped by a signal");
             return Ok(());
@@ -306,43 +315,68 @@ fn from_workers(
     }
 }
 
-/// Add this attempt to `<run>/hosts.json`: per worker name its actors, transition batches,
-/// attempts joined and restarts (attempts it ended by losing its actors' state).
-fn write_hosts(
-    run_dir: &Path,
-    st: &Shared,
-    counts: &HashMap<u16, u64>,
-) -> Result<(), GatewayError> {
-    let path = run_dir.join(mbpo_runtime::HOSTS_FILE);
-    let mut hosts: serde_json::Map<String, serde_json::Value> = std::fs::read_to_string(&path)
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok())
-        .unwrap_or_default();
-    for (session, w) in &st.workers {
-        let slots: Vec<u16> = (0..st.owner.len())
-            .filter(|&i| st.owner[i] == Some(*session))
-            .map(|i| st.first_slot + i as u16)
-            .collect();
-        let batches: u64 = slots.iter().filter_map(|s| counts.get(s)).sum();
-        let e = hosts.entry(w.name.clone()).or_insert_with(
-            || serde_json::json!({"attempts": 0, "restarts": 0, "transition_batches": 0}),
-        );
-        let failed = st
-            .failure
-            .as_deref()
-            .is_some_and(|f| f.contains(&format!("worker {} ", w.name)));
-        let n = |k: &str| e[k].as_u64().unwrap_or(0);
-        *e = serde_json::json!({
-            "actors": slots,
-            "attempts": n("attempts") + 1,
-            "restarts": n("restarts") + u64::from(failed),
-            "transition_batches": n("transition_batches") + batches,
-            "resent": w.resent(),
-            "duplicates_dropped": w.duplicates(),
-        });
+/// `<run>/hosts.json`, the account per worker host: its actors, transition batches, attempts
+/// joined and restarts (attempts it ended by losing its actors' state).
+///
+/// The file is read once when the gateway starts (the earlier attempts' account) and this
+/// attempt's part is added to that each time it is written: on every change of the workers,
+/// every [`HOSTS_REWRITE`] while the attempt runs, and when the gateway ends. So writing it
+/// again is harmless, and a gateway that is killed leaves its attempt in the file with counts
+/// at most that old.
+struct HostsAccount {
+    path: std::path::PathBuf,
+    before: serde_json::Map<String, serde_json::Value>,
+}
+
+/// How often a running attempt rewrites `hosts.json`.
+const HOSTS_REWRITE: Duration = Duration::from_secs(2);
+
+impl HostsAccount {
+    fn load(run_dir: &Path) -> Self {
+        let path = run_dir.join(mbpo_runtime::HOSTS_FILE);
+        let before = std::fs::read_to_string(&path)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or_default();
+        Self { path, before }
     }
-    let text = serde_json::to_string_pretty(&hosts).unwrap_or_default() + "\n";
-    write_atomically(&path, text.as_bytes())
+
+    /// Write the earlier attempts' account plus this attempt's as it stands.
+    fn write(&self, st: &Shared, counts: &HashMap<u16, u64>) -> Result<(), GatewayError> {
+        let mut hosts = self.before.clone();
+        for (session, w) in &st.workers {
+            let slots: Vec<u16> = (0..st.owner.len())
+                .filter(|&i| st.owner[i] == Some(*session))
+                .map(|i| st.first_slot + i as u16)
+                .collect();
+            let batches: u64 = slots.iter().filter_map(|s| counts.get(s)).sum();
+            let e = hosts.entry(w.name.clone()).or_insert_with(
+                || serde_json::json!({"attempts": 0, "restarts": 0, "transition_batches": 0}),
+            );
+            let failed = st
+                .failure
+                .as_deref()
+                .is_some_and(|f| f.contains(&format!("worker {} ", w.name)));
+            let n = |k: &str| e[k].as_u64().unwrap_or(0);
+            *e = serde_json::json!({
+                "actors": slots,
+                "attempts": n("attempts") + 1,
+                "restarts": n("restarts") + u64::from(failed),
+                "transition_batches": n("transition_batches") + batches,
+                "resent": w.resent(),
+                "duplicates_dropped": w.duplicates(),
+            });
+        }
+        let text = serde_json::to_string_pretty(&hosts).unwrap_or_default() + "\n";
+        write_atomically(&self.path, text.as_bytes())
+    }
+
+    /// [`HostsAccount::write`], a failure logged (the account must not stop the run).
+    fn write_or_warn(&self, st: &Shared, counts: &HashMap<u16, u64>) {
+        if let Err(e) = self.write(st, counts) {
+            tracing::warn!("writing {}: {e}", self.path.display());
+        }
+    }
 }
 
 fn handle(

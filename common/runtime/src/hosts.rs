@@ -2,7 +2,8 @@
 //! supervisor reads them.
 //!
 //! * [`HOSTS_FILE`]: the account per worker host for `summary.json` (actors, transition
-//!   batches, attempts, restarts), written when the gateway ends an attempt.
+//!   batches, attempts, restarts), rewritten while an attempt runs (on every change of the
+//!   workers and every 2 s) and when the gateway ends it; a killed gateway's attempt is in it.
 //! * [`LIVE_HOSTS_FILE`]: who holds the remote actor slots right now, rewritten on every
 //!   change of membership, for the progress line.
 
