@@ -153,36 +153,43 @@ fn roofline_slice(cfg: &ModelBenchConfig, reps: usize) -> f64 {
     mbpo_nn::bench::gemm_gflops(256, 200, 200, cfg.roofline_time / reps as u32)
 }
 
+/// One report per level of `levels`, from that level's `seconds_all` (same order).
 #[allow(clippy::too_many_arguments)]
-fn report(
+fn reports(
     bench: &str,
     what: String,
-    seconds_all: Vec<f64>,
+    levels: &[SimdLevel],
+    seconds_all: Vec<Vec<f64>>,
     flops: u64,
     roofline: f64,
     model: &ModelConfig,
     threads: usize,
-    simd: SimdLevel,
-) -> ModelBenchReport {
-    let seconds = seconds_all.iter().copied().fold(f64::INFINITY, f64::min);
+) -> Vec<ModelBenchReport> {
     let gflop = flops as f64 / 1e9;
-    let gflops = gflop / seconds;
-    ModelBenchReport {
-        bench: bench.to_string(),
-        what,
-        seconds,
-        seconds_all,
-        gflop,
-        gflops,
-        roofline_gflops: roofline,
-        fraction_of_roofline: gflops / (roofline * threads as f64),
-        members: model.members,
-        hidden: model.hidden.clone(),
-        obs_dim: OBS_DIM,
-        act_dim: ACT_DIM,
-        threads,
-        simd: simd.name().to_string(),
-    }
+    levels
+        .iter()
+        .zip(seconds_all)
+        .map(|(level, seconds_all)| {
+            let seconds = seconds_all.iter().copied().fold(f64::INFINITY, f64::min);
+            let gflops = gflop / seconds;
+            ModelBenchReport {
+                bench: bench.to_string(),
+                what: what.clone(),
+                seconds,
+                seconds_all,
+                gflop,
+                gflops,
+                roofline_gflops: roofline,
+                fraction_of_roofline: gflops / (roofline * threads as f64),
+                members: model.members,
+                hidden: model.hidden.clone(),
+                obs_dim: OBS_DIM,
+                act_dim: ACT_DIM,
+                threads,
+                simd: level.name().to_string(),
+            }
+        })
+        .collect()
 }
 
 /// (a) One training epoch over `transitions` transitions (MBPO: 10 000): the whole
@@ -225,26 +232,19 @@ pub fn model_train(
         start += rows;
     }
     let flops = model_cfg.members as u64 * (step_flops + model.net.forward_flops(n_hold));
-    Ok(cfg
-        .simd
-        .iter()
-        .zip(seconds)
-        .map(|(&level, seconds)| {
-            report(
-                "model-train",
-                format!(
-                    "one training epoch over {transitions} transitions ({n_train} train, {n_hold} holdout)"
-                ),
-                seconds,
-                flops,
-                roofline,
-                &model_cfg,
-                // Threads beyond the members have no block to run.
-                model_cfg.threads.min(model_cfg.members),
-                level,
-            )
-        })
-        .collect())
+    Ok(reports(
+        "model-train",
+        format!(
+            "one training epoch over {transitions} transitions ({n_train} train, {n_hold} holdout)"
+        ),
+        &cfg.simd,
+        seconds,
+        flops,
+        roofline,
+        &model_cfg,
+        // Threads beyond the members have no block to run.
+        model_cfg.threads.min(model_cfg.members),
+    ))
 }
 
 /// (b) `rollouts` one-step model rollouts (MBPO: 100 000 per model training): the whole
@@ -285,24 +285,17 @@ pub fn model_rollout(
     run(&mut model, &mut rng);
     let (roofline, seconds) = time_on_levels(cfg, || run(&mut model, &mut rng));
     let flops = model.net.forward_flops(rollouts);
-    Ok(cfg
-        .simd
-        .iter()
-        .zip(seconds)
-        .map(|(&level, seconds)| {
-            report(
-                "model-rollout",
-                format!("{rollouts} one-step model rollouts"),
-                seconds,
-                flops,
-                roofline,
-                &cfg.model,
-                // The runs of chunks use the training's threads: at most two per member.
-                cfg.model.threads.min(2 * cfg.model.members),
-                level,
-            )
-        })
-        .collect())
+    Ok(reports(
+        "model-rollout",
+        format!("{rollouts} one-step model rollouts"),
+        &cfg.simd,
+        seconds,
+        flops,
+        roofline,
+        &cfg.model,
+        // The runs of chunks use the training's threads: at most two per member.
+        cfg.model.threads.min(2 * cfg.model.members),
+    ))
 }
 
 /// Refuses levels this CPU cannot run (their kernels would fault) and an empty list.

@@ -733,20 +733,11 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_critic_step_gives_the_same_bits_on_any_thread_count() {
-        // Each critic is one lane over all rows whatever the thread count, and the actor's
-        // samples are per row: so after one update the critics and their targets must be the
-        // one-thread bits on 2 and 3 threads (the actor's gradient is a sum over row shards
-        // and may differ in rounding). Sizes where the products take the blocked GEMM paths.
-        let config = |threads| SacConfig {
-            batch_size: 64,
-            hidden: vec![96, 96],
-            threads,
-            ..SacConfig::default()
-        };
+    /// `rows` transitions of 11-dim observations and 3-dim actions: standard normal
+    /// observations and rewards, tanh-squashed normal actions, row 5 terminal.
+    fn normal_batch(rows: usize) -> Batch {
         let mut g = stream(6, "test.batch", 0);
-        let mut batch = Batch::new(11, 3, 64);
+        let mut batch = Batch::new(11, 3, rows);
         for v in batch
             .obs
             .iter_mut()
@@ -759,6 +750,22 @@ mod tests {
             *v = normal_f32(&mut g).tanh();
         }
         batch.terminated[5] = 1.0;
+        batch
+    }
+
+    #[test]
+    fn the_critic_step_gives_the_same_bits_on_any_thread_count() {
+        // Each critic is one lane over all rows whatever the thread count, and the actor's
+        // samples are per row: so after one update the critics and their targets must be the
+        // one-thread bits on 2 and 3 threads (the actor's gradient is a sum over row shards
+        // and may differ in rounding). Sizes where the products take the blocked GEMM paths.
+        let config = |threads| SacConfig {
+            batch_size: 64,
+            hidden: vec![96, 96],
+            threads,
+            ..SacConfig::default()
+        };
+        let batch = normal_batch(64);
         let run = |threads| {
             let mut sac = Sac::new(11, 3, config(threads), &mut stream(7, "test.init", 0));
             let stats = sac.update(&batch, &mut stream(8, "upd", 0));
@@ -806,20 +813,7 @@ mod tests {
             hidden: vec![45, 45],
             ..SacConfig::default()
         };
-        let mut g = stream(6, "test.batch", 0);
-        let mut batch = Batch::new(11, 3, 37);
-        for v in batch
-            .obs
-            .iter_mut()
-            .chain(&mut batch.next_obs)
-            .chain(&mut batch.reward)
-        {
-            *v = normal_f32(&mut g);
-        }
-        for v in batch.act.iter_mut() {
-            *v = normal_f32(&mut g).tanh();
-        }
-        batch.terminated[5] = 1.0;
+        let batch = normal_batch(37);
         let run = |level| {
             cap_simd_level(level);
             let mut sac = Sac::new(11, 3, config.clone(), &mut stream(7, "test.init", 0));
