@@ -240,10 +240,12 @@ fn from_workers(
     let consumers = pipeline.real_consumers();
     let mut finished_at: Option<Instant> = None;
     let mut rolled_back_at: Option<Instant> = None;
-    // (workers when last written, when)
+    // (workers when last written, when); looked at every ACCOUNT_CHECK, not per message.
     let mut account_written: Option<(usize, Instant)> = None;
+    let mut account_checked = Instant::now();
     loop {
-        {
+        if account_checked.elapsed() >= ACCOUNT_CHECK {
+            account_checked = Instant::now();
             let st = lock(&gate.state);
             let due = account_written.is_none_or(|(workers, at)| {
                 workers != st.workers.len() || at.elapsed() >= HOSTS_REWRITE
@@ -330,6 +332,10 @@ struct HostsAccount {
 
 /// How often a running attempt rewrites `hosts.json`.
 const HOSTS_REWRITE: Duration = Duration::from_secs(2);
+
+/// How often the receiving loop looks whether `hosts.json` is due (a change of the workers is
+/// written at most this late).
+const ACCOUNT_CHECK: Duration = Duration::from_millis(100);
 
 impl HostsAccount {
     fn load(run_dir: &Path) -> Self {

@@ -48,11 +48,7 @@ impl SimdLevel {
 
     /// The widest level this CPU supports.
     pub fn best_supported() -> SimdLevel {
-        *SimdLevel::ALL
-            .iter()
-            .rev()
-            .find(|l| l.supported())
-            .unwrap_or(&SimdLevel::Baseline)
+        widest_supported_up_to(SimdLevel::Avx512)
     }
 }
 
@@ -69,23 +65,29 @@ impl std::str::FromStr for SimdLevel {
 /// The widest level the dispatch may take (`SimdLevel as u8`); the widest by default.
 static CAP: AtomicU8 = AtomicU8::new(SimdLevel::Avx512 as u8);
 
+/// The level stored as `level as u8`.
+fn level_of(v: u8) -> SimdLevel {
+    SimdLevel::ALL[usize::from(v).min(SimdLevel::ALL.len() - 1)]
+}
+
 /// Let the element-wise kernels of this process use at most `level` from now on (results stay
 /// the same bits; only speed changes). Returns the previous cap.
 pub fn cap_simd_level(level: SimdLevel) -> SimdLevel {
-    match CAP.swap(level as u8, Ordering::Relaxed) {
-        0 => SimdLevel::Baseline,
-        1 => SimdLevel::Avx2,
-        _ => SimdLevel::Avx512,
-    }
+    level_of(CAP.swap(level as u8, Ordering::Relaxed))
 }
 
 /// The level the dispatch takes now: the widest the CPU supports, at most the cap.
 #[inline]
 pub fn simd_level() -> SimdLevel {
-    let cap = CAP.load(Ordering::Relaxed);
-    if cap >= SimdLevel::Avx512 as u8 && has_avx512() {
+    widest_supported_up_to(level_of(CAP.load(Ordering::Relaxed)))
+}
+
+/// The widest level at most `cap` that this CPU supports.
+#[inline]
+fn widest_supported_up_to(cap: SimdLevel) -> SimdLevel {
+    if cap >= SimdLevel::Avx512 && has_avx512() {
         SimdLevel::Avx512
-    } else if cap >= SimdLevel::Avx2 as u8 && has_avx2() {
+    } else if cap >= SimdLevel::Avx2 && has_avx2() {
         SimdLevel::Avx2
     } else {
         SimdLevel::Baseline
