@@ -93,10 +93,12 @@ jobs() {
             for seed in 2 1 0; do
                 run=$(run_of "$task" "$seed")
                 if completed "$run"; then continue; fi
+                # `if`, not `[ ... ] && echo`: a false test as the function's last command
+                # would be its exit status, and `set -e` would end the script at `jobs >`.
                 if under_way "$run"; then
-                    [ "$pass" = under-way ] && echo "$task $seed"
-                else
-                    [ "$pass" = fresh ] && echo "$task $seed"
+                    if [ "$pass" = under-way ]; then echo "$task $seed"; fi
+                elif [ "$pass" = fresh ]; then
+                    echo "$task $seed"
                 fi
             done
         done
