@@ -175,10 +175,16 @@ impl ModelConfigError {
 }
 
 impl ModelConfig {
-    /// Whether `n` transitions can be split into a non-empty holdout (`min(int(ratio n),
-    /// max_holdout)`) and a non-empty training split: the one rule for "enough data to train".
+    /// How many of `n` transitions a training call holds out for early stopping:
+    /// `min(int(holdout_ratio n), max_holdout)`, as the paper's code truncates it.
+    pub fn holdout_size(&self, n: usize) -> usize {
+        ((n as f64 * self.holdout_ratio) as usize).min(self.max_holdout)
+    }
+
+    /// Whether `n` transitions can be split into a non-empty holdout and a non-empty training
+    /// split: the one rule for "enough data to train".
     pub fn can_train_on(&self, n: usize) -> bool {
-        let h = crate::train::holdout_size(n, self.holdout_ratio, self.max_holdout);
+        let h = self.holdout_size(n);
         h >= 1 && n > h
     }
 
@@ -284,6 +290,17 @@ mod tests {
         assert_eq!(c.hidden, vec![200; 4]);
         assert_eq!(c.weight_decay, vec![2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4]);
         c.validate(17, 6).unwrap();
+    }
+
+    #[test]
+    fn holdout_is_a_fifth_capped_at_5000() {
+        let c = ModelConfig::default();
+        assert_eq!(c.holdout_size(10_000), 2000);
+        assert_eq!(c.holdout_size(1_000_000), 5000);
+        assert_eq!(c.holdout_size(9), 1); // int(1.8)
+        assert_eq!(c.holdout_size(4), 0);
+        assert!(!c.can_train_on(4) && c.can_train_on(5));
+        assert_eq!(c.min_training_transitions(), 5);
     }
 
     #[test]

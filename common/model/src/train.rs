@@ -3,7 +3,7 @@
 //!
 //! One training call on N transitions:
 //!
-//! 1. **Holdout split** ([`holdout_size`]): a random permutation; the first
+//! 1. **Holdout split** ([`ModelConfig::holdout_size`]): a random permutation; the first
 //!    `min(int(0.2·N), 5000)` rows are the holdout, the rest the training split.
 //! 2. **Normaliser**: mean/std of the training split's inputs ([`crate::InputNormalizer`]).
 //! 3. **Bootstrap** ([`BootstrapIndices`]): each member draws N_train row indices *with
@@ -131,11 +131,6 @@ pub enum StopReason {
     MaxEpochs,
     /// `max_train_seconds` exceeded.
     TimeLimit,
-}
-
-/// Holdout size for N transitions: `min(int(ratio·N), max_holdout)`.
-pub fn holdout_size(n: usize, ratio: f64, max_holdout: usize) -> usize {
-    ((n as f64 * ratio) as usize).min(max_holdout)
 }
 
 /// Each member's bootstrap resample of the training split: N_train indices drawn uniformly
@@ -274,7 +269,7 @@ impl ProbabilisticEnsemble {
         let n = data.len;
 
         // 1. Holdout split.
-        let n_hold = holdout_size(n, cfg.holdout_ratio, cfg.max_holdout);
+        let n_hold = cfg.holdout_size(n);
         let mut perm: Vec<u32> = (0..n as u32).collect();
         shuffle(rng, &mut perm);
         let (hold_rows, train_rows) = perm.split_at(n_hold);
@@ -476,14 +471,6 @@ mod tests {
     use super::*;
     use crate::network::members_mse;
     use mbpo_core::stream;
-
-    #[test]
-    fn holdout_is_a_fifth_capped_at_5000() {
-        assert_eq!(holdout_size(10_000, 0.2, 5000), 2000);
-        assert_eq!(holdout_size(1_000_000, 0.2, 5000), 5000);
-        assert_eq!(holdout_size(9, 0.2, 5000), 1); // int(1.8)
-        assert_eq!(holdout_size(4, 0.2, 5000), 0);
-    }
 
     #[test]
     fn bootstrap_is_drawn_once_and_only_reordered_each_epoch() {
