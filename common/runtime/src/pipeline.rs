@@ -88,7 +88,7 @@ impl RoleKind {
         }
     }
     /// Its name (log file, thread, checkpoint file) as the `index`-th of its kind.
-    fn name(self, index: u16) -> String {
+    pub fn name(self, index: u16) -> String {
         match self {
             RoleKind::Learner => file::LEARNER.into(),
             RoleKind::ModelTrainer => file::MODEL_TRAINER.into(),

@@ -4,172 +4,91 @@
 //! the sequential evaluation points.
 //!
 //! Lockstep: the actor of global step t waits for policy version exactly t − 1. Pipelined: any
-//! version ≥ t − 1 − policy_lag. (MPC's planning actors: `planning.rs`.)
+//! version ≥ t − 1 − policy_lag. The step loop is `acting.rs`, shared with MPC's planning
+//! actors (`planning.rs`).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use mbpo_core::rng::stream;
+use mbpo_core::TransitionSink;
 use mbpo_sac::ActorPolicy;
-use mbpo_train::actor::Behaviour;
+use mbpo_train::actor::{Behaviour, EnvActor};
 use mbpo_train::roles::ActorRole;
+use mbpo_train::TrainError;
 use mbpo_wire::*;
 
+use super::acting::{self, ActingRole, Finish};
 use crate::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
 use crate::error::ensure_protocol;
 use crate::{Result, *};
 
+/// The SAC actor on the shared step loop: it acts with the learner's policy; step g needs
+/// version g − 1 (pipelined: at least g − 1 − `policy_lag`).
+struct PolicyActing {
+    role: ActorRole,
+    policy_lag: u64,
+}
+
+impl ActingRole for PolicyActing {
+    const ROLE: RoleKind = RoleKind::Actor;
+    const WEIGHTS: WeightsKind = WeightsKind::Policy;
+    type Checkpoint = ActorCheckpoint;
+
+    fn checkpoint(&self, steps: u64) -> ActorCheckpoint {
+        ActorCheckpoint {
+            role: self.role.checkpoint(),
+            steps,
+        }
+    }
+    fn restore(&mut self, state: ActorCheckpoint) -> Result<u64> {
+        self.role.restore(state.role)?;
+        Ok(state.steps)
+    }
+    fn take_newest<S: Transport>(&mut self, policy: &WeightsSubscriber<S>, _: &Dims) -> Result<()> {
+        if let Some(w) = policy.receive_latest()? {
+            let version = policy_version_of(w.version());
+            self.role.set_policy_params(w.params(), version);
+        }
+        Ok(())
+    }
+    fn sequential_version(&self, g: u64) -> u64 {
+        g - 1
+    }
+    fn oldest_allowed(&self, g: u64) -> u64 {
+        (g - 1).saturating_sub(self.policy_lag)
+    }
+    fn holds(&self, version: u64) -> bool {
+        self.role.has_policy(version)
+    }
+    fn version(&self) -> u64 {
+        self.role.policy_version()
+    }
+    fn env_actor(&self) -> &EnvActor {
+        self.role.env_actor()
+    }
+    fn act_into(
+        &mut self,
+        behaviour: Behaviour,
+        sink: &mut dyn TransitionSink,
+    ) -> std::result::Result<(), TrainError> {
+        self.role.act_into(behaviour, sink)
+    }
+    fn finish(&mut self) -> Finish {
+        Finish {
+            work: self.role.env_actor().episodes,
+            median_step_seconds: 0.0,
+            log: String::new(),
+        }
+    }
+}
+
 /// An actor's service loop.
 pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::Actor)?;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let policy =
-        WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
-    let real = TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Model trainer, rollout generator and learner (or this host's gateway): nothing sent
-    // afterwards can be lost.
-    real.wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&policy);
-
-    let mut role = ActorRole::new(cfg, args.index as u64)?;
-    let schedule = s.schedule;
-    let mut lag = SlackTracker::default();
-    let mut last_progress = Instant::now();
-    let steps = actor_steps(cfg.steps, args.actors, args.index);
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::actor_file(args.index),
-        barrier::kind::ACTOR,
-    );
-    let mut first = 1;
-    if let Some(dir) = &args.resume_from {
-        let state: ActorCheckpoint = file.read(dir)?;
-        role.restore(state.role)?;
-        first = state.steps + 1;
-    }
-    // At the cut: write the state after `done` local steps, wait for the resume.
-    let write_at = |role: &ActorRole, done: u64, cut| {
-        let state = ActorCheckpoint {
-            role: role.checkpoint(),
-            steps: done,
-        };
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    // At a barrier: report the steps done, then as above.
-    let at_barrier = |role: &ActorRole, done: u64| -> Result<bool> {
-        match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
-            Some(cut) => write_at(role, done, cut),
-            None => Ok(false),
-        }
-    };
-    let started = Instant::now();
-    let mut ipc = Duration::ZERO;
-    for t in first..=steps {
-        let g = global_step(t, args.actors, args.index);
-        let behaviour = loop {
-            control.poll()?;
-            if control.stopped() {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                if !at_barrier(&role, t - 1)? {
-                    tracing::info!("stopped after the checkpoint, before step {g}");
-                    return Ok(());
-                }
-                continue;
-            }
-            if schedule.is_warm_up(g) {
-                break Behaviour::Uniform;
-            }
-            let need = (g - 1).saturating_sub(s.slack.policy_lag);
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| format!("policy version {need}"),
-                || {
-                    if let Some(w) = policy.receive_latest()? {
-                        role.set_policy_params(w.params(), policy_version_of(w.version()));
-                    }
-                    Ok(role.has_policy(need) || control.pause_requested())
-                },
-            )?;
-            if !ok {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                continue;
-            }
-            if s.mode == Mode::Lockstep {
-                ensure_protocol!(
-                    role.policy_version() == g - 1,
-                    "lockstep actor at step {g} got policy version {}",
-                    role.policy_version()
-                );
-            }
-            lag.see((g - 1) as f64 - role.policy_version() as f64);
-            break Behaviour::Policy;
-        };
-        let episodes = role.env_actor().episodes;
-        // The env step writes its transition straight into the sample it is sent in.
-        let t0 = Instant::now();
-        let mut loan = real.loan_rows(1)?;
-        ipc += t0.elapsed();
-        if let Err(e) = role.act_into(behaviour, &mut loan) {
-            drop(loan);
-            let (w, c, p) = (&waiter, &control, &stats_pub);
-            return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
-                write_at(&role, t - 1, cut)
-            });
-        }
-        let a = role.env_actor();
-        if a.episodes > episodes {
-            // Before the transition: the supervisor may rely on having every episode ≤ t.
-            let ret = a.last_return.unwrap_or(f64::NAN);
-            stats_pub.report(EpisodeEnd {
-                env_steps: g,
-                episode_return: ret,
-                version: role.policy_version(),
-            })?;
-        }
-        let meta = TransitionMeta {
-            policy_version: role.policy_version(),
-            model_version: 0,
-            env_steps: g,
-        };
-        let t0 = Instant::now();
-        loan.send(meta)?;
-        ipc += t0.elapsed();
-        if last_progress.elapsed() >= Duration::from_millis(500) {
-            last_progress = Instant::now();
-            stats_pub.report(Progress {
-                env_steps: g,
-                policy_version: role.policy_version(),
-                ..Default::default()
-            })?;
-        }
-    }
-    let (lo, hi, mean) = lag.get();
-    let done = Done {
-        real: steps,
-        work: role.env_actor().episodes,
-        episodes_cut: role.env_actor().episodes_cut,
-        episodes_lost: role.env_actor().episodes_lost,
-        slack_min: lo,
-        slack_max: hi,
-        slack_mean: mean,
-        ipc_seconds: ipc.as_secs_f32(),
-        wall_seconds: started.elapsed().as_secs_f32(),
-        ..Default::default()
-    };
-    stats_pub.report(done)?;
-    tracing::info!("done: {steps} steps, policy lag {lo}..{hi} (mean {mean:.2})");
-    barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
-        write_at(&role, steps, cut)
+    acting::act(args, |s: &Process<S>| {
+        Ok(PolicyActing {
+            role: ActorRole::new(&s.cfg, args.index as u64)?,
+            policy_lag: s.slack.policy_lag,
+        })
     })
 }
 

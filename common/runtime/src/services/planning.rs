@@ -20,12 +20,14 @@
 
 use std::time::{Duration, Instant};
 
+use mbpo_core::TransitionSink;
 use mbpo_model::ProbabilisticEnsemble;
-use mbpo_train::actor::Behaviour;
+use mbpo_train::actor::{Behaviour, EnvActor};
 use mbpo_train::mpc_roles::{PlanningActorRole, PlanningEvaluator};
-use mbpo_train::Schedule;
+use mbpo_train::{Schedule, TrainError};
 use mbpo_wire::*;
 
+use super::acting::{self, ActingRole, Finish};
 use crate::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
 use crate::error::ensure_protocol;
 use crate::{Result, *};
@@ -52,173 +54,87 @@ fn pull_model<S: Transport>(
     Ok(Some(w.version()))
 }
 
-/// A planning actor's service loop (`s`: its opened process).
-pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::PlanningActor)?;
-    let args = &s.args;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let model = WeightsSubscriber::create(
-        &s.node,
-        WeightsKind::Model,
-        d.model.layout_hash,
-        d.model.len(),
-    )?;
-    let real = TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // The model trainer is the only consumer of real data in an MPC run.
-    real.wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&model);
+/// The planning actor on the shared step loop: it plans on the model trainer's ensemble; step g
+/// needs the version the sequential run plans with (pipelined: that of step g − `model_lag`).
+struct ModelActing {
+    role: PlanningActorRole,
+    schedule: Schedule,
+    model_lag: u64,
+    /// Wall seconds of every plan, for the median in `Done`.
+    plan_seconds: Vec<f64>,
+}
 
-    let mut role = PlanningActorRole::new(cfg, args.index as u64)?;
-    let schedule = s.schedule;
-    let mut lag = SlackTracker::default();
-    let mut plan_seconds = Vec::new();
-    let mut last_progress = Instant::now();
-    let steps = actor_steps(cfg.steps, args.actors, args.index);
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::actor_file(args.index),
-        barrier::kind::PLANNING_ACTOR,
-    );
-    let mut first = 1;
-    if let Some(dir) = &args.resume_from {
+impl ActingRole for ModelActing {
+    const ROLE: RoleKind = RoleKind::PlanningActor;
+    const WEIGHTS: WeightsKind = WeightsKind::Model;
+    type Checkpoint = PlanningActorCheckpoint;
+
+    fn checkpoint(&self, steps: u64) -> PlanningActorCheckpoint {
+        PlanningActorCheckpoint {
+            role: self.role.checkpoint(),
+            steps,
+        }
+    }
+    fn restore(&mut self, state: PlanningActorCheckpoint) -> Result<u64> {
         // The model comes again from the model trainer, which republishes its version.
-        let state: PlanningActorCheckpoint = file.read(dir)?;
-        role.restore(state.role)?;
-        first = state.steps + 1;
+        self.role.restore(state.role)?;
+        Ok(state.steps)
     }
-    // At the cut: write the state after `done` local steps, wait for the resume.
-    let write_at = |role: &PlanningActorRole, done: u64, cut| {
-        let state = PlanningActorCheckpoint {
-            role: role.checkpoint(),
-            steps: done,
-        };
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    // At a barrier: report the steps done, then as above.
-    let at_barrier = |role: &PlanningActorRole, done: u64| -> Result<bool> {
-        match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
-            Some(cut) => write_at(role, done, cut),
-            None => Ok(false),
+    fn take_newest<S: Transport>(&mut self, model: &WeightsSubscriber<S>, d: &Dims) -> Result<()> {
+        pull_model(model, d, |v, load| Ok(self.role.load_model(v, load)?))?;
+        Ok(())
+    }
+    fn sequential_version(&self, g: u64) -> u64 {
+        self.schedule.train_points_upto(g)
+    }
+    fn oldest_allowed(&self, g: u64) -> u64 {
+        needed_model(&self.schedule, g, self.model_lag)
+    }
+    fn holds(&self, version: u64) -> bool {
+        self.role.model_version() >= version
+    }
+    fn version(&self) -> u64 {
+        self.role.model_version()
+    }
+    fn env_actor(&self) -> &EnvActor {
+        self.role.env_actor()
+    }
+    fn act_into(
+        &mut self,
+        behaviour: Behaviour,
+        sink: &mut dyn TransitionSink,
+    ) -> std::result::Result<(), TrainError> {
+        self.role.act_into(behaviour, sink)
+    }
+    /// After every planned step (planning takes far longer than a record): the supervisor
+    /// writes the metrics row of eval point t only once every actor is past t.
+    fn after_step(&mut self, behaviour: Behaviour) -> bool {
+        let planned = behaviour == Behaviour::Policy;
+        if planned {
+            self.plan_seconds.push(self.role.last_plan_seconds);
         }
-    };
-    let started = Instant::now();
-    let mut ipc = Duration::ZERO;
-    for t in first..=steps {
-        let g = global_step(t, args.actors, args.index);
-        let behaviour = loop {
-            control.poll()?;
-            if control.stopped() {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                if !at_barrier(&role, t - 1)? {
-                    tracing::info!("stopped after the checkpoint, before step {g}");
-                    return Ok(());
-                }
-                continue;
-            }
-            if schedule.is_warm_up(g) {
-                break Behaviour::Uniform;
-            }
-            let need = needed_model(&schedule, g, s.slack.model_lag);
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| format!("model version {need}"),
-                || {
-                    pull_model(&model, &d, |v, load| Ok(role.load_model(v, load)?))?;
-                    Ok(role.model_version() >= need || control.pause_requested())
-                },
-            )?;
-            if !ok {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                continue;
-            }
-            let exact = schedule.train_points_upto(g);
-            if s.mode == Mode::Lockstep {
-                ensure_protocol!(
-                    role.model_version() == exact,
-                    "lockstep planning actor at step {g} got model version {} (want {exact})",
-                    role.model_version()
-                );
-            }
-            lag.see(exact as f64 - role.model_version() as f64);
-            break Behaviour::Policy;
-        };
-        let episodes = role.env_actor().episodes;
-        // The env step writes its transition straight into the sample it is sent in.
-        let t0 = Instant::now();
-        let mut loan = real.loan_rows(1)?;
-        ipc += t0.elapsed();
-        if let Err(e) = role.act_into(behaviour, &mut loan) {
-            drop(loan);
-            let (w, c, p) = (&waiter, &control, &stats_pub);
-            return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
-                write_at(&role, t - 1, cut)
-            });
-        }
-        if behaviour == Behaviour::Policy {
-            plan_seconds.push(role.last_plan_seconds);
-        }
-        let a = role.env_actor();
-        if a.episodes > episodes {
-            let ret = a.last_return.unwrap_or(f64::NAN);
-            stats_pub.report(EpisodeEnd {
-                env_steps: g,
-                episode_return: ret,
-                version: role.model_version(),
-            })?;
-        }
-        let meta = TransitionMeta {
-            policy_version: 0,
-            model_version: role.model_version(),
-            env_steps: g,
-        };
-        let t0 = Instant::now();
-        loan.send(meta)?;
-        ipc += t0.elapsed();
-        // After every planned step (planning takes far longer than a record): the supervisor
-        // writes the metrics row of eval point t only once every actor is past t.
-        if behaviour == Behaviour::Policy || last_progress.elapsed() >= Duration::from_millis(500) {
-            last_progress = Instant::now();
-            stats_pub.report(Progress {
-                env_steps: g,
-                model_version: role.model_version(),
-                ..Default::default()
-            })?;
+        planned
+    }
+    fn finish(&mut self) -> Finish {
+        let median = mbpo_core::stats::median(&mut self.plan_seconds).unwrap_or(0.0);
+        let plans = self.role.plans();
+        Finish {
+            work: plans,
+            median_step_seconds: median as f32,
+            log: format!("{plans} plans (median {:.1} ms), ", median * 1e3),
         }
     }
-    let median = mbpo_core::stats::median(&mut plan_seconds);
-    let (lo, hi, mean) = lag.get();
-    let done = Done {
-        real: steps,
-        work: role.plans(),
-        episodes_cut: role.env_actor().episodes_cut,
-        episodes_lost: role.env_actor().episodes_lost,
-        median_step_seconds: median.unwrap_or(0.0) as f32,
-        slack_min: lo,
-        slack_max: hi,
-        slack_mean: mean,
-        ipc_seconds: ipc.as_secs_f32(),
-        wall_seconds: started.elapsed().as_secs_f32(),
-        ..Default::default()
-    };
-    stats_pub.report(done)?;
-    tracing::info!(
-        "done: {steps} steps, {} plans (median {:.1} ms), model lag {lo}..{hi} (mean {mean:.2})",
-        role.plans(),
-        median.unwrap_or(0.0) * 1e3
-    );
-    barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
-        write_at(&role, steps, cut)
+}
+
+/// A planning actor's service loop.
+pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
+    acting::act(args, |s: &Process<S>| {
+        Ok(ModelActing {
+            role: PlanningActorRole::new(&s.cfg, args.index as u64)?,
+            schedule: s.schedule,
+            model_lag: s.slack.model_lag,
+            plan_seconds: Vec::new(),
+        })
     })
 }
 
