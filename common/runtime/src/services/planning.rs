@@ -4,7 +4,8 @@
 //! Acting (`actor-i`): warm-up steps are uniform; from then on, global step g plans on model
 //! version ≥ `train_points_upto(g − model_lag)` (lockstep: exactly `train_points_upto(g)`, the
 //! version the sequential `train_mpc` plans with), executes the first action and publishes the
-//! transition to the model trainer (data aggregation).
+//! transition to the model trainer (data aggregation). Its step loop is `acting.rs`, shared
+//! with SAC's actor.
 //!
 //! Evaluating (`evaluator`): at every eval point t after the warm-up, evaluates MPC episodes with
 //! model version ≥ `train_points_upto(t)`. In lockstep it acknowledges to the model trainer that
