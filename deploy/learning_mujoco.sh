@@ -22,8 +22,11 @@
 # or is a config of its own whose env id differs, e.g. walker2d-v2-feet (gym:Walker2d-v5 with
 # v2's feet): its runs and results files are named by that id beside the others.
 #
-# Hours per seed: it is meant to run niced in the background across sessions. Ctrl-C (or
-# SIGTERM to the process group) checkpoints the seeds under way and stops; the same command
+# Hours per seed: it is meant to run in the background across sessions, as a session of its own,
+# which lets it lower its own share of the CPU (below):
+#   mkdir -p results/runs; setsid nohup bash deploy/learning_mujoco.sh --tasks hopper \
+#       > results/runs/lanes.log 2>&1 < /dev/null &
+# Ctrl-C (or SIGTERM to the process group) checkpoints the seeds under way and stops; the same command
 # continues each seed from its checkpoint and reuses the seeds already completed. When the lanes
 # stop (done or Ctrl-C), deploy/park_runs.sh packs each run's curve and newest checkpoint into
 # results/parked/ -- commit that, so a fresh checkout continues too: this script restores from it
@@ -60,6 +63,17 @@ for task in $tasks; do
 done
 budgets=$steps
 if [ "$steps" -gt 20000 ]; then budgets="20000,$steps"; fi
+# Yield the cores to anything else (builds, tests, speed figures). `nice` alone does not: with
+# the kernel's autogroup scheduling (sched_autogroup_enabled = 1, as on these VMs) the CPU is
+# shared between sessions first, and `setsid`, as the header's command uses, makes the lanes a
+# session of their own, so niced lanes still took half the CPU from a build started elsewhere
+# (results/measurements.md, session 34). An autogroup's weight is the nice value written to it;
+# it is written only when this script leads its session (started by `setsid`), so that a run
+# from a terminal never lowers the terminal's own session.
+renice -n 19 -p $$ >/dev/null 2>&1 || true
+if [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ] && [ -w /proc/self/autogroup ]; then
+    echo 19 > /proc/self/autogroup 2>/dev/null || true
+fi
 bash deploy/setup_mujoco.sh >&2
 cargo build --release --locked -p mbpo --features mujoco >&2
 mbpo=./target/release/mbpo
