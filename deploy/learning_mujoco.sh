@@ -1,11 +1,14 @@
 #!/usr/bin/env bash
-# MBPO learning evidence on the MuJoCo tasks (issue 23, item 4): `mbpo bench learning` with 3
+# MBPO learning evidence on the MuJoCo tasks (issue 23, item 4): `mbpo bench learning` with 3 (--seeds)
 # seeds each for Hopper-v5, HalfCheetah-v5, Walker2d-v5 and Ant-v5, evaluating 5 episodes every
 # 1000 steps and keeping a checkpoint every 5000 (for `mbpo bench breakdown` and
 # `mbpo bench diagnose`), then the curves with min..max bands over seeds.
 #
 #   bash deploy/learning_mujoco.sh [--steps 50000] [--tasks "hopper walker2d halfcheetah ant"]
-#                                  [--out results] [--set KEY=VALUE]...
+#                                  [--seeds 3] [--out results] [--set KEY=VALUE]...
+#
+# --seeds N runs seeds 0..N-1 of each task; raising it later adds seeds to a task whose first ones
+# are done (they are reused), and the results file and plot then cover all N.
 #
 # Two lanes run side by side, one core each (sac.threads = model.threads = 1, as
 # `mbpo bench learning` sets them for seeds run in parallel), taking seeds from one list in
@@ -39,6 +42,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 steps=50000
+seeds=3
 tasks="hopper walker2d halfcheetah ant"
 out=results
 sets=()
@@ -46,15 +50,20 @@ while [ $# -gt 0 ]; do
     case "$1" in
         --steps) steps=$2 ;;
         --tasks) tasks=$2 ;;
+        --seeds) seeds=$2 ;;
         --out) out=$2 ;;
         --set) sets+=(--set "$2") ;;
         *)
-            echo "unknown argument $1: expected --steps N, --tasks \"a b\", --out DIR or --set KEY=VALUE" >&2
+            echo "unknown argument $1: expected --steps N, --tasks \"a b\", --seeds N, --out DIR or --set KEY=VALUE" >&2
             exit 2
             ;;
     esac
     shift 2
 done
+if ! [[ "$seeds" =~ ^[1-9][0-9]*$ ]]; then
+    echo "--seeds: expected a positive number of seeds, found '$seeds'" >&2
+    exit 2
+fi
 for task in $tasks; do
     if [ ! -f "deploy/configs/$task.toml" ]; then
         echo "--tasks: no deploy/configs/$task.toml (tasks are config names, e.g. hopper)" >&2
@@ -85,7 +94,7 @@ bash deploy/park_runs.sh --restore
 bench() {
     local task=$1
     shift
-    "$mbpo" bench learning --config "deploy/configs/$task.toml" --steps "$steps" --seeds 3 \
+    "$mbpo" bench learning --config "deploy/configs/$task.toml" --steps "$steps" --seeds "$seeds" \
         --threads 1 --budgets "$budgets" --set checkpoint.keep_every=5000 \
         --set eval.episodes=5 --set sac.threads=1 --set model.threads=1 "${sets[@]}" \
         --out "$out" "$@"
@@ -104,7 +113,7 @@ jobs() {
     local pass task seed run
     for pass in under-way fresh; do
         for task in $tasks; do
-            for seed in 2 1 0; do
+            for seed in $(seq $((seeds - 1)) -1 0); do
                 run=$(run_of "$task" "$seed")
                 if completed "$run"; then continue; fi
                 # `if`, not `[ ... ] && echo`: a false test as the function's last command
@@ -125,18 +134,20 @@ jobs() {
 lane() {
     # A stop signal is for the benchmark, which checkpoints; the lane waits for it to exit.
     trap 'true' INT TERM
-    local task seed id
+    local task seed id s
+    local -a runs
     while read -r task seed; do
         mkdir "$claims/$task-s$seed" 2>/dev/null || continue
         bench "$task" --only-seeds "$seed"
-        if completed "$(run_of "$task" 0)" && completed "$(run_of "$task" 1)" &&
-            completed "$(run_of "$task" 2)"; then
-            bench "$task"
-            id=$(env_id "$task")
-            "$mbpo" plot "$out/runs/mbpo-$id-s0" "$out/runs/mbpo-$id-s1" \
-                "$out/runs/mbpo-$id-s2" --out "$out/learning-$id.png" \
-                --title "MBPO $id, 3 seeds (mean, min..max)"
-        fi
+        runs=()
+        for s in $(seq 0 $((seeds - 1))); do
+            completed "$(run_of "$task" "$s")" || continue 2
+            runs+=("$(run_of "$task" "$s")")
+        done
+        bench "$task"
+        id=$(env_id "$task")
+        "$mbpo" plot "${runs[@]}" --out "$out/learning-$id.png" \
+            --title "MBPO $id, $seeds seeds (mean, min..max)"
     done < "$claims/jobs"
 }
 
