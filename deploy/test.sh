@@ -15,6 +15,12 @@ if ! command -v ip >/dev/null && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/
     apt-get install -y -qq iproute2 >/dev/null 2>&1 ||
         { apt-get update -qq && apt-get install -y -qq iproute2 >/dev/null; }
 fi
+# tests/tests/cross_cpu.rs runs MBPO on CPUs that QEMU's user mode emulates (Debian's qemu-user).
+if ! command -v qemu-x86_64 >/dev/null && [ "$(uname -m)" = x86_64 ] && [ "$(id -u)" = 0 ] &&
+    command -v apt-get >/dev/null; then
+    apt-get install -y -qq qemu-user >/dev/null 2>&1 ||
+        { apt-get update -qq && apt-get install -y -qq qemu-user >/dev/null; }
+fi
 cargo test --workspace --locked "$@"
 bash deploy/setup_mujoco.sh
 cargo test --locked -p mbpo-envs --features mujoco "$@"

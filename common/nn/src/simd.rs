@@ -82,6 +82,27 @@ pub fn simd_level() -> SimdLevel {
     widest_supported_up_to(level_of(CAP.load(Ordering::Relaxed)))
 }
 
+/// Whether this CPU fuses multiply-adds, which decides whether its runs give the same bits as
+/// other machines'. faer's GEMM kernels use FMA where the CPU has it and a multiply then an add
+/// where it does not, which rounds differently; the element-wise kernels give the same bits on
+/// every level. So a run is the same bits on every x86-64 CPU with AVX2 and FMA, whether it
+/// takes the AVX2 or the AVX-512 kernels, and other bits on one without FMA (x86-64 CPUs from
+/// before 2013 and some low-power ones since). `tests/tests/cross_cpu.rs` checks both by running
+/// MBPO on CPUs that QEMU emulates. Other architectures: `None` (never compared with x86-64).
+pub fn same_bits_as_fma_x86() -> Option<bool> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        Some(
+            std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma"),
+        )
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        None
+    }
+}
+
 /// The widest level at most `cap` that this CPU supports.
 #[inline]
 fn widest_supported_up_to(cap: SimdLevel) -> SimdLevel {

@@ -31,6 +31,7 @@ pub fn init_logging() {
 /// of one process skip this.)
 pub fn init_service_process() {
     init_logging();
+    mbpo_train::cpu::log_cpu_kernels();
     // SAFETY: prctl(PR_SET_PDEATHSIG) only sets a flag of this process.
     unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
 }

@@ -71,6 +71,7 @@ pub fn train(cfg: &ExperimentConfig, out: &Path, opts: RunOptions) -> Result<Sum
     let spec = lookup(cfg.algo.name()).ok_or_else(|| {
         TrainError::Config(format!("algorithm '{}' is not registered", cfg.algo.name()))
     })?;
+    crate::cpu::log_cpu_kernels();
     (spec.train)(cfg, out, opts)
 }
 

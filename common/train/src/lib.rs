@@ -36,6 +36,7 @@ pub mod checkpoint;
 pub mod checkpoint_bench;
 pub mod checkpoint_writer;
 pub mod config;
+pub mod cpu;
 pub mod d_model_branches;
 pub mod diagnose;
 pub mod env_config;
