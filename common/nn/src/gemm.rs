@@ -68,6 +68,14 @@ pub fn gemm(
     matmul(c, accum, a, b, 1.0f32, Par::Seq);
 }
 
+/// Whether a product of a shape seen before allocates nothing: with faer's x86 kernels
+/// ([`crate::simd::faer_x86_gemm_kernels`]). faer's fallback, the `gemm` crate, allocates its
+/// packing buffers on every product but the smallest, so the no-allocation tests of the hot
+/// loops hold only here (measured under QEMU for AArch64: `tools/compare_aarch64.sh`).
+pub fn allocation_free() -> bool {
+    crate::simd::faer_x86_gemm_kernels()
+}
+
 /// The stored row-major matrix `x` as the `rows x cols` operand `op` makes of it.
 fn operand(x: &[f32], op: Op, rows: usize, cols: usize) -> MatRef<'_, f32> {
     match op {

@@ -82,24 +82,25 @@ pub fn simd_level() -> SimdLevel {
     widest_supported_up_to(level_of(CAP.load(Ordering::Relaxed)))
 }
 
-/// Whether this CPU fuses multiply-adds, which decides whether its runs give the same bits as
-/// other machines'. faer's GEMM kernels use FMA where the CPU has it and a multiply then an add
-/// where it does not, which rounds differently; the element-wise kernels give the same bits on
-/// every level. So a run is the same bits on every x86-64 CPU with AVX2 and FMA, whether it
-/// takes the AVX2 or the AVX-512 kernels, and other bits on one without FMA (x86-64 CPUs from
-/// before 2013 and some low-power ones since). `tests/tests/cross_cpu.rs` checks both by running
-/// MBPO on CPUs that QEMU emulates. Other architectures: `None` (never compared with x86-64).
-pub fn same_bits_as_fma_x86() -> Option<bool> {
+/// Whether faer's GEMMs take its x86 kernels here, which decides whether a run's bits equal
+/// other machines'. faer takes them on x86-64 CPUs with AVX2 and FMA (its AVX2 or AVX-512
+/// kernels give the same bits, and their depth blocking is fixed, whatever the caches); the
+/// element-wise kernels give the same bits on every level. So a run is the same bits on every
+/// x86-64 CPU with AVX2 and FMA (`tests/tests/cross_cpu.rs` runs MBPO on CPUs that QEMU
+/// emulates). Elsewhere -- x86-64 CPUs without FMA (most from before 2013, some low-power ones
+/// since), AArch64 and every other architecture -- faer falls back to the `gemm` crate's
+/// kernels, which sum in another order, pick their depth blocking from the L1 cache's size and
+/// allocate their packing buffers on every product: other bits than x86-64 with FMA
+/// (measured under QEMU for a Nehalem and AArch64 by `tools/compare_aarch64.sh`), and possibly
+/// other bits between such CPUs whose L1 caches differ.
+pub fn faer_x86_gemm_kernels() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        Some(
-            std::arch::is_x86_feature_detected!("avx2")
-                && std::arch::is_x86_feature_detected!("fma"),
-        )
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        None
+        false
     }
 }
 

@@ -18,16 +18,19 @@
 /// subnormal inputs as zero (DAZ); dropping it restores the thread's previous mode.
 #[must_use = "the mode lasts only while the guard lives"]
 pub struct FlushSubnormals {
-    #[cfg(target_arch = "x86_64")]
-    saved: u32,
+    #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+    saved: mode::Register,
 }
 
+/// x86-64: MXCSR, the SSE/AVX control register.
 #[cfg(target_arch = "x86_64")]
-mod mxcsr {
-    /// MXCSR's flush-to-zero (bit 15) and denormals-are-zero (bit 6).
-    pub const FTZ_DAZ: u32 = 0x8040;
+mod mode {
+    pub type Register = u32;
 
-    pub fn read() -> u32 {
+    /// MXCSR's flush-to-zero (bit 15) and denormals-are-zero (bit 6).
+    pub const FLUSH: Register = 0x8040;
+
+    pub fn read() -> Register {
         let mut csr = 0u32;
         // SAFETY: stmxcsr stores the 32-bit MXCSR register into the given location.
         unsafe {
@@ -36,7 +39,7 @@ mod mxcsr {
         csr
     }
 
-    pub fn write(csr: u32) {
+    pub fn write(csr: Register) {
         // SAFETY: ldmxcsr loads MXCSR; only the FTZ/DAZ bits differ from a value read from it.
         unsafe {
             core::arch::asm!("ldmxcsr [{}]", in(reg) &csr, options(nostack, readonly, preserves_flags))
@@ -44,16 +47,47 @@ mod mxcsr {
     }
 }
 
+/// AArch64: FPCR, the floating-point control register. Its FZ bit does what x86's FTZ and DAZ
+/// do together (subnormal inputs read as zero, subnormal results written as zero), so the
+/// numerics treat tiny values as on x86, as TensorFlow does on both. (AArch64 decides that a
+/// result is subnormal before rounding, x86 after: they differ only for a result that rounds up
+/// to the smallest normal float. Runs on AArch64 differ from x86-64's anyway, in their GEMMs:
+/// `mbpo_nn::simd::faer_x86_gemm_kernels`.)
+#[cfg(target_arch = "aarch64")]
+mod mode {
+    pub type Register = u64;
+
+    /// FPCR's flush-to-zero bit (FZ, bit 24).
+    pub const FLUSH: Register = 1 << 24;
+
+    pub fn read() -> Register {
+        let fpcr: u64;
+        // SAFETY: mrs reads FPCR, which user code may read.
+        unsafe {
+            core::arch::asm!("mrs {}, fpcr", out(reg) fpcr, options(nomem, nostack, preserves_flags))
+        };
+        fpcr
+    }
+
+    pub fn write(fpcr: Register) {
+        // SAFETY: msr writes FPCR, which user code may write; only FZ differs from a value read
+        // from it.
+        unsafe {
+            core::arch::asm!("msr fpcr, {}", in(reg) fpcr, options(nostack, preserves_flags))
+        };
+    }
+}
+
 impl FlushSubnormals {
     /// Flush subnormals on this thread until the guard is dropped.
     pub fn new() -> Self {
-        #[cfg(target_arch = "x86_64")]
+        #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
         {
-            let saved = mxcsr::read();
-            mxcsr::write(saved | mxcsr::FTZ_DAZ);
+            let saved = mode::read();
+            mode::write(saved | mode::FLUSH);
             Self { saved }
         }
-        #[cfg(not(target_arch = "x86_64"))]
+        #[cfg(not(any(target_arch = "x86_64", target_arch = "aarch64")))]
         Self {}
     }
 
@@ -71,8 +105,8 @@ impl Default for FlushSubnormals {
 
 impl Drop for FlushSubnormals {
     fn drop(&mut self) {
-        #[cfg(target_arch = "x86_64")]
-        mxcsr::write(self.saved);
+        #[cfg(any(target_arch = "x86_64", target_arch = "aarch64"))]
+        mode::write(self.saved);
     }
 }
 
@@ -90,7 +124,7 @@ mod tests {
         assert!(halve_smallest_normal() > 0.0, "subnormal kept by default");
         {
             let _flush = FlushSubnormals::new();
-            if cfg!(target_arch = "x86_64") {
+            if cfg!(any(target_arch = "x86_64", target_arch = "aarch64")) {
                 assert_eq!(halve_smallest_normal(), 0.0);
                 // DAZ: a subnormal input reads as zero.
                 let tiny = std::hint::black_box(f32::from_bits(1));
