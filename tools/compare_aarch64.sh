@@ -12,7 +12,8 @@
 #   4. the AArch64 unit tests of the numeric crates (gradient checks, ensembles, SAC, planners;
 #      the no-allocation tests print SKIPPED there: mbpo_nn::gemm::allocation_free).
 # Installs what it needs when root (gcc-aarch64-linux-gnu, qemu-user, the rustup target; MuJoCo
-# through deploy/setup_mujoco.sh). About 25 minutes on 2 cores, most of it the two builds.
+# through deploy/setup_mujoco.sh). Most of the time is the two builds: 13 min with them partly
+# cached (results/measurements.md, session 37); from nothing, longer.
 # Usage: bash tools/compare_aarch64.sh
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
