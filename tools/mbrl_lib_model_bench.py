@@ -10,7 +10,7 @@ The model is MBPO's as mbrl-lib builds it for its MBPO (`mbrl.models.GaussianMLP
 4 hidden layers of 200, SiLU, learned log-variance bounds; wrapped in
 `OneDTransitionRewardModel`: normalised inputs, Δobs and reward targets), at HalfCheetah's
 dimensions (obs 17, act 6), with MBPO's per-layer weight decay in Adam (lr 1e-3), as
-tools/mbrl_lib_pendulum.py sets it up. The data are 10 000 synthetic transitions made by the same
+tools/mbrl_lib_mbpo.py sets it up. The data are 10 000 synthetic transitions made by the same
 rule as ours (`mbpo_model::bench::synthetic_transitions`: Gaussian observations, uniform actions,
 a smooth next state); speed does not depend on what is learnt.
 
@@ -30,7 +30,7 @@ What is timed (the best of --repetitions, after one warm-up call):
 
 Threads: torch.set_num_threads(--threads), and OMP/MKL/OpenBLAS variables set to the same.
 OMP_WAIT_POLICY is taken from the environment (PASSIVE when unset: libgomp's spinning threads
-cost PyTorch 10x when another process holds a core, see tools/mbrl_lib_pendulum.py).
+cost PyTorch 10x when another process holds a core, see tools/mbrl_lib_mbpo.py).
 """
 
 import argparse
@@ -97,7 +97,7 @@ def main():
         learned_rewards=True, num_elites=5,
     )
     trainer = mbrl.models.ModelTrainer(model, optim_lr=1e-3, weight_decay=0.0)
-    # MBPO's per-layer weight decay on the weights (as tools/mbrl_lib_pendulum.py).
+    # MBPO's per-layer weight decay on the weights (as tools/mbrl_lib_mbpo.py).
     layers = [seq[0] for seq in net.hidden_layers] + [net.mean_and_logvar]
     decayed = {id(l.weight) for l in layers}
     groups = [{"params": [l.weight], "weight_decay": w} for l, w in zip(layers, WEIGHT_DECAY)]

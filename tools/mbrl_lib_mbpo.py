@@ -1,11 +1,14 @@
-"""Time mbrl-lib's MBPO (PyPI `mbrl`, facebookresearch/mbrl-lib) on Pendulum-v1 on this machine,
-as a same-machine speed baseline for our MBPO (deploy/configs/pendulum.toml).
+"""Time mbrl-lib's MBPO (PyPI `mbrl`, facebookresearch/mbrl-lib) on this machine, as a
+same-machine speed baseline for our MBPO: on Pendulum-v1 (deploy/configs/pendulum.toml) or, at
+MuJoCo scale, on Hopper-v5 (deploy/configs/hopper.toml).
 
     .venv-torch/bin/python -m pip install --no-deps -r tools/requirements-mbrl.txt
-    .venv-torch/bin/python tools/mbrl_lib_pendulum.py --steps 1400 --threads 2 --seed 0
-    -> {"framework": "mbrl-lib", "mbrl": "0.2.0", "torch": "...", "threads": 2,
+    .venv-torch/bin/python tools/mbrl_lib_mbpo.py --task pendulum --steps 1400 --threads 1 --seed 0
+    -> {"framework": "mbrl-lib", "mbrl": "0.2.0", "torch": "...", "threads": 1,
         "median_seconds_per_env_step": ..., "mean_seconds_per_env_step": ..., "env_steps": 1400,
         "warmup": 400, ...}
+    # Hopper-v5 also needs MuJoCo's Python package: pip install --no-deps -r tools/requirements-mujoco.txt
+    .venv-torch/bin/python tools/mbrl_lib_mbpo.py --task hopper --steps 8000 --threads 2 --seed 0
 
 The run is `mbrl.algorithms.mbpo.train(env, test_env, no_termination, cfg)` unchanged, on the CPU,
 with a config built in code with OmegaConf (the Hydra defaults of mbrl/examples/conf are not
@@ -112,6 +115,24 @@ except where noted)
   MBPO's scheme. Number of epochs is set by the same patience rule (20 epochs without > 1 %
   relative improvement of any member), so the amount of work is data-dependent in both.
 - Eval episodes use mbrl's test_env and the deterministic (mean) policy, excluded from timing.
+
+Hopper-v5 (--task hopper, deploy/configs/hopper.toml): as above, except
+env = "Hopper-v5"               gymnasium.make("Hopper-v5") on MuJoCo 3.17.0 (the library ours
+                                links, tools/requirements-mujoco.txt); termination_fn =
+                                mbrl.env.termination_fns.hopper (MBPO's rule, abs() bug fixed)
+mbpo.init_random_steps = 5000   initial_exploration_steps = 4750 (see Warm-up): first model
+                                training after real step 5000, ours at the start of step 5001
+mbpo.epoch_length = 1000        mbrl's epoch_length stays 250 (= freq_train_model), so that a
+                                run is 4750 + a multiple of 250 steps; the rollout schedule's
+                                epochs are scaled by 4 to match: [80, 600, 1, 15] mbrl epochs is
+                                ours [20, 150, 1, 15] (k = 1 to real step 20k in both). mbrl
+                                therefore resets the real env every 250 steps (Hopper's episodes
+                                are shorter than that early on) and evaluates every 250 steps
+                                (excluded from timing)
+sac.*_lr = 3e-4                 sac_lr = 3e-4; sac_target_entropy = -1; action space Box(-1, 1, (3,))
+model.max_epochs_since_update   overrides.patience = 5
+eval.episodes = 1               cfg.algorithm.num_eval_episodes = 1
+model.max_holdout = 5000        binds only above 25,000 real steps; runs here are shorter
 """
 
 import argparse
@@ -123,16 +144,51 @@ import sys
 import tempfile
 import time
 
+# Per task: what differs between deploy/configs/pendulum.toml and deploy/configs/hopper.toml
+# (the docstring maps each value). mbrl's epoch is always 250 steps (`freq`), so rollout
+# schedules are given in mbrl epochs.
+TASKS = {
+    "pendulum": {
+        "env": "Pendulum-v1",
+        "init_random_steps": 400,
+        "termination_fn": "no_termination",
+        "action_box": (-2.0, 2.0, 1),
+        "rollout_schedule": [1, 15, 1, 1],
+        "patience": 20,
+        "sac_lr": 1e-3,
+        "target_entropy": -1,
+        "eval_episodes": 5,
+        "default_steps": 1400,
+    },
+    "hopper": {
+        "env": "Hopper-v5",
+        "init_random_steps": 5000,
+        "termination_fn": "hopper",
+        "action_box": (-1.0, 1.0, 3),
+        "rollout_schedule": [80, 600, 1, 15],  # ours: [20, 150, 1, 15] epochs of 1000 steps
+        "patience": 5,
+        "sac_lr": 3e-4,
+        "target_entropy": -1,
+        "eval_episodes": 1,
+        "default_steps": 8000,
+    },
+}
+
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--steps", type=int, default=1400, help="total real env steps incl. warm-up")
+    p.add_argument("--task", choices=sorted(TASKS), default="pendulum")
+    p.add_argument("--steps", type=int, help="total real env steps incl. warm-up "
+                   "(default: 1400 for pendulum, 8000 for hopper)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=50, help="env steps per timing window")
     p.add_argument("--literal-warmup", action="store_true",
                    help="initial_exploration_steps = 400 (first model training after step 650)")
     args = p.parse_args()
+    task = TASKS[args.task]
+    if args.steps is None:
+        args.steps = task["default_steps"]
 
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ[var] = str(args.threads)
@@ -155,8 +211,8 @@ def main():
 
     torch.set_num_threads(args.threads)
 
-    # ---- deploy/configs/pendulum.toml ----
-    init_random_steps = 400
+    # ---- deploy/configs/<task>.toml ----
+    init_random_steps = task["init_random_steps"]
     freq = 250
     wd = [2.5e-5, 5e-5, 7.5e-5, 7.5e-5, 1e-4]
     initial_exploration = init_random_steps if args.literal_warmup else init_random_steps - freq
@@ -182,19 +238,19 @@ def main():
             "sac_samples_action": True,
             "initial_exploration_steps": initial_exploration,
             "random_initial_explore": True,
-            "num_eval_episodes": 5,
+            "num_eval_episodes": task["eval_episodes"],
             "dataset_size": 1_000_000,
             "agent": {
                 "_target_": "mbrl.third_party.pytorch_sac_pranz24.sac.SAC",
                 "num_inputs": "???",
                 "action_space": {
-                    # Pendulum's Box(-2, 2, (1,)); gymnasium 1.x's Box refuses the ListConfig
-                    # that complete_agent_cfg would fill in, so it is given as scalars here.
+                    # The env's action Box; gymnasium 1.x's Box refuses the ListConfig that
+                    # complete_agent_cfg would fill in, so it is given as scalars here.
                     "_target_": "gymnasium.spaces.Box",
                     "_convert_": "all",
-                    "low": -2.0,
-                    "high": 2.0,
-                    "shape": [1],
+                    "low": task["action_box"][0],
+                    "high": task["action_box"][1],
+                    "shape": [task["action_box"][2]],
                 },
                 "args": {
                     "gamma": 0.99,
@@ -203,10 +259,10 @@ def main():
                     "policy": "Gaussian",
                     "target_update_interval": 1,
                     "automatic_entropy_tuning": True,
-                    "target_entropy": -1,
+                    "target_entropy": task["target_entropy"],
                     "hidden_size": 256,
                     "device": "cpu",
-                    "lr": 1e-3,
+                    "lr": task["sac_lr"],
                 },
             },
         },
@@ -226,11 +282,11 @@ def main():
             "activation_fn_cfg": {"_target_": "torch.nn.SiLU"},
         },
         "overrides": {
-            "env": "gymnasium___Pendulum-v1",
+            "env": "gymnasium___" + task["env"],
             "num_steps": args.steps - initial_exploration,
             "epoch_length": 250,
             "num_elites": 5,
-            "patience": 20,
+            "patience": task["patience"],
             "improvement_threshold": 0.01,
             "model_lr": 1e-3,
             "model_wd": 0.0,  # replaced by per-layer groups below
@@ -238,7 +294,7 @@ def main():
             "validation_ratio": 0.2,
             "freq_train_model": freq,
             "effective_model_rollouts_per_step": 400,
-            "rollout_schedule": [1, 15, 1, 1],
+            "rollout_schedule": task["rollout_schedule"],
             "num_sac_updates_per_step": 20,
             "sac_updates_every_steps": 1,
             "num_epochs_to_retain_sac_buffer": 1,
@@ -334,16 +390,17 @@ def main():
     # ---- run ----
     np.random.seed(args.seed)
     torch.manual_seed(args.seed)
-    env = StepClock(gym.make("Pendulum-v1"))
-    test_env = gym.make("Pendulum-v1")
+    env = StepClock(gym.make(task["env"]))
+    test_env = gym.make(task["env"])
     env.reset(seed=args.seed)
     env.action_space.seed(args.seed)
     test_env.reset(seed=args.seed + 1000)
 
-    with tempfile.TemporaryDirectory(prefix="mbrl_pendulum_") as work_dir:
+    termination_fn = getattr(mbrl.env.termination_fns, task["termination_fn"])
+    with tempfile.TemporaryDirectory(prefix=f"mbrl_{args.task}_") as work_dir:
         started = time.perf_counter()
         with contextlib.redirect_stdout(sys.stderr):
-            best = mbpo.train(env, test_env, mbrl.env.termination_fns.no_termination, cfg,
+            best = mbpo.train(env, test_env, termination_fn, cfg,
                               silent=True, work_dir=work_dir)
         wall = time.perf_counter() - started
 
@@ -356,6 +413,7 @@ def main():
     measured_updates = updates_at[args.steps - 1] - updates_at[first_train - 1]
     print(json.dumps({
         "framework": "mbrl-lib",
+        "task": task["env"],
         "mbrl": mbrl.__version__,
         "torch": torch.__version__,
         "threads": args.threads,
