@@ -8,8 +8,9 @@
 #   3. `mbpo run --mode pipelined` (all services, default slack, the config's threads),
 #   4. with --mbrl-lib: mbrl-lib 0.2.0's MBPO with the same settings (tools/mbrl_lib_mbpo.py,
 #      installed into .venv-torch from PyPI, ~5 GB; on Pendulum about 0.5 s per step on a 2-core
-#      machine), with MBRL_THREADS torch threads (default: 1 on Pendulum, its faster setting
-#      there; 2 on Hopper).
+#      machine), with MBRL_THREADS torch threads and OMP_WAIT_POLICY (defaults: 1 thread on
+#      Pendulum, its faster setting there; 2 threads with OMP_WAIT_POLICY=ACTIVE on Hopper, its
+#      faster setting for the model epoch, results/model-bench-vs-mbrl-lib*.json).
 # Prints one JSON object per run and the ratios, and writes results/pipeline-speed-<task>.json
 # (results/pipeline-speed-<task>-s<SEED>.json for SEED=... other than 0).
 #
@@ -56,8 +57,8 @@ done
 # metrics.csv at or after the first model training) and mbrl-lib's random steps (STEPS must be
 # those + a whole number of its 250-step epochs, see tools/mbrl_lib_mbpo.py).
 case "$task" in
-    pendulum) default_steps=1400 start=500 explore=150 mbrl_threads=1 ;;
-    hopper) default_steps=8000 start=5000 explore=4750 mbrl_threads=2 ;;
+    pendulum) default_steps=1400 start=500 explore=150 mbrl_threads=1 mbrl_wait=PASSIVE ;;
+    hopper) default_steps=8000 start=5000 explore=4750 mbrl_threads=2 mbrl_wait=ACTIVE ;;
     *) echo "--task: expected pendulum or hopper, found '$task'" >&2; exit 2 ;;
 esac
 steps="${steps:-$default_steps}"
@@ -66,6 +67,7 @@ if [ "$steps" -le "$start" ] || [ $(((steps - explore) % 250)) -ne 0 ]; then
     exit 2
 fi
 mbrl_threads="${MBRL_THREADS:-$mbrl_threads}"
+mbrl_wait="${OMP_WAIT_POLICY:-$mbrl_wait}"
 seed="${SEED:-0}"
 cd "$repo"
 # The supervisor and the service binaries `mbpo run` starts, with the MuJoCo tasks when MuJoCo
@@ -107,7 +109,7 @@ if [ "$mbrl" = 1 ]; then
     if [ "$task" = hopper ]; then
         "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -r tools/requirements-mujoco.txt
     fi
-    "$venv/bin/python" tools/mbrl_lib_mbpo.py --task "$task" --steps "$steps" --threads "$mbrl_threads" --seed "$seed" \
+    OMP_WAIT_POLICY="$mbrl_wait" "$venv/bin/python" tools/mbrl_lib_mbpo.py --task "$task" --steps "$steps" --threads "$mbrl_threads" --seed "$seed" \
         2>"$out/mbrl-lib.log" | tail -1 >"$mbrl_json"
     python3 -c 'import json, sys; json.load(open(sys.argv[1]))["mean_seconds_per_env_step"]' "$mbrl_json" || {
         echo "mbrl-lib gave no result line; the end of $out/mbrl-lib.log:" >&2
@@ -173,6 +175,7 @@ if os.path.exists(mbrl_json) and os.path.getsize(mbrl_json) > 0:
         "median_seconds_per_env_step": round(m["median_single_step_seconds"], 4),
         "mean_seconds_per_env_step": round(m["mean_seconds_per_env_step"], 4),
         "threads": m["threads"],
+        "omp_wait_policy": m["omp_wait_policy"],
         "model_trainings": len(fits),
         "model_epochs": epochs,
         "model_train_seconds": round(seconds, 1),
