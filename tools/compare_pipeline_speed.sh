@@ -26,7 +26,7 @@
 # thread pools wait for their slowest thread, so another busy process distorts them badly.
 # Usage: bash tools/compare_pipeline_speed.sh [STEPS] [--mbrl-lib] [--task pendulum|hopper]
 #   STEPS defaults to 1400 on Pendulum, 8000 on Hopper (3000 steps after the random ones: about
-#   7 min for our three runs, 20 min for mbrl-lib's on the 2-core Intel VM).
+#   19 min for our three runs and 13 for mbrl-lib's on the 2-core Intel VM, 31 in all).
 set -euo pipefail
 
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
