@@ -184,7 +184,8 @@ def main():
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=50, help="env steps per timing window")
     p.add_argument("--literal-warmup", action="store_true",
-                   help="initial_exploration_steps = 400 (first model training after step 650)")
+                   help="initial_exploration_steps = the config's init_random_steps (first model "
+                   "training 250 steps later: after step 650 on Pendulum)")
     args = p.parse_args()
     task = TASKS[args.task]
     if args.steps is None:
