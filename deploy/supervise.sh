@@ -26,5 +26,5 @@ for ((i = 0; i + 1 < ${#args[@]}; i++)); do
     features=(--features mujoco)
   fi
 done
-cargo build --release --locked -p mbpo -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator -p mbpo-sac-learner "${features[@]}"
+cargo build --release --locked "${pipeline_packages[@]}" "${features[@]}"
 exec ./target/release/mbpo run "${args[@]}"

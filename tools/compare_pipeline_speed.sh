@@ -78,8 +78,7 @@ if [ "$task" = hopper ]; then
     bash deploy/setup_mujoco.sh >&2
     features=(--features mujoco)
 fi
-cargo build --release --locked -p mbpo -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator \
-    -p mbpo-sac-learner "${features[@]}" >&2
+cargo build --release --locked "${pipeline_packages[@]}" "${features[@]}" >&2
 
 config="deploy/configs/$task.toml"
 out="$(mktemp -d /tmp/pipeline-speed.XXXXXX)"
