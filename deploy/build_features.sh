@@ -1,6 +1,6 @@
 # Sourced (from the repository root) by the scripts that build `target/release/mbpo`: sets
-# `pipeline_packages` (below) and `features` to `--features mujoco` when MuJoCo is set up (`.mujoco/lib`, made by
-# deploy/setup_mujoco.sh), else to nothing. Every build then keeps the MuJoCo tasks once they are
+# `pipeline_packages` (below) and `features`, to `--features mujoco` when MuJoCo is set up
+# (`.mujoco/lib`, made by deploy/setup_mujoco.sh), else to nothing. Every build then keeps the MuJoCo tasks once they are
 # installed: the learning lanes start `target/release/mbpo` for each seed, and a build without the
 # feature (for a benchmark, say) would replace their binary with one that has no MuJoCo tasks.
 features=()
