@@ -409,6 +409,32 @@ pub enum ReceiveError {
     },
 }
 
+/// iceoryx2 failed under a port: the service and iceoryx2's error, which the typed receive
+/// errors ([`ReceiveError::Iceoryx`], [`WeightsReceiveError::Iceoryx`]) carry.
+#[derive(Debug)]
+pub(crate) struct IceoryxFailure {
+    pub service: String,
+    pub cause: String,
+}
+
+impl From<IceoryxFailure> for ReceiveError {
+    fn from(f: IceoryxFailure) -> Self {
+        ReceiveError::Iceoryx {
+            service: f.service,
+            cause: f.cause,
+        }
+    }
+}
+
+impl From<IceoryxFailure> for WeightsReceiveError {
+    fn from(f: IceoryxFailure) -> Self {
+        WeightsReceiveError::Iceoryx {
+            service: f.service,
+            cause: f.cause,
+        }
+    }
+}
+
 /// Why receiving weights failed. The offending sample has been released.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 #[non_exhaustive]

@@ -57,6 +57,7 @@ pub mod error;
 pub mod messages;
 pub mod model_layout;
 pub mod names;
+mod ports;
 pub mod reliable;
 pub mod run;
 pub mod schema;

@@ -3,15 +3,10 @@
 //! sequence-checked, validated.
 
 use std::fmt::Debug;
-use std::marker::PhantomData;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::ZeroCopySend;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
-use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::Service;
 
 use crate::error::{
@@ -19,6 +14,7 @@ use crate::error::{
     WaitForSubscribersError,
 };
 use crate::names::{Channel, ProducerId, SCHEMA_VERSION};
+use crate::ports::{PublisherPort, SubscriberPort};
 use crate::reliable::{
     backpressure_handler, open_channel_events, pubsub_builder, PublisherSide, PublisherStats,
     SendReport, SeqTracker, SubscriberSide, SubscriberStats,
@@ -66,9 +62,7 @@ fn open_service<S: Service, T: WireMessage>(
 /// Publishes messages of type `T`.
 #[derive(Debug)]
 pub struct MsgPublisher<T: WireMessage, S: Service = iceoryx2::service::ipc::Service> {
-    side: PublisherSide<S>,
-    publisher: Publisher<S, T, MsgHeader>,
-    svc: Factory<S, T>,
+    port: PublisherPort<S, T, MsgHeader>,
 }
 
 /// Publishes [`StatsRecord`]s.
@@ -99,41 +93,28 @@ impl<T: WireMessage, S: Service> MsgPublisher<T, S> {
             ))
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the publisher", e))?;
-        let side = PublisherSide::create(node, &name, &events, publisher.id().value(), qos, block)?;
-        Ok(Self {
-            side,
-            publisher,
-            svc,
-        })
+        let port = PublisherPort::new(node, &name, &events, qos, block, svc, publisher)?;
+        Ok(Self { port })
     }
 
     /// Send `msg` (blocks while a subscriber's queue is full).
     pub fn send(&self, msg: &T) -> Result<SendReport, PublishError> {
-        let seq = self.side.take_seq();
+        let side = &self.port.side;
+        let seq = side.take_seq();
         let mut sample = self
+            .port
             .publisher
             .loan_uninit()
-            .map_err(|e| PublishError::Loan {
-                service: self.side.service.clone(),
-                bytes: std::mem::size_of::<T>(),
-                cause: format!("{e:?}"),
-                hint: crate::error::hint_for(&format!("{e:?}")),
-            })?;
+            .map_err(|e| side.loan_failed(std::mem::size_of::<T>(), e))?;
         *sample.user_header_mut() = MsgHeader {
-            run_hash: self.side.run_hash,
+            run_hash: side.run_hash,
             seq,
             send_time_ns: now_ns(),
             schema_version: SCHEMA_VERSION,
-            producer_id: self.side.producer.0,
+            producer_id: side.producer.0,
         };
-        let sample = sample.write_payload(*msg);
-        let subscribers = self.svc.dynamic_config().number_of_subscribers();
-        let started = Instant::now();
-        let delivered = sample
-            .send()
-            .map_err(|e| self.side.send_failed(seq, e, started))?;
-        let report = self.side.record(seq, delivered, subscribers);
-        self.side.notify()?;
+        let report = self.port.deliver(sample.write_payload(*msg), seq)?;
+        side.notify()?;
         Ok(report)
     }
 
@@ -143,20 +124,18 @@ impl<T: WireMessage, S: Service> MsgPublisher<T, S> {
         n: usize,
         timeout: Duration,
     ) -> Result<usize, WaitForSubscribersError> {
-        self.side.wait_for_acks(n, timeout, || {
-            self.svc.dynamic_config().number_of_subscribers()
-        })
+        self.port.wait_for_subscribers(n, timeout)
     }
     /// Subscribers currently registered.
     pub fn subscribers(&self) -> usize {
-        self.svc.dynamic_config().number_of_subscribers()
+        self.port.subscribers()
     }
     /// Counters.
     pub fn stats(&self) -> PublisherStats {
-        self.side.stats()
+        self.port.side.stats()
     }
     pub(crate) fn side(&self) -> &PublisherSide<S> {
-        &self.side
+        &self.port.side
     }
 }
 
@@ -191,12 +170,9 @@ impl<T> Received<T> {
 /// Receives messages of type `T`.
 #[derive(Debug)]
 pub struct MsgSubscriber<T: WireMessage, S: Service = iceoryx2::service::ipc::Service> {
-    side: SubscriberSide<S>,
-    subscriber: Subscriber<S, T, MsgHeader>,
-    svc: Factory<S, T>,
+    port: SubscriberPort<S, T, MsgHeader>,
     run_hash: u64,
     tracker: std::cell::RefCell<SeqTracker>,
-    _t: PhantomData<T>,
 }
 
 impl<T: WireMessage, S: Service> MsgSubscriber<T, S> {
@@ -210,80 +186,36 @@ impl<T: WireMessage, S: Service> MsgSubscriber<T, S> {
             .buffer_size(qos.buffer_size)
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the subscriber", e))?;
-        let side = SubscriberSide::create(node, &name, &events)?;
-        let me = Self {
-            side,
-            subscriber,
-            svc,
+        Ok(Self {
+            port: SubscriberPort::new(node, &name, &events, svc, subscriber)?,
             run_hash: node.run.run_hash,
             tracker: std::cell::RefCell::new(SeqTracker::new(T::CHANNEL)),
-            _t: PhantomData,
-        };
-        me.refresh(true);
-        Ok(me)
+        })
     }
 
-    /// Connect to publishers that appeared since the last call and confirm to them (see
-    /// [`crate::reliable`]). `receive` does this by itself (re-listing at most every 50 ms
-    /// unless the number of publishers changed), and so does a [`crate::Waiter`] on wake-up;
-    /// call it when the subscriber was created before a publisher that now waits for it in the
-    /// same thread.
+    /// Connect to new publishers and confirm to them now, as
+    /// [`crate::TransitionSubscriber::update_connections`] does.
     pub fn update_connections(&self) {
         self.refresh(true)
     }
 
     pub(crate) fn refresh(&self, force: bool) {
-        let dc = self.svc.dynamic_config();
-        self.side.refresh(
-            dc.number_of_publishers(),
-            force,
-            |ids| {
-                dc.list_publishers(|p| {
-                    ids.push(p.publisher_id.value());
-                    iceoryx2::prelude::CallbackProgression::Continue
-                })
-            },
-            || self.subscriber.update_connections(),
-        );
+        self.port.refresh(force)
     }
 
     /// The next message, or `None`.
     pub fn receive(&self) -> Result<Option<Received<T>>, ReceiveError> {
-        self.refresh(false);
-        let Some(sample) = self
-            .subscriber
-            .receive()
-            .map_err(|e| ReceiveError::Iceoryx {
-                service: self.side.service.clone(),
-                cause: format!("{e:?}"),
-            })?
-        else {
+        let Some(sample) = self.port.receive()? else {
             return Ok(None);
         };
         let h = *sample.user_header();
-        let reason = if h.schema_version != SCHEMA_VERSION {
-            Some(HeaderMismatch::Schema {
-                expected: SCHEMA_VERSION,
-                found: h.schema_version,
-            })
-        } else if h.run_hash != self.run_hash {
-            Some(HeaderMismatch::Run {
-                expected: self.run_hash,
-                found: h.run_hash,
-            })
-        } else {
-            None
-        };
-        if let Some(reason) = reason {
-            self.tracker.borrow_mut().stats.rejected += 1;
-            let err = ReceiveError::Rejected {
-                channel: T::CHANNEL,
-                producer: ProducerId(h.producer_id),
-                seq: h.seq,
-                reason,
-            };
-            tracing::warn!("{err}");
-            return Err(err);
+        if let Err(reason) =
+            HeaderMismatch::check_schema_and_run(h.schema_version, h.run_hash, self.run_hash)
+        {
+            return Err(self
+                .tracker
+                .borrow_mut()
+                .reject(h.producer_id, h.seq, reason));
         }
         let gap = self
             .tracker
@@ -298,13 +230,13 @@ impl<T: WireMessage, S: Service> MsgSubscriber<T, S> {
 
     /// Publishers currently registered.
     pub fn publishers(&self) -> usize {
-        self.svc.dynamic_config().number_of_publishers()
+        self.port.publishers()
     }
     /// Counters.
     pub fn stats(&self) -> SubscriberStats {
         self.tracker.borrow().stats
     }
     pub(crate) fn side(&self) -> &SubscriberSide<S> {
-        &self.side
+        &self.port.side
     }
 }

@@ -50,7 +50,8 @@ use iceoryx2::service::port_factory::event::PortFactory as EventFactory;
 use iceoryx2::service::Service;
 
 use crate::error::{
-    PortCreateError, PublishError, ReceiveError, SequenceGap, WaitForSubscribersError,
+    HeaderMismatch, PortCreateError, PublishError, ReceiveError, SequenceGap,
+    WaitForSubscribersError,
 };
 use crate::names::{attach_service_name, Channel, ProducerId};
 use crate::run::{ChannelQos, WireNode};
@@ -398,6 +399,17 @@ impl<S: Service> PublisherSide<S> {
         }
     }
 
+    /// Map a failed loan of `bytes` bytes of shared memory.
+    pub fn loan_failed(&self, bytes: usize, cause: impl std::fmt::Debug) -> PublishError {
+        let cause = format!("{cause:?}");
+        PublishError::Loan {
+            service: self.service.clone(),
+            bytes,
+            hint: crate::error::hint_for(&cause),
+            cause,
+        }
+    }
+
     /// Record a successful send.
     pub fn record(&self, seq: u64, delivered: usize, subscribers: usize) -> SendReport {
         let mut st = self.stats.get();
@@ -591,6 +603,20 @@ impl SeqTracker {
             next: HashMap::new(),
             stats: SubscriberStats::default(),
         }
+    }
+
+    /// Count and log a sample from `producer` numbered `seq` whose header did not validate;
+    /// the error to return for it.
+    pub fn reject(&mut self, producer: u32, seq: u64, reason: HeaderMismatch) -> ReceiveError {
+        self.stats.rejected += 1;
+        let err = ReceiveError::Rejected {
+            channel: self.channel,
+            producer: ProducerId(producer),
+            seq,
+            reason,
+        };
+        tracing::warn!("{err}");
+        err
     }
 
     /// Check `seq` from `producer` via publisher port `origin`.

@@ -15,17 +15,13 @@
 //! ```
 
 use std::mem::MaybeUninit;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::AllocationStrategy;
 use iceoryx2::sample::Sample;
 use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::sample_mut_uninit::SampleMutUninit;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
-use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::Service;
 use mbpo_core::{Batch, ReplayBuffer, TransitionSink};
 
@@ -34,6 +30,7 @@ use crate::error::{
     WaitForSubscribersError,
 };
 use crate::names::{Channel, ProducerId, SCHEMA_VERSION};
+use crate::ports::{PublisherPort, SubscriberPort};
 use crate::reliable::{
     backpressure_handler, open_channel_events, pubsub_builder, PublisherSide, PublisherStats,
     SendReport, SeqTracker, SubscriberSide, SubscriberStats,
@@ -79,9 +76,7 @@ pub struct TransitionMeta {
 /// Publishes transition batches; never drops them (blocks while a subscriber's queue is full).
 #[derive(Debug)]
 pub struct TransitionPublisher<S: Service = iceoryx2::service::ipc::Service> {
-    side: PublisherSide<S>,
-    publisher: Publisher<S, [f32], TransitionHeader>,
-    svc: Factory<S>,
+    port: PublisherPort<S, [f32], TransitionHeader>,
     channel: Channel,
     layout: RowLayout,
     layout_hash: u64,
@@ -104,13 +99,14 @@ impl<S: Service> TransitionPublisher<S> {
             });
         }
         let (name, svc) = open_service(node, channel)?;
-        let events = open_channel_events(node, &name, node.run.qos(channel))?;
+        let qos = node.run.qos(channel);
+        let events = open_channel_events(node, &name, qos)?;
         let block = std::sync::Arc::new(crate::reliable::BlockState::default());
         let publisher = svc
             .publisher_builder()
             .initial_max_slice_len(typical_rows.max(1) * layout.width())
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
-            .max_loaned_samples(node.run.qos(channel).max_loaned)
+            .max_loaned_samples(qos.max_loaned)
             .backpressure_strategy(iceoryx2::prelude::BackpressureStrategy::RetryUntilDelivered)
             .set_backpressure_handler(backpressure_handler::<S>(
                 block.clone(),
@@ -120,18 +116,8 @@ impl<S: Service> TransitionPublisher<S> {
             ))
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the publisher", e))?;
-        let side = PublisherSide::create(
-            node,
-            &name,
-            &events,
-            publisher.id().value(),
-            node.run.qos(channel),
-            block,
-        )?;
         Ok(Self {
-            side,
-            publisher,
-            svc,
+            port: PublisherPort::new(node, &name, &events, qos, block, svc, publisher)?,
             channel,
             layout,
             layout_hash: layout.hash(),
@@ -145,14 +131,12 @@ impl<S: Service> TransitionPublisher<S> {
         n: usize,
         timeout: Duration,
     ) -> Result<usize, WaitForSubscribersError> {
-        self.side.wait_for_acks(n, timeout, || {
-            self.svc.dynamic_config().number_of_subscribers()
-        })
+        self.port.wait_for_subscribers(n, timeout)
     }
 
     /// Subscribers currently registered with the service.
     pub fn subscribers(&self) -> usize {
-        self.svc.dynamic_config().number_of_subscribers()
+        self.port.subscribers()
     }
 
     /// Send every row of `batch`.
@@ -247,14 +231,10 @@ impl<S: Service> TransitionPublisher<S> {
             )));
         }
         let len = n_rows * self.layout.width();
-        self.publisher
+        self.port
+            .publisher
             .loan_slice_uninit(len)
-            .map_err(|e| PublishError::Loan {
-                service: self.side.service.clone(),
-                bytes: len * 4,
-                cause: format!("{e:?}"),
-                hint: crate::error::hint_for(&format!("{e:?}")),
-            })
+            .map_err(|e| self.port.side.loan_failed(len * 4, e))
     }
 
     /// Loan room for `n_rows` rows in shared memory, to be written in place through
@@ -289,9 +269,10 @@ impl<S: Service> TransitionPublisher<S> {
         n_rows: usize,
         meta: TransitionMeta,
     ) -> Result<SendReport, PublishError> {
-        let seq = self.side.take_seq();
+        let side = &self.port.side;
+        let seq = side.take_seq();
         *sample.user_header_mut() = TransitionHeader {
-            run_hash: self.side.run_hash,
+            run_hash: side.run_hash,
             seq,
             policy_version: meta.policy_version,
             model_version: meta.model_version,
@@ -299,25 +280,20 @@ impl<S: Service> TransitionPublisher<S> {
             layout_hash: self.layout_hash,
             send_time_ns: now_ns(),
             schema_version: SCHEMA_VERSION,
-            producer_id: self.side.producer.0,
+            producer_id: side.producer.0,
             stream: self.channel.tag(),
             n_rows: n_rows as u32,
             obs_dim: self.layout.obs_dim as u32,
             act_dim: self.layout.act_dim as u32,
         };
-        let subscribers = self.subscribers();
-        let started = Instant::now();
-        let delivered = sample
-            .send()
-            .map_err(|e| self.side.send_failed(seq, e, started))?;
-        let report = self.side.record(seq, delivered, subscribers);
-        self.side.notify()?;
+        let report = self.port.deliver(sample, seq)?;
+        side.notify()?;
         Ok(report)
     }
 
     /// The sequence number the next batch will carry.
     pub fn next_seq(&self) -> u64 {
-        self.side.next_seq.get()
+        self.port.side.next_seq.get()
     }
     /// The row layout.
     pub fn layout(&self) -> RowLayout {
@@ -329,10 +305,10 @@ impl<S: Service> TransitionPublisher<S> {
     }
     /// Counters.
     pub fn stats(&self) -> PublisherStats {
-        self.side.stats()
+        self.port.side.stats()
     }
     pub(crate) fn side(&self) -> &PublisherSide<S> {
-        &self.side
+        &self.port.side
     }
 }
 
@@ -361,9 +337,7 @@ fn pack_uninit(layout: &RowLayout, batch: &Batch, start: usize, dst: &mut [Maybe
 #[derive(Debug)]
 pub struct TransitionSubscriber<S: Service = iceoryx2::service::ipc::Service> {
     max_borrowed: usize,
-    side: SubscriberSide<S>,
-    subscriber: Subscriber<S, [f32], TransitionHeader>,
-    svc: Factory<S>,
+    port: SubscriberPort<S, [f32], TransitionHeader>,
     channel: Channel,
     layout: RowLayout,
     layout_hash: u64,
@@ -491,20 +465,15 @@ impl<S: Service> TransitionSubscriber<S> {
             .buffer_size(qos.buffer_size)
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the subscriber", e))?;
-        let side = SubscriberSide::create(node, &name, &events)?;
-        let me = Self {
+        Ok(Self {
             max_borrowed: qos.max_borrowed,
-            side,
-            subscriber,
-            svc,
+            port: SubscriberPort::new(node, &name, &events, svc, subscriber)?,
             channel,
             layout,
             layout_hash: layout.hash(),
             run_hash: node.run.run_hash,
             tracker: std::cell::RefCell::new(SeqTracker::new(channel)),
-        };
-        me.refresh(true);
-        Ok(me)
+        })
     }
 
     /// Connect to publishers that appeared since the last call and confirm to them (see
@@ -517,33 +486,14 @@ impl<S: Service> TransitionSubscriber<S> {
     }
 
     pub(crate) fn refresh(&self, force: bool) {
-        let dc = self.svc.dynamic_config();
-        self.side.refresh(
-            dc.number_of_publishers(),
-            force,
-            |ids| {
-                dc.list_publishers(|p| {
-                    ids.push(p.publisher_id.value());
-                    iceoryx2::prelude::CallbackProgression::Continue
-                })
-            },
-            || self.subscriber.update_connections(),
-        );
+        self.port.refresh(force)
     }
 
     /// The next batch, or `None` when nothing is pending. A batch whose header does not match
     /// this port is released and reported as [`ReceiveError::Rejected`]; keep calling to get
     /// the following ones.
     pub fn receive(&self) -> Result<Option<TransitionBatch<S>>, ReceiveError> {
-        self.refresh(false);
-        let Some(sample) = self
-            .subscriber
-            .receive()
-            .map_err(|e| ReceiveError::Iceoryx {
-                service: self.side.service.clone(),
-                cause: format!("{e:?}"),
-            })?
-        else {
+        let Some(sample) = self.port.receive()? else {
             return Ok(None);
         };
         let h = *sample.user_header();
@@ -555,15 +505,10 @@ impl<S: Service> TransitionSubscriber<S> {
             self.layout,
             self.layout_hash,
         ) {
-            self.tracker.borrow_mut().stats.rejected += 1;
-            let err = ReceiveError::Rejected {
-                channel: self.channel,
-                producer: ProducerId(h.producer_id),
-                seq: h.seq,
-                reason,
-            };
-            tracing::warn!("{err}");
-            return Err(err);
+            return Err(self
+                .tracker
+                .borrow_mut()
+                .reject(h.producer_id, h.seq, reason));
         }
         let gap = self
             .tracker
@@ -593,7 +538,7 @@ impl<S: Service> TransitionSubscriber<S> {
 
     /// Publishers currently registered with the service.
     pub fn publishers(&self) -> usize {
-        self.svc.dynamic_config().number_of_publishers()
+        self.port.publishers()
     }
     /// Batches this port may hold at once (received and not yet dropped).
     pub fn max_borrowed(&self) -> usize {
@@ -601,17 +546,12 @@ impl<S: Service> TransitionSubscriber<S> {
     }
     /// Whether a batch is waiting to be received.
     pub fn has_pending(&self) -> Result<bool, ReceiveError> {
-        self.subscriber
-            .has_samples()
-            .map_err(|e| ReceiveError::Iceoryx {
-                service: self.side.service.clone(),
-                cause: format!("{e:?}"),
-            })
+        Ok(self.port.has_samples()?)
     }
     /// Times this port listed the registered publishers: the only step of a receive that
     /// allocates once connected (inside iceoryx2; at most every 50 ms, none per sample).
     pub fn publisher_relists(&self) -> u64 {
-        self.side.relists()
+        self.port.side.relists()
     }
     /// Counters: received, rejected, gaps, missing, restarts.
     pub fn stats(&self) -> SubscriberStats {
@@ -622,7 +562,7 @@ impl<S: Service> TransitionSubscriber<S> {
         self.layout
     }
     pub(crate) fn side(&self) -> &SubscriberSide<S> {
-        &self.side
+        &self.port.side
     }
 }
 

@@ -6,19 +6,15 @@
 //! on its next publish, on [`WeightsPublisher::update_connections`], or at once when the
 //! publisher sleeps in a [`crate::Waiter`] (the new subscriber's attach confirmation wakes it).
 
-use std::time::Instant;
-
-use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::AllocationStrategy;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
-use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::Service;
 
 use crate::error::{HeaderMismatch, PortCreateError, PublishError, WeightsReceiveError};
 use crate::names::{ProducerId, SCHEMA_VERSION};
+use crate::ports::{PublisherPort, SubscriberPort};
 use crate::reliable::{
     open_channel_events, pubsub_builder, PublisherSide, PublisherStats, SubscriberSide,
 };
@@ -42,9 +38,7 @@ fn open_service<S: Service>(
 /// Publishes weight snapshots of one network.
 #[derive(Debug)]
 pub struct WeightsPublisher<S: Service = iceoryx2::service::ipc::Service> {
-    side: PublisherSide<S>,
-    publisher: Publisher<S, [f32], WeightsHeader>,
-    svc: Factory<S>,
+    port: PublisherPort<S, [f32], WeightsHeader>,
     kind: WeightsKind,
     layout_hash: u64,
     n_values: usize,
@@ -77,18 +71,16 @@ impl<S: Service> WeightsPublisher<S> {
             .max_loaned_samples(qos.max_loaned)
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the publisher", e))?;
-        let side = PublisherSide::create(
-            node,
-            &name,
-            &events,
-            publisher.id().value(),
-            qos,
-            Default::default(),
-        )?;
         Ok(Self {
-            side,
-            publisher,
-            svc,
+            port: PublisherPort::new(
+                node,
+                &name,
+                &events,
+                qos,
+                Default::default(),
+                svc,
+                publisher,
+            )?,
             kind,
             layout_hash,
             n_values,
@@ -118,18 +110,15 @@ impl<S: Service> WeightsPublisher<S> {
                 self.version.get()
             )));
         }
+        let side = &self.port.side;
         let sample = self
+            .port
             .publisher
             .loan_slice_uninit(params.len())
-            .map_err(|e| PublishError::Loan {
-                service: self.side.service.clone(),
-                bytes: params.len() * 4,
-                cause: format!("{e:?}"),
-                hint: crate::error::hint_for(&format!("{e:?}")),
-            })?;
+            .map_err(|e| side.loan_failed(params.len() * 4, e))?;
         let mut sample = sample.write_from_slice(params);
         *sample.user_header_mut() = WeightsHeader {
-            run_hash: self.side.run_hash,
+            run_hash: side.run_hash,
             version,
             layout_hash: self.layout_hash,
             n_values: params.len() as u64,
@@ -139,32 +128,28 @@ impl<S: Service> WeightsPublisher<S> {
             send_time_ns: now_ns(),
             schema_version: SCHEMA_VERSION,
             kind: self.kind as u32,
-            producer_id: self.side.producer.0,
+            producer_id: side.producer.0,
             reserved: 0,
         };
-        let subscribers = self.svc.dynamic_config().number_of_subscribers();
-        let started = Instant::now();
-        let delivered = sample
-            .send()
-            .map_err(|e| self.side.send_failed(version, e, started))?;
+        self.port.deliver(sample, version)?;
         self.version.set(version);
-        self.side.record(version, delivered, subscribers);
-        self.side.notify()
+        side.notify()
     }
 
     /// Deliver the current snapshot to subscribers that connected since the last publish.
     /// Call it from an idle loop if the publisher does not sleep in a [`crate::Waiter`].
     pub fn update_connections(&self) -> Result<(), PublishError> {
-        self.side.poll_acks();
-        self.publisher
+        self.port.side.poll_acks();
+        self.port
+            .publisher
             .update_connections()
             .map_err(|e| PublishError::Send {
-                service: self.side.service.clone(),
+                service: self.port.side.service.clone(),
                 seq: self.version.get(),
                 cause: format!("{e:?}"),
             })?;
         if self.version.get() > 0 {
-            self.side.notify()?;
+            self.port.side.notify()?;
         }
         Ok(())
     }
@@ -175,7 +160,7 @@ impl<S: Service> WeightsPublisher<S> {
     }
     /// Subscribers currently registered.
     pub fn subscribers(&self) -> usize {
-        self.svc.dynamic_config().number_of_subscribers()
+        self.port.subscribers()
     }
     /// Block until `n` subscribers confirmed their connection.
     pub fn wait_for_subscribers(
@@ -183,21 +168,19 @@ impl<S: Service> WeightsPublisher<S> {
         n: usize,
         timeout: std::time::Duration,
     ) -> Result<usize, crate::WaitForSubscribersError> {
-        self.side.wait_for_acks(n, timeout, || {
-            self.svc.dynamic_config().number_of_subscribers()
-        })
+        self.port.wait_for_subscribers(n, timeout)
     }
     /// Counters.
     pub fn stats(&self) -> PublisherStats {
-        self.side.stats()
+        self.port.side.stats()
     }
     pub(crate) fn side(&self) -> &PublisherSide<S> {
-        &self.side
+        &self.port.side
     }
     /// Take the confirmations that woke the port (connecting to the new subscribers); `true`
     /// when there were any.
     pub(crate) fn on_wake(&self) -> bool {
-        let woken = self.side.poll_acks() > 0;
+        let woken = self.port.side.poll_acks() > 0;
         if woken {
             if let Err(e) = self.update_connections() {
                 tracing::warn!("{e}");
@@ -231,9 +214,7 @@ impl<S: Service> WeightsSnapshot<S> {
 /// Receives the newest weight snapshot of one network, validating kind, layout hash and length.
 #[derive(Debug)]
 pub struct WeightsSubscriber<S: Service = iceoryx2::service::ipc::Service> {
-    side: SubscriberSide<S>,
-    subscriber: Subscriber<S, [f32], WeightsHeader>,
-    svc: Factory<S>,
+    port: SubscriberPort<S, [f32], WeightsHeader>,
     kind: WeightsKind,
     layout_hash: u64,
     n_values: usize,
@@ -258,43 +239,24 @@ impl<S: Service> WeightsSubscriber<S> {
             .history_request(1)
             .create()
             .map_err(|e| PortCreateError::iceoryx(&name, "creating the subscriber", e))?;
-        let side = SubscriberSide::create(node, &name, &events)?;
-        let me = Self {
-            side,
-            subscriber,
-            svc,
+        Ok(Self {
+            port: SubscriberPort::new(node, &name, &events, svc, subscriber)?,
             kind,
             layout_hash,
             n_values,
             run_hash: node.run.run_hash,
             last: std::cell::Cell::new(None),
-        };
-        me.refresh(true);
-        Ok(me)
+        })
     }
 
-    /// Connect to publishers that appeared since the last call and confirm to them (see
-    /// [`crate::reliable`]). `receive` does this by itself (re-listing at most every 50 ms
-    /// unless the number of publishers changed), and so does a [`crate::Waiter`] on wake-up;
-    /// call it when the subscriber was created before a publisher that now waits for it in the
-    /// same thread.
+    /// Connect to new publishers and confirm to them now, as
+    /// [`crate::TransitionSubscriber::update_connections`] does.
     pub fn update_connections(&self) {
         self.refresh(true)
     }
 
     pub(crate) fn refresh(&self, force: bool) {
-        let dc = self.svc.dynamic_config();
-        self.side.refresh(
-            dc.number_of_publishers(),
-            force,
-            |ids| {
-                dc.list_publishers(|p| {
-                    ids.push(p.publisher_id.value());
-                    iceoryx2::prelude::CallbackProgression::Continue
-                })
-            },
-            || self.subscriber.update_connections(),
-        );
+        self.port.refresh(force)
     }
 
     fn validate(&self, h: &WeightsHeader, payload: usize) -> Result<(), HeaderMismatch> {
@@ -311,17 +273,8 @@ impl<S: Service> WeightsSubscriber<S> {
     /// The newest snapshot if it is newer than the last one returned, else `None`. A
     /// restarted publisher (new port) may start again from any version.
     pub fn receive_latest(&self) -> Result<Option<WeightsSnapshot<S>>, WeightsReceiveError> {
-        self.refresh(false);
         let mut newest = None;
-        loop {
-            let sample = self
-                .subscriber
-                .receive()
-                .map_err(|e| WeightsReceiveError::Iceoryx {
-                    service: self.side.service.clone(),
-                    cause: format!("{e:?}"),
-                })?;
-            let Some(sample) = sample else { break };
+        while let Some(sample) = self.port.receive()? {
             let h = *sample.user_header();
             if let Err(reason) = self.validate(&h, sample.payload().len()) {
                 let err = WeightsReceiveError::Rejected {
@@ -370,14 +323,14 @@ impl<S: Service> WeightsSubscriber<S> {
     /// Times this port listed the registered publishers: the only step of a receive that
     /// allocates once connected (inside iceoryx2; at most every 50 ms, none per sample).
     pub fn publisher_relists(&self) -> u64 {
-        self.side.relists()
+        self.port.side.relists()
     }
     /// Version of the last snapshot returned (0 before the first).
     pub fn last_version(&self) -> u64 {
         self.last.get().map_or(0, |(_, v)| v)
     }
     pub(crate) fn side(&self) -> &SubscriberSide<S> {
-        &self.side
+        &self.port.side
     }
 }
 
