@@ -1,14 +1,11 @@
 //! Learning curves as a markdown table, for the README and issue notes: each run's eval return
-//! at every `every` env steps, the mean of its last [`LAST_EVALUATIONS`] evaluations (one
+//! at every `every` env steps, the mean of its last [`RECENT_EVALUATIONS`] evaluations (one
 //! evaluation swings widely; a collapse shows in the mean) and its best, then the median over
 //! the group's runs and the paper's curve at the same env steps.
 
 use crate::{group_name, group_runs, read_curve, PaperCurve, PlotError};
-use mbpo_core::stats::median;
+use mbpo_core::stats::{median, RECENT_EVALUATIONS};
 use std::path::{Path, PathBuf};
-
-/// How many final evaluations the "mean of last" column averages.
-pub const LAST_EVALUATIONS: usize = 10;
 
 /// `12000` -> `12k`; other step counts as they are.
 fn steps_label(steps: u64) -> String {
@@ -55,7 +52,7 @@ impl Row {
                     .flatten()
             })
             .collect();
-        let tail = &points[points.len().saturating_sub(LAST_EVALUATIONS)..];
+        let tail = &points[points.len().saturating_sub(RECENT_EVALUATIONS)..];
         let last = (!tail.is_empty()).then(|| {
             let mean = tail.iter().map(|p| p.1).sum::<f64>() / tail.len() as f64;
             (mean, tail[0].0 as u64, last_step)
@@ -87,7 +84,7 @@ fn median_cell(mut values: Vec<f64>, rows: usize) -> String {
 fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) -> String {
     let mut header = vec!["env steps".to_string()];
     header.extend(columns.iter().map(|&c| steps_label(c)));
-    header.push(format!("mean of last {LAST_EVALUATIONS}"));
+    header.push(format!("mean of last {RECENT_EVALUATIONS}"));
     header.push("best".into());
     let line = |cells: Vec<String>| format!("| {} |\n", cells.join(" | "));
     let mut out = line(header.clone());

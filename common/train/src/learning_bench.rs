@@ -15,7 +15,7 @@
 use crate::config::{Algo, ExperimentConfig};
 use crate::error::TrainError;
 use crate::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
-use mbpo_core::stats::median;
+use mbpo_core::stats::{median, RECENT_EVALUATIONS};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -54,15 +54,12 @@ pub struct BudgetPoint {
     pub evaluated_at: Option<u64>,
     /// Wall-clock seconds of the run at that evaluation.
     pub wall_seconds: Option<f64>,
-    /// Mean return of the last [`RECENT_EVALUATIONS`] evaluations at or before the budget: one
-    /// evaluation episode swings widely (HalfCheetah: 5161 at 19k, 696 at 20k), the mean of a
-    /// few says more about the policy of that time.
+    /// Mean return of the last [`RECENT_EVALUATIONS`] evaluations at or before the budget
+    /// (fewer if the run has fewer): the mean of several says more about the policy of that
+    /// time than one evaluation. Files written before this counted 5, not 10.
     #[serde(default)]
     pub recent_mean_return: Option<f64>,
 }
-
-/// How many evaluations up to a budget [`BudgetPoint::recent_mean_return`] averages.
-pub const RECENT_EVALUATIONS: usize = 5;
 
 /// All seeds at one env-step budget.
 #[derive(Debug, Clone, Serialize, Deserialize, PartialEq)]
@@ -80,6 +77,15 @@ pub struct BudgetSummary {
     /// Median over those seeds of [`BudgetPoint::recent_mean_return`].
     #[serde(default)]
     pub median_recent_mean_return: Option<f64>,
+    /// How many evaluations each seed's [`BudgetPoint::recent_mean_return`] averaged
+    /// ([`RECENT_EVALUATIONS`]), so a results file says which mean it holds.
+    #[serde(default = "recent_evaluations_before_the_field")]
+    pub recent_evaluations: usize,
+}
+
+/// Results files written before [`BudgetSummary::recent_evaluations`] averaged the last 5.
+fn recent_evaluations_before_the_field() -> usize {
+    5
 }
 
 /// The last row with env steps ≤ `budget` of a curve sorted by env steps.
@@ -136,6 +142,7 @@ pub fn summarize_budgets(seeds: &[SeedResult], budgets: &[u64]) -> Vec<BudgetSum
                     .then(|| returns.iter().sum::<f64>() / returns.len() as f64),
                 median_wall_seconds: median(&mut walls),
                 median_recent_mean_return: median(&mut recent),
+                recent_evaluations: RECENT_EVALUATIONS,
             }
         })
         .collect()
@@ -348,7 +355,7 @@ mod tests {
             .map(|b| (b.env_steps, b.eval_return, b.evaluated_at, b.wall_seconds))
             .collect();
         let recent: Vec<_> = p.iter().map(|b| b.recent_mean_return).collect();
-        // 500: the mean of 10 and 20; 1000: of all four evaluations (fewer than 5 so far).
+        // 500: the mean of 10 and 20; 1000: of all four evaluations (fewer than 10 so far).
         assert_eq!(recent, vec![Some(15.0), Some(15.0), Some(25.0), None]);
         assert_eq!(
             got,
@@ -363,14 +370,14 @@ mod tests {
     }
 
     #[test]
-    fn the_recent_mean_takes_the_last_five_evaluations_up_to_the_budget() {
-        let eval: Vec<(u64, f64)> = (1..=8).map(|k| (100 * k, k as f64)).collect();
+    fn the_recent_mean_takes_the_last_ten_evaluations_up_to_the_budget() {
+        let eval: Vec<(u64, f64)> = (1..=14).map(|k| (100 * k, k as f64)).collect();
         let wall: Vec<(u64, f64)> = eval.clone();
-        let p = budget_points(&eval, &wall, &[700, 750]);
-        // 300..=700: returns 3..=7.
-        assert_eq!(p[0].recent_mean_return, Some(5.0));
-        assert_eq!(p[1].recent_mean_return, Some(5.0));
-        assert_eq!(p[1].eval_return, Some(7.0));
+        let p = budget_points(&eval, &wall, &[1200, 1250]);
+        // 300..=1200: returns 3..=12, the last ten; 1 and 2 (and 13, 14, after) not counted.
+        assert_eq!(p[0].recent_mean_return, Some(7.5));
+        assert_eq!(p[1].recent_mean_return, Some(7.5));
+        assert_eq!(p[1].eval_return, Some(12.0));
     }
 
     #[test]
@@ -547,6 +554,33 @@ mod tests {
         assert_eq!(kept.seeds[0].env_steps_to_target, Some(250));
         assert_eq!(all["sac"].median_env_steps_to_target, Some(300));
         std::fs::remove_dir_all(out).unwrap();
+    }
+
+    #[test]
+    fn a_budget_summary_says_how_many_evaluations_its_recent_mean_took() {
+        let old = r#"{"env_steps": 50000, "seeds_reached": 3, "median_eval_return": 1.0,
+            "mean_eval_return": 1.0, "median_wall_seconds": 9.0, "median_recent_mean_return": 2.0}"#;
+        let old: BudgetSummary = serde_json::from_str(old).unwrap();
+        assert_eq!(
+            old.recent_evaluations, 5,
+            "files from before the field averaged 5"
+        );
+        let eval: Vec<(u64, f64)> = (1..=3).map(|k| (100 * k, k as f64)).collect();
+        let seed = SeedResult {
+            seed: 0,
+            at_budgets: budget_points(&eval, &eval, &[300]),
+            curve: eval,
+            final_return: 3.0,
+            env_steps_to_target: None,
+            wall_seconds: 3.0,
+            run_dir: PathBuf::new(),
+        };
+        let new = &summarize_budgets(&[seed], &[300])[0];
+        assert_eq!(new.recent_evaluations, RECENT_EVALUATIONS);
+        assert_eq!(
+            RECENT_EVALUATIONS, 10,
+            "issue 23's goal: the mean of the last 10"
+        );
     }
 
     #[test]
