@@ -558,3 +558,41 @@ fn chaos_kills_the_supervisor_and_the_resumed_run_completes_and_cleans_up() {
     assert_run_held(run);
     let _ = std::fs::remove_dir_all(dir);
 }
+
+/// A service binary missing beside `mbpo` (a hand-made build of some packages only) is named
+/// with the command that builds it, not left as a bare "No such file or directory".
+#[test]
+fn a_missing_service_binary_is_named_with_the_command_that_builds_it() {
+    let dir = scratch("lone-mbpo");
+    std::fs::copy(bin_dir().join("mbpo"), dir.join("mbpo")).unwrap();
+    let lone = || Command::new(dir.join("mbpo"));
+    let out = lone()
+        .args(["run", "--config"])
+        .arg(config_file())
+        .args(["--steps", "100", "--out"])
+        .arg(dir.join("run"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("No such file"), "{err}");
+    assert!(
+        err.contains("cargo build") && err.contains("-p mbpo-"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
+    let out = lone()
+        .args(["certs", "--out"])
+        .arg(dir.join("creds"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        err.contains("mbpo-gateway") && err.contains("-p mbpo-gateway"),
+        "{err}"
+    );
+    assert!(err.contains("deploy/worker.sh"), "{err}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

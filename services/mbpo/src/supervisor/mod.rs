@@ -82,12 +82,9 @@ impl Proc {
             .stdout(log.try_clone()?)
             .stderr(log)
             .spawn()
-            .with_context(|| {
-                format!(
-                    "starting {} ({}): build the service binaries next to mbpo (cargo build -p mbpo-actor -p mbpo-model-trainer -p mbpo-rollout-generator -p mbpo-sac-learner)",
-                    self.name,
-                    self.bin.display()
-                )
+            .map_err(|e| {
+                let (bin, hint) = (self.bin.display(), build_hint(&self.bin));
+                anyhow::anyhow!("starting {} ({bin}): {e}; {hint}", self.name)
             })?;
         if let Some(cpu) = self.cpu {
             pin(child.id() as i32, cpu);
@@ -178,7 +175,28 @@ pub fn gateway(command: &str, args: &[String]) -> anyhow::Result<()> {
         .arg(command)
         .args(args)
         .exec();
-    Err(anyhow::anyhow!("starting {}: {err}", bin.display()))
+    Err(anyhow::anyhow!(
+        "starting {}: {err}; {}",
+        bin.display(),
+        build_hint(&bin)
+    ))
+}
+
+/// What to do when the service binary `bin` (named as its package) cannot be started: build
+/// it beside `mbpo`. The scripts build only what they run (deploy/run.sh the one-host
+/// pipeline, deploy/worker.sh adds the gateway), so a command run by hand may miss one.
+fn build_hint(bin: &Path) -> String {
+    let package = bin.file_name().unwrap_or(bin.as_os_str()).to_string_lossy();
+    let release = bin.parent().is_some_and(|dir| dir.ends_with("release"));
+    let script = if package == "mbpo-gateway" {
+        "deploy/worker.sh builds it with the rest"
+    } else {
+        "deploy/run.sh builds every service of a one-host run"
+    };
+    format!(
+        "build it next to mbpo: `cargo build {}-p {package}` ({script})",
+        if release { "--release " } else { "" },
+    )
 }
 
 /// Run the pipeline per `args`.
