@@ -7,7 +7,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash deploy/setup_mujoco.sh >&2
-cargo build --release --locked -p mbpo --features mujoco >&2
+bash deploy/build.sh cli >&2
 echo "load: $(uptime)" >&2
 ./target/release/mbpo bench env "$@"
 .venv/bin/python tools/gym_env_speed.py "$@"

@@ -22,8 +22,7 @@ if [ ${#ids[@]} -eq 0 ]; then
     ids=(Pendulum-v1)
     if .venv/bin/python -c "import mujoco" 2>/dev/null; then ids+=(HalfCheetah-v5 Hopper-v5); fi
 fi
-source deploy/build_features.sh
-cargo build --release --locked -p mbpo "${features[@]}" >&2
+bash deploy/build.sh cli >&2
 echo "load: $(uptime)" >&2
 out="$(mktemp)"
 trap 'rm -f "$out"' EXIT

@@ -84,7 +84,7 @@ if [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ] && [ -w /proc/self/autogroup ]; 
     echo 19 > /proc/self/autogroup 2>/dev/null || true
 fi
 bash deploy/setup_mujoco.sh >&2
-cargo build --release --locked -p mbpo --features mujoco >&2
+bash deploy/build.sh cli >&2
 mbpo=./target/release/mbpo
 mkdir -p "$out/runs"
 bash deploy/park_runs.sh --restore

@@ -16,7 +16,7 @@
 #    where the Rust environments load hopper.xml etc. from (override: MBPO_MUJOCO_ASSETS).
 #
 # Idempotent and fast when everything is in place (CI calls it from deploy/test.sh every time).
-# Usage: bash deploy/setup_mujoco.sh    then e.g.  cargo build --release -p mbpo --features mujoco
+# Usage: bash deploy/setup_mujoco.sh    then e.g.  bash deploy/build.sh pipeline (with --features mujoco)
 set -euo pipefail
 
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -27,8 +27,7 @@ cd "$repo"
 [ -x "$venv/bin/python" ] || python3 -m venv "$venv"
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-torch.txt
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -r tools/requirements-mbrl.txt
-source deploy/build_features.sh
-cargo build --release --locked -p mbpo "${features[@]}" >&2
+bash deploy/build.sh cli >&2
 
 log="$(mktemp /tmp/model-bench-compare.XXXXXX)"
 for threads in 1 2; do

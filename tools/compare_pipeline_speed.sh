@@ -71,14 +71,12 @@ mbrl_wait="${OMP_WAIT_POLICY:-$mbrl_wait}"
 seed="${SEED:-0}"
 cd "$repo"
 # The supervisor and the service binaries `mbpo run` starts, with the MuJoCo tasks when MuJoCo
-# is set up (deploy/build_features.sh: a build without them would also take them from the
-# learning lanes' binary).
-source deploy/build_features.sh
+# is set up (deploy/build.sh: a build without them would also take them from the learning
+# lanes' binary).
 if [ "$task" = hopper ]; then
     bash deploy/setup_mujoco.sh >&2
-    features=(--features mujoco)
 fi
-cargo build --release --locked "${pipeline_packages[@]}" "${features[@]}" >&2
+bash deploy/build.sh pipeline >&2
 
 config="deploy/configs/$task.toml"
 out="$(mktemp -d /tmp/pipeline-speed.XXXXXX)"

@@ -21,8 +21,7 @@ if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-torch.txt
-source deploy/build_features.sh
-cargo build --release --locked -p mbpo "${features[@]}" >&2
+bash deploy/build.sh cli >&2
 
 log="$(mktemp /tmp/sac-update-compare.XXXXXX)"
 for threads in 1 2; do

@@ -183,15 +183,15 @@ pub fn gateway(command: &str, args: &[String]) -> anyhow::Result<()> {
 }
 
 /// What to do when the service binary `bin` (named as its package) cannot be started: build
-/// it beside `mbpo`. The scripts build only what they run (deploy/run.sh the one-host
-/// pipeline, deploy/worker.sh adds the gateway), so a command run by hand may miss one.
+/// it beside `mbpo`. deploy/build.sh builds only what a role runs (the one-host pipeline has no
+/// gateway; a worker no learner), so a command run with another role's build may miss one.
 fn build_hint(bin: &Path) -> String {
     let package = bin.file_name().unwrap_or(bin.as_os_str()).to_string_lossy();
     let release = bin.parent().is_some_and(|dir| dir.ends_with("release"));
     let script = if package == "mbpo-gateway" {
-        "deploy/worker.sh builds it with the rest"
+        "`bash deploy/build.sh head` builds it with the rest, deploy/worker.sh a worker's"
     } else {
-        "deploy/run.sh builds every service of a one-host run"
+        "`bash deploy/build.sh pipeline` builds every service of a one-host run"
     };
     format!(
         "build it next to mbpo: `cargo build {}-p {package}` ({script})",
