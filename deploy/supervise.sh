@@ -10,8 +10,8 @@
 # Every flag is passed to `mbpo run` (see `mbpo run --help`); --config defaults to
 # deploy/configs/pendulum.toml. Logs of each process: <run-dir>/logs/<process>.log.
 # Ctrl-C (SIGINT) or SIGTERM stops every process within seconds and removes the run's shared memory.
-# A config of a MuJoCo task (e.g. deploy/configs/halfcheetah.toml) first runs deploy/setup_mujoco.sh,
-# so the build has the `mujoco` feature.
+# A config of a MuJoCo task (e.g. deploy/configs/halfcheetah.toml) first runs
+# deploy/setup_mujoco.sh, so the build has the `mujoco` feature.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 args=("$@")
