@@ -34,6 +34,8 @@ CLIP = 10.0
 def measure(env_id, steps, seed):
     import gymnasium as gym
 
+    # After the import: gymnasium sets its own filter for its "out of date" warning (v4).
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
     env = gym.make(env_id)
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -124,7 +126,6 @@ def main():
         except ValueError as error:  # MuJoCo's own message names the file and what is wrong
             sys.exit(f"--engine-only {args.engine_only}: {error}")
         return
-    warnings.filterwarnings("ignore", category=DeprecationWarning)  # v4 "out of date"
     results = [measure(task, args.steps, args.seed) for task in TASKS]
     for result in results:
         print(json.dumps(result))
