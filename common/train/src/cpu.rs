@@ -1,11 +1,14 @@
 //! What this CPU means for a run's results, logged once by every process that computes
 //! (`mbpo train`, `mbpo bench`, each service of `mbpo run` on every host): runs are the same bits
 //! on every x86-64 CPU with AVX2 and FMA, and other bits elsewhere
-//! ([`mbpo_nn::simd::faer_x86_gemm_kernels`] says why).
+//! ([`mbpo_nn::simd::faer_x86_gemm_kernels`] says why). On an x86-64 CPU without AVX2 and FMA
+//! it also warns about speed: the baseline copy of the element-wise kernels makes each
+//! `mul_add` a library call (a correctly rounded fused multiply-add, so that every level gives
+//! the same bits; software where the CPU has no FMA) and runs one lane at a time.
 
 use std::sync::Once;
 
-use mbpo_nn::simd::{faer_x86_gemm_kernels, simd_level};
+use mbpo_nn::simd::{faer_x86_gemm_kernels, simd_level, SimdLevel};
 
 /// Logs the kernels this process takes, and warns when its results cannot equal those of
 /// x86-64 machines with AVX2 and FMA (a lockstep run across such hosts, or a run repeated on
@@ -26,6 +29,16 @@ pub fn log_cpu_kernels() {
                  runs made on one kind of CPU, and run a multi-host lockstep check on hosts of one kind",
                 std::env::consts::ARCH
             );
+            if cfg!(target_arch = "x86_64") && simd_level() == SimdLevel::Baseline {
+                tracing::warn!(
+                    "CPU kernels: without AVX2 and FMA every multiply-add of the element-wise \
+                     kernels (activations, Adam, the model's Gaussian head) is a library call, \
+                     one lane at a time: model training runs tens of times slower than on a CPU \
+                     with AVX2 and FMA (one model epoch over 10k transitions: 44 s at this level \
+                     against 0.9 s with AVX2 on the same CPU, results/measurements.md session \
+                     42; slower still where the call is software)"
+                );
+            }
         }
     });
 }
