@@ -19,6 +19,19 @@
 # Usage: bash deploy/setup_mujoco.sh    then e.g.  bash deploy/build.sh pipeline (with --features mujoco)
 set -euo pipefail
 
+# MuJoCo's x86-64 library (the wheel's) is built for AVX: on a CPU without it every binary
+# linked with the feature, whatever it is asked to do, dies with "Illegal instruction" before
+# main (seen under QEMU's Nehalem; its Sandy Bridge, with AVX, runs). Refuse here, before
+# .mujoco/ exists, so that deploy/build.sh keeps building without the feature. Exit 3 says
+# "this CPU cannot run MuJoCo" to callers that can go on without it (deploy/test.sh).
+if [ "$(uname -m)" = x86_64 ] && [ -r /proc/cpuinfo ] && ! grep -qw avx /proc/cpuinfo; then
+    echo "setup_mujoco: this CPU has no AVX, which MuJoCo's library needs (binaries built with" \
+        "--features mujoco would die with 'Illegal instruction'); the MuJoCo tasks cannot run" \
+        "here. Everything else does: deploy/build.sh builds without the feature while .mujoco/" \
+        "does not exist (remove it if it was copied from another machine)" >&2
+    exit 3
+fi
+
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$repo/.venv"
 dest="$repo/.mujoco"
