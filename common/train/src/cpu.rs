@@ -8,7 +8,7 @@
 
 use std::sync::Once;
 
-use mbpo_nn::simd::{faer_x86_gemm_kernels, simd_level, SimdLevel};
+use mbpo_nn::simd::{faer_x86_gemm_kernels, simd_level};
 
 /// Logs the kernels this process takes, and warns when its results cannot equal those of
 /// x86-64 machines with AVX2 and FMA (a lockstep run across such hosts, or a run repeated on
@@ -29,7 +29,9 @@ pub fn log_cpu_kernels() {
                  runs made on one kind of CPU, and run a multi-host lockstep check on hosts of one kind",
                 std::env::consts::ARCH
             );
-            if cfg!(target_arch = "x86_64") && simd_level() == SimdLevel::Baseline {
+            // On x86-64 this branch is a CPU without AVX2 and FMA: the element-wise kernels'
+            // baseline level.
+            if cfg!(target_arch = "x86_64") {
                 tracing::warn!(
                     "CPU kernels: without AVX2 and FMA every multiply-add of the element-wise \
                      kernels (activations, Adam, the model's Gaussian head) is a library call, \
