@@ -12,17 +12,17 @@ use std::time::{Duration, Instant};
 use mbpo_plan::PlannerKind;
 use mbpo_train::{Algo, ExperimentConfig, PlanReward};
 
+pub mod code_rules;
 pub mod netns;
 
-/// The binaries a pipeline run needs (each package's binary has the package's name).
-pub const PACKAGES: [&str; 6] = [
-    "mbpo",
-    "mbpo-gateway",
-    "mbpo-actor",
-    "mbpo-model-trainer",
-    "mbpo-rollout-generator",
-    "mbpo-sac-learner",
-];
+/// The binaries a pipeline run needs: `mbpo`, the gateway and every role's (the role table's
+/// names, which are their packages' names).
+pub fn binaries() -> Vec<&'static str> {
+    let roles = mbpo_core::roles::ROLES.iter().map(|r| r.binary);
+    let mut all: Vec<&str> = ["mbpo", "mbpo-gateway"].into_iter().chain(roles).collect();
+    all.dedup();
+    all
+}
 
 /// Directory holding `mbpo` and the service binaries (built on first use).
 pub fn bin_dir() -> &'static Path {
@@ -68,7 +68,7 @@ pub fn bin_dir() -> &'static Path {
         // <target>/<profile>/deps/<this test> -> <target>/debug (the test profile's directory).
         let exe = std::env::current_exe().unwrap();
         let dir = exe.ancestors().nth(3).unwrap().join("debug");
-        for binary in PACKAGES {
+        for binary in binaries() {
             assert!(
                 dir.join(binary).is_file(),
                 "no {binary} in {} after the build",
@@ -229,13 +229,19 @@ pub fn eval_run(run: &Path, episodes: usize) -> serde_json::Value {
 pub fn assert_no_loss(s: &serde_json::Value, steps: u64) {
     let real = &s["real_transitions"];
     assert_eq!(real["produced"], steps, "{s}");
-    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+    let consumers = mbpo_runtime::pipeline::real_consumers(Algo::MBPO);
+    assert_eq!(
+        consumers.len(),
+        3,
+        "learner, model trainer, rollout generator"
+    );
+    for consumer in &consumers {
         assert_eq!(real["received"][consumer], steps, "{consumer}: {s}");
     }
     assert_eq!(real["lost"], 0, "{s}");
     // Every transition went env step -> shared memory -> D_env: none waited in a consumer
     // longer than it may hold one in shared memory and had to be copied out.
-    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+    for consumer in &consumers {
         assert_eq!(real["spilled"][consumer], 0, "{consumer}: {s}");
     }
 }

@@ -62,9 +62,19 @@ fn wait_logged(child: Child, log: &Path) -> (ExitStatus, String) {
 }
 
 /// Wait until the run has a complete checkpoint, then SIGINT it.
-fn stop_after_first_checkpoint(mut child: Child, run: &Path, log: &Path) -> (ExitStatus, String) {
+fn stop_after_first_checkpoint(child: Child, run: &Path, log: &Path) -> (ExitStatus, String) {
+    stop_after_checkpoint(child, run, log, 1)
+}
+
+/// Ctrl-C once the run has a checkpoint of step `at_least` or later.
+fn stop_after_checkpoint(
+    mut child: Child,
+    run: &Path,
+    log: &Path,
+    at_least: u64,
+) -> (ExitStatus, String) {
     let t = Instant::now();
-    while checkpoints(run).is_empty() {
+    while checkpoints(run).last().is_none_or(|&c| c < at_least) {
         let exited = child.try_wait().unwrap();
         assert!(
             exited.is_none(),
@@ -77,6 +87,42 @@ fn stop_after_first_checkpoint(mut child: Child, run: &Path, log: &Path) -> (Exi
     // SAFETY: kill(2) on our child.
     unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
     wait_logged(child, log)
+}
+
+/// A run stopped by Ctrl-C after its checkpoint of `stopped_at` reports what it did, not
+/// zeros: every actor paused at the cut, so the real transitions are exactly the cut's. In
+/// lockstep, past the first train point the model trainer trained on the warm-up's
+/// transitions and (MBPO) the learner updated (pipelined, a stop abandons a training).
+fn assert_summary_counts_what_happened(
+    s: &serde_json::Value,
+    cfg: &mbpo_train::ExperimentConfig,
+    stopped_at: u64,
+) {
+    assert_eq!(s["env_steps"], stopped_at, "{s}");
+    assert_eq!(s["real_transitions"]["produced"], stopped_at, "{s}");
+    let schedule = mbpo_train::Schedule::of(cfg);
+    let Some(first_train_point) = (1..=stopped_at).find(|&t| schedule.train_point(t).is_some())
+    else {
+        return;
+    };
+    if s["mode"] != "lockstep" {
+        return;
+    }
+    let mut consumers = vec!["model-trainer"];
+    assert!(s["ratios"]["model_trainings"].as_u64().unwrap() >= 1, "{s}");
+    if cfg.algo == mbpo_train::Algo::MBPO && stopped_at > first_train_point {
+        assert!(s["sac_updates"].as_u64().unwrap() > 0, "{s}");
+        assert!(
+            s["ratios"]["updates_per_env_step"].as_f64().unwrap() > 0.0,
+            "{s}"
+        );
+        consumers.extend(["learner", "rollout-generator"]);
+    }
+    for consumer in consumers {
+        let received = s["real_transitions"]["received"][consumer].as_u64();
+        let enough = received.is_some_and(|r| r >= first_train_point - 1);
+        assert!(enough, "{consumer} (stopped at {stopped_at}): {s}");
+    }
 }
 
 fn resume(run: &Path, root: &Path, log: &Path) -> (ExitStatus, String) {
@@ -118,7 +164,8 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
     let seq = train_mbpo(&cfg, &seq_dir).unwrap();
     let child = start(&input, &run, &root, &["--mode", "lockstep"], &log);
 
-    let (status, err) = stop_after_first_checkpoint(child, &run, &log);
+    // Past the first train point (201), so the summary has trainings and updates to report.
+    let (status, err) = stop_after_checkpoint(child, &run, &log, 300);
     assert!(status.success(), "{err}");
     let s = summary(&run);
     assert_eq!(s["status"], "stopped", "{s}");
@@ -127,6 +174,7 @@ fn lockstep_stop_and_resume_equals_the_uninterrupted_run() {
         stopped_at < cfg.steps,
         "stopped at {stopped_at}: too late to test a resume"
     );
+    assert_summary_counts_what_happened(&s, &cfg, stopped_at);
 
     let (status, err) = resume(&run, &root, &log);
     assert!(status.success(), "{err}");
@@ -381,6 +429,7 @@ fn mpc_lockstep_stop_and_resume(
     assert_eq!(summary(&run)["status"], "stopped");
     let stopped_at = *checkpoints(&run).last().unwrap();
     assert!(stopped_at < cfg.steps, "stopped at {stopped_at}: too late");
+    assert_summary_counts_what_happened(&summary(&run), cfg, stopped_at);
     let files = checkpoint_files(&run, stopped_at);
     assert_eq!(
         files,
@@ -574,6 +623,7 @@ fn pipelined_stop_and_resume(
     let alive = processes_mentioning(s["run_id"].as_str().unwrap());
     assert!(alive.is_empty(), "processes still alive: {alive:?}");
     let stopped_at = *checkpoints(&run).last().unwrap();
+    assert_summary_counts_what_happened(&s, cfg, stopped_at);
 
     let (status, err) = resume(&run, &root, &log);
     assert!(status.success(), "{err}");

@@ -8,6 +8,7 @@
 //! * [`policy`]: the batched-policy interface (SAC actor, planners, uniform warm-up).
 //! * [`rate_limit`]: Reverb-style limiters that hold the algorithm's ratios in a pipeline.
 //! * [`state_box`]: the box of the real states seen, which imagined states can be clipped to.
+//! * [`roles`]: the one table of roles (names, binaries, checkpoint kinds, channels).
 //! * [`stats`]: the median every report uses.
 //! * [`alloc_count`]: the counting allocator of the no-allocation tests.
 #![warn(missing_docs)]
@@ -17,6 +18,7 @@ pub mod policy;
 pub mod rate_limit;
 pub mod replay;
 pub mod rng;
+pub mod roles;
 pub mod state_box;
 pub mod stats;
 

@@ -170,7 +170,7 @@ fn start_roles(
     threads: &mut Vec<RoleThread>,
 ) -> Result<()> {
     for role in pipeline::spec(cfg.algo)?.roles(args.actors) {
-        let run = role.service_loop::<local::Service>();
+        let run = crate::services::service_loop::<local::Service>(role.kind);
         let a = ServiceArgs {
             index: role.index,
             ..args.clone()

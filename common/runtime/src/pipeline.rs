@@ -9,118 +9,12 @@
 //! are planners.
 
 use mbpo_train::Algo;
-use mbpo_wire::{Role, Transport, WeightsKind};
+use mbpo_wire::{Channel, WeightsKind};
 
-use crate::barrier::{actor_file, file, kind};
-use crate::services::{actor, learner, model_trainer, planning, rollout};
-use crate::{Mode, Result, RuntimeError, ServiceArgs};
+use crate::barrier::{file, kind};
+use crate::{Mode, Result, RuntimeError};
 
-/// What a role does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum RoleKind {
-    /// The SAC learner.
-    Learner,
-    /// The dynamics-model trainer.
-    ModelTrainer,
-    /// The synthetic-rollout generator.
-    RolloutGenerator,
-    /// The evaluation actor (deterministic policy).
-    Evaluator,
-    /// An environment actor acting with the learner's policy.
-    Actor,
-    /// The evaluation actor of a planning run (plans on the model trainer's ensemble).
-    PlanningEvaluator,
-    /// An environment actor that plans on the model trainer's ensemble.
-    PlanningActor,
-}
-
-impl RoleKind {
-    /// It receives every real transition.
-    pub fn consumes_real(self) -> bool {
-        matches!(
-            self,
-            RoleKind::Learner | RoleKind::ModelTrainer | RoleKind::RolloutGenerator
-        )
-    }
-    /// The binary that runs it, as installed next to `mbpo`.
-    pub fn binary(self) -> &'static str {
-        match self {
-            RoleKind::Learner => "mbpo-sac-learner",
-            RoleKind::ModelTrainer => "mbpo-model-trainer",
-            RoleKind::RolloutGenerator => "mbpo-rollout-generator",
-            RoleKind::Evaluator
-            | RoleKind::Actor
-            | RoleKind::PlanningEvaluator
-            | RoleKind::PlanningActor => "mbpo-actor",
-        }
-    }
-    /// The role `mbpo-actor` runs with flags `--eval` and `--plan` (see [`RoleSpec::binary_args`]).
-    pub fn of_actor_binary(eval: bool, plan: bool) -> Self {
-        match (eval, plan) {
-            (false, false) => RoleKind::Actor,
-            (true, false) => RoleKind::Evaluator,
-            (false, true) => RoleKind::PlanningActor,
-            (true, true) => RoleKind::PlanningEvaluator,
-        }
-    }
-    /// Its service loop on transport `S`.
-    pub fn service_loop<S: Transport>(self) -> fn(&ServiceArgs) -> Result<()> {
-        match self {
-            RoleKind::Learner => learner::run::<S>,
-            RoleKind::ModelTrainer => model_trainer::run::<S>,
-            RoleKind::RolloutGenerator => rollout::run::<S>,
-            RoleKind::Evaluator => actor::evaluate::<S>,
-            RoleKind::Actor => actor::act::<S>,
-            RoleKind::PlanningEvaluator => planning::evaluate::<S>,
-            RoleKind::PlanningActor => planning::act::<S>,
-        }
-    }
-    /// The kind of its checkpoint file.
-    pub fn checkpoint_kind(self) -> &'static str {
-        match self {
-            RoleKind::Learner => kind::LEARNER,
-            RoleKind::ModelTrainer => kind::MODEL_TRAINER,
-            RoleKind::RolloutGenerator => kind::ROLLOUT,
-            RoleKind::Evaluator => kind::EVALUATOR,
-            RoleKind::Actor => kind::ACTOR,
-            RoleKind::PlanningEvaluator => kind::PLANNING_EVALUATOR,
-            RoleKind::PlanningActor => kind::PLANNING_ACTOR,
-        }
-    }
-    /// Its name (log file, thread, checkpoint file) as the `index`-th of its kind.
-    pub fn name(self, index: u16) -> String {
-        match self {
-            RoleKind::Learner => file::LEARNER.into(),
-            RoleKind::ModelTrainer => file::MODEL_TRAINER.into(),
-            RoleKind::RolloutGenerator => file::ROLLOUT.into(),
-            RoleKind::Evaluator | RoleKind::PlanningEvaluator => file::EVALUATOR.into(),
-            RoleKind::Actor | RoleKind::PlanningActor => actor_file(index),
-        }
-    }
-    /// Who it is on the wire (its node and reports).
-    pub fn wire_role(self) -> Role {
-        match self {
-            RoleKind::Learner => Role::Learner,
-            RoleKind::ModelTrainer => Role::ModelTrainer,
-            RoleKind::RolloutGenerator => Role::RolloutGenerator,
-            RoleKind::Evaluator | RoleKind::PlanningEvaluator => Role::Evaluator,
-            RoleKind::Actor | RoleKind::PlanningActor => Role::Actor,
-        }
-    }
-    /// An environment actor (not the evaluator).
-    pub fn is_actor(self) -> bool {
-        matches!(self, RoleKind::Actor | RoleKind::PlanningActor)
-    }
-    /// Steps an environment (actors and the evaluator).
-    pub fn steps_an_env(self) -> bool {
-        self.is_actor() || matches!(self, RoleKind::Evaluator | RoleKind::PlanningEvaluator)
-    }
-    /// Pauses at a checkpoint barrier and reports a counter (actors, model trainer, rollout
-    /// generator); the learner and evaluator only follow the cut.
-    pub fn pauses(self) -> bool {
-        self.is_actor() || matches!(self, RoleKind::ModelTrainer | RoleKind::RolloutGenerator)
-    }
-}
+pub use mbpo_core::roles::RoleKind;
 
 /// One role of a run: a process of `mbpo run`, a thread of the in-process pipeline.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -149,26 +43,14 @@ impl RoleSpec {
     pub fn binary(&self) -> &'static str {
         self.kind.binary()
     }
-    /// Its arguments besides the [`ServiceArgs`] every role takes.
+    /// Its arguments besides the [`crate::ServiceArgs`] every role takes.
     pub fn binary_args(&self) -> Vec<String> {
         let mut args = Vec::new();
-        if self.kind.is_actor() {
+        if self.kind.row().numbered {
             args.extend(["--index".into(), self.index.to_string()]);
         }
-        if matches!(self.kind, RoleKind::Evaluator | RoleKind::PlanningEvaluator) {
-            args.push("--eval".into());
-        }
-        if matches!(
-            self.kind,
-            RoleKind::PlanningActor | RoleKind::PlanningEvaluator
-        ) {
-            args.push("--plan".into());
-        }
+        args.extend(self.kind.binary_flags().iter().map(|f| f.to_string()));
         args
-    }
-    /// Its service loop on transport `S`.
-    pub fn service_loop<S: Transport>(&self) -> fn(&ServiceArgs) -> Result<()> {
-        self.kind.service_loop::<S>()
     }
     /// Steps an environment (actors and the evaluator).
     pub fn steps_an_env(&self) -> bool {
@@ -258,7 +140,13 @@ impl PipelineSpec {
     /// How many of its roles receive every real transition (an actor's first send waits for
     /// them all, so nothing it sends is lost).
     pub fn real_consumers(&self) -> usize {
-        self.services.iter().filter(|k| k.consumes_real()).count()
+        self.subscribers(Channel::Real, 1)
+    }
+    /// How many of its roles, with `actors` actors, subscribe `channel` (a publisher that
+    /// must not lose a message waits for them all).
+    pub fn subscribers(&self, channel: Channel, actors: u16) -> usize {
+        let roles = self.roles(actors).into_iter();
+        roles.filter(|r| r.kind.subscribes(channel)).count()
     }
     /// The model trainer abandons a training under way when the run stops: in a pipelined run
     /// whose actors do not plan on it (one training can take minutes; the resumed run trains
@@ -267,6 +155,14 @@ impl PipelineSpec {
     pub fn abandons_training_on_stop(&self, mode: Mode) -> bool {
         mode == Mode::Pipelined && !self.plans()
     }
+}
+
+/// The names of the roles of `algo` that receive every real transition (the keys of the
+/// summary's `real_transitions.received`); none for an algorithm the pipeline does not run.
+pub fn real_consumers(algo: Algo) -> Vec<String> {
+    let roles = spec(algo).map(|p| p.roles(0)).unwrap_or_default();
+    let consumers = roles.into_iter().filter(|r| r.kind.consumes_real());
+    consumers.map(|r| r.name).collect()
 }
 
 /// The files a checkpoint of a run of `algo` with `actors` actors holds whichever command
@@ -334,11 +230,21 @@ mod tests {
         for spec in &PIPELINES {
             for role in spec.roles(2).iter().filter(|r| r.binary() == "mbpo-actor") {
                 let args = role.binary_args();
-                let flag = |f: &str| args.iter().any(|a| a == f);
-                let kind = RoleKind::of_actor_binary(flag("--eval"), flag("--plan"));
-                assert_eq!(kind, role.kind, "{} {}", spec.algo, role.name);
+                let flags: Vec<&str> = args.iter().map(String::as_str).collect();
+                let kind = RoleKind::of_binary(role.binary(), &flags);
+                assert_eq!(kind, Some(role.kind), "{} {}", spec.algo, role.name);
             }
         }
+    }
+
+    #[test]
+    fn subscriber_counts_follow_from_the_role_table() {
+        let (mbpo, mpc) = (spec(Algo::MBPO).unwrap(), spec(Algo::MPC).unwrap());
+        // Every role of a run subscribes control (the evaluator's acknowledgements wait for
+        // them all); real transitions go to the learner, model trainer and rollout generator.
+        assert_eq!(mbpo.subscribers(Channel::Control, 3), 3 + 4);
+        assert_eq!(mpc.subscribers(Channel::Control, 3), 3 + 2);
+        assert_eq!((mbpo.real_consumers(), mpc.real_consumers()), (3, 1));
     }
 
     #[test]

@@ -52,20 +52,21 @@ fn upgraded_payload<'a>(version: u32, kind: &str, payload: &'a [u8]) -> std::bor
 /// themselves are `run_files`' types). They live here because the format's history is per kind
 /// (`upgraded_payload`).
 pub mod kind {
+    use mbpo_core::roles::RoleKind;
     /// `run_files::ActorCheckpoint`.
-    pub const ACTOR: &str = "mbpo.role.actor";
+    pub const ACTOR: &str = RoleKind::Actor.checkpoint_kind();
     /// `run_files::EvaluatorCheckpoint`.
-    pub const EVALUATOR: &str = "mbpo.role.evaluator";
+    pub const EVALUATOR: &str = RoleKind::Evaluator.checkpoint_kind();
     /// `run_files::ModelTrainerCheckpoint`.
-    pub const MODEL_TRAINER: &str = "mbpo.role.model-trainer";
+    pub const MODEL_TRAINER: &str = RoleKind::ModelTrainer.checkpoint_kind();
     /// `run_files::RolloutCheckpoint`.
-    pub const ROLLOUT: &str = "mbpo.role.rollout-generator";
+    pub const ROLLOUT: &str = RoleKind::RolloutGenerator.checkpoint_kind();
     /// `run_files::LearnerCheckpoint`.
-    pub const LEARNER: &str = "mbpo.role.learner";
+    pub const LEARNER: &str = RoleKind::Learner.checkpoint_kind();
     /// `run_files::PlanningActorCheckpoint` (MPC runs).
-    pub const PLANNING_ACTOR: &str = "mbpo.role.planning-actor";
+    pub const PLANNING_ACTOR: &str = RoleKind::PlanningActor.checkpoint_kind();
     /// `run_files::PlanningEvaluatorCheckpoint` (MPC runs).
-    pub const PLANNING_EVALUATOR: &str = "mbpo.role.planning-evaluator";
+    pub const PLANNING_EVALUATOR: &str = RoleKind::PlanningEvaluator.checkpoint_kind();
     /// `run_files::RunBook`.
     pub const RUN_BOOK: &str = "mbpo.run-book";
 }

@@ -278,10 +278,11 @@ fn is_run_log(name: &str) -> bool {
         stem.strip_prefix(prefix)
             .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
     };
-    matches!(
-        stem,
-        "train" | "supervisor" | "learner" | "model-trainer" | "rollout-generator" | "evaluator"
-    ) || numbered("actor-")
+    let role = mbpo_core::roles::ROLES.iter().any(|r| match r.numbered {
+        true => numbered(&format!("{}-", r.wire.name())),
+        false => stem == r.wire.name(),
+    });
+    role || stem == "train" || stem == mbpo_core::roles::Role::Supervisor.name()
 }
 
 /// Remove what an earlier run wrote into `dir` and a fresh run would not overwrite: its

@@ -22,16 +22,17 @@ use crate::mpc_roles::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
 use crate::schedule::Schedule;
 
-/// File names in a checkpoint directory (actors: [`actor_file`]).
+/// File names in a checkpoint directory (actors: [`actor_file`]), the role table's names.
 pub mod file {
+    use mbpo_core::roles::RoleKind;
     /// The learner's ([`super::LearnerCheckpoint`]).
-    pub const LEARNER: &str = "learner";
+    pub const LEARNER: &str = RoleKind::Learner.file_name();
     /// The model trainer's ([`super::ModelTrainerCheckpoint`]).
-    pub const MODEL_TRAINER: &str = "model-trainer";
+    pub const MODEL_TRAINER: &str = RoleKind::ModelTrainer.file_name();
     /// The rollout generator's ([`super::RolloutCheckpoint`]).
-    pub const ROLLOUT: &str = "rollout-generator";
+    pub const ROLLOUT: &str = RoleKind::RolloutGenerator.file_name();
     /// The evaluator's ([`super::EvaluatorCheckpoint`], MPC: [`super::PlanningEvaluatorCheckpoint`]).
-    pub const EVALUATOR: &str = "evaluator";
+    pub const EVALUATOR: &str = RoleKind::Evaluator.file_name();
     /// The run's book ([`super::RunBook`]).
     pub const RUN_BOOK: &str = "run-book";
     /// The launcher's (`mbpo run` only: mode, actors, slack).
@@ -40,7 +41,7 @@ pub mod file {
 
 /// The file name of actor `index`'s checkpoint.
 pub fn actor_file(index: u16) -> String {
-    format!("actor-{index}")
+    mbpo_core::roles::RoleKind::Actor.name(index)
 }
 
 pub use crate::checkpoint::kind;

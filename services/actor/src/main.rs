@@ -17,7 +17,8 @@ use mbpo_runtime::{RoleKind, ServiceArgs};
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
-#[command(name = "mbpo-actor", about = "MBPO pipeline actor")]
+// The command is named after its package, the role table's binary name.
+#[command(about = "MBPO pipeline actor")]
 struct Args {
     #[command(flatten)]
     svc: ServiceArgs,
@@ -32,6 +33,10 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    let role = RoleKind::of_actor_binary(args.eval, args.plan);
-    mbpo_runtime::exit_code(role.service_loop::<ipc::Service>()(&args.svc))
+    let flags = [(args.eval, "--eval"), (args.plan, "--plan")];
+    let flags: Vec<&str> = flags.iter().filter(|f| f.0).map(|f| f.1).collect();
+    let role = RoleKind::of_binary(env!("CARGO_PKG_NAME"), &flags)
+        .expect("every flag combination of mbpo-actor is a role of the role table");
+    let service_loop = mbpo_runtime::services::service_loop::<ipc::Service>(role);
+    mbpo_runtime::exit_code(service_loop(&args.svc))
 }

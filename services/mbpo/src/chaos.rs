@@ -68,11 +68,10 @@ pub fn run(args: &ChaosArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The processes a kill picks from.
+/// The processes a kill picks from: every role of an MBPO pipeline with `actors` actors.
 fn kinds(actors: u16) -> Vec<String> {
-    let mut kinds: Vec<String> = (0..actors).map(|i| format!("actor-{i}")).collect();
-    kinds.extend(["evaluator", "model-trainer", "rollout-generator", "learner"].map(String::from));
-    kinds
+    let roles = mbpo_runtime::pipeline::spec(mbpo_train::Algo::MBPO).map(|p| p.roles(actors));
+    roles.into_iter().flatten().map(|r| r.name).collect()
 }
 
 /// Run `r`: start it, kill `args.kills` processes at random points of the run, wait for its
@@ -334,7 +333,7 @@ fn report(
     let text = std::fs::read_to_string(run.join("summary.json")).unwrap_or_default();
     let s: Value = serde_json::from_str(&text).unwrap_or(Value::Null);
     let real = &s["real_transitions"];
-    let received_all = ["model-trainer", "rollout-generator", "learner"]
+    let received_all = mbpo_runtime::pipeline::real_consumers(mbpo_train::Algo::MBPO)
         .iter()
         .all(|c| real["received"][c] == steps);
     // Every run id the run had: one per `mbpo run` (a resumed run gets a new one, and must

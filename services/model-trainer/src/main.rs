@@ -17,7 +17,8 @@ use mbpo_runtime::ServiceArgs;
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
-#[command(name = "mbpo-model-trainer", about = "MBPO pipeline model trainer")]
+// The command is named after its package, the role table's binary name.
+#[command(about = "MBPO pipeline model trainer")]
 struct Args {
     #[command(flatten)]
     svc: ServiceArgs,

@@ -16,10 +16,8 @@ use mbpo_runtime::ServiceArgs;
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
-#[command(
-    name = "mbpo-rollout-generator",
-    about = "MBPO pipeline rollout generator"
-)]
+// The command is named after its package, the role table's binary name.
+#[command(about = "MBPO pipeline rollout generator")]
 struct Args {
     #[command(flatten)]
     svc: ServiceArgs,

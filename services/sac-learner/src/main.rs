@@ -19,7 +19,8 @@ use mbpo_runtime::ServiceArgs;
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
-#[command(name = "mbpo-sac-learner", about = "MBPO pipeline SAC learner")]
+// The command is named after its package, the role table's binary name.
+#[command(about = "MBPO pipeline SAC learner")]
 struct Args {
     #[command(flatten)]
     svc: ServiceArgs,

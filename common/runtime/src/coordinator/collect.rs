@@ -15,6 +15,7 @@ use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{Done, LearnerRow, ProducerId, Role, Stats};
 use serde::Serialize;
 
+use super::reached::Reached;
 use super::RunPlan;
 
 /// Real transitions: produced, received by each consumer, lost.
@@ -146,6 +147,8 @@ pub struct Collector {
     done: BTreeMap<ProducerId, Done>,
     /// MPC: the last global step each actor reported (`u64::MAX` once done).
     actor_steps: BTreeMap<ProducerId, u64>,
+    /// What each role's records show it reached (for a run that ends before its `Done`).
+    pub reached: Reached,
     /// Rows, returns, counters: what a checkpoint keeps.
     pub book: RunBook,
 }
@@ -165,6 +168,7 @@ impl Collector {
             learner: BTreeMap::new(),
             done: BTreeMap::new(),
             actor_steps: BTreeMap::new(),
+            reached: Reached::new(mbpo_train::Schedule::of(cfg), plan.actors),
             book: RunBook::start(),
         }
     }
@@ -225,8 +229,9 @@ impl Collector {
         self.book = book;
     }
 
-    /// Take one report (barrier reports go to the supervisor's barrier, never here).
+    /// Take one report (barrier reports go to the supervisor's barrier and [`Reached`]).
     pub fn on_stats(&mut self, from: ProducerId, stats: Stats) {
+        self.reached.see(from, &stats);
         match stats {
             Stats::Episode(e) => self.book.episodes.push((e.env_steps, e.episode_return)),
             Stats::Eval(e) => {
@@ -360,7 +365,8 @@ impl Collector {
     }
 
     /// The summary; `env_steps_to_target` is read off the run's metrics
-    /// (`RunDir::env_steps_to_target`).
+    /// (`RunDir::env_steps_to_target`). Every status reports what the roles reached: a role
+    /// that sent `Done` from it, any other from its last records ([`Reached`]).
     pub fn summary(
         &self,
         status: &str,
@@ -368,122 +374,189 @@ impl Collector {
         started: Instant,
         env_steps_to_target: Option<u64>,
     ) -> PipelineSummary {
-        let mut real = RealCounts::default();
-        let mut ratios = Ratios {
-            target_updates_per_env_step: self.cfg.mbpo.updates_per_step,
-            ..Default::default()
-        };
-        let mut sac_updates = 0;
-        let mut episodes_cut = 0;
-        let mut episodes_lost = 0;
-        let mut median = None;
-        let mut lag = Range {
-            min: f32::INFINITY,
-            max: f32::NEG_INFINITY,
-            ..Default::default()
-        };
-        let mut ipc = BTreeMap::new();
-        for (who, d) in &self.done {
-            if d.wall_seconds > 0.0 {
-                let (i, w) = (d.ipc_seconds as f64, d.wall_seconds as f64);
-                ipc.insert(
-                    who.to_string(),
-                    IpcShare {
-                        ipc_seconds: i,
-                        wall_seconds: w,
-                        share: i / w,
-                    },
-                );
-            }
-            match who.role() {
-                Some(Role::Actor) => {
-                    real.produced += d.real;
-                    episodes_cut += d.episodes_cut;
-                    episodes_lost += d.episodes_lost;
-                    if self.plans() && d.median_step_seconds > 0.0 {
-                        // Median planning time of an MPC step (the slowest actor's).
-                        let m = d.median_step_seconds as f64;
-                        median = Some(median.map_or(m, |x: f64| x.max(m)));
-                    }
-                    lag.min = lag.min.min(d.slack_min);
-                    lag.max = lag.max.max(d.slack_max);
-                    lag.mean += d.slack_mean / self.actors as f32;
-                }
-                Some(r @ (Role::ModelTrainer | Role::RolloutGenerator | Role::Learner)) => {
-                    real.received.insert(r.name().to_string(), d.real);
-                    real.lost += d.lost;
-                    real.spilled.insert(r.name().to_string(), d.real_spilled);
-                    let range = Range {
-                        min: d.slack_min,
-                        max: d.slack_max,
-                        mean: d.slack_mean,
-                        ..Default::default()
-                    };
-                    match r {
-                        Role::Learner => {
-                            sac_updates = d.work;
-                            median = (d.median_step_seconds > 0.0)
-                                .then_some(d.median_step_seconds as f64);
-                            let (buffer, g) =
-                                (self.slack.update_buffer, self.cfg.mbpo.updates_per_step);
-                            ratios.learner_updates_owed =
-                                range.allowed(Some(buffer), Some(g as u64 + buffer));
-                        }
-                        Role::RolloutGenerator => {
-                            ratios.rollout_policy_lag = range
-                                .allowed(Some(self.slack.model_lag), Some(self.slack.policy_lag));
-                            ratios.rollout_batches = d.work;
-                        }
-                        _ => ratios.model_trainings = d.work,
-                    }
-                }
-                _ => {}
-            }
+        let tally = self.tally();
+        let warm_up = self.cfg.mbpo.init_random_steps;
+        let mut ratios = tally.ratios;
+        let after_warmup = tally.real.produced.saturating_sub(warm_up);
+        if after_warmup > 0 {
+            ratios.updates_per_env_step = tally.sac_updates as f64 / after_warmup as f64;
         }
-        if lag.min.is_finite() {
-            let highest = (!self.plans()).then_some(self.slack.policy_lag);
-            ratios.actor_policy_lag = lag.allowed(None, highest);
-        }
-        let after_warmup = self
-            .cfg
-            .steps
-            .saturating_sub(self.cfg.mbpo.init_random_steps);
-        ratios.updates_per_env_step = if after_warmup > 0 {
-            sac_updates as f64 / after_warmup as f64
-        } else {
-            0.0
-        };
-        let mut received: Vec<u64> = real.received.values().copied().collect();
-        received.dedup();
         PipelineSummary {
             summary: Summary {
                 algo: self.cfg.algo.name().into(),
                 env: self.cfg.env.clone(),
                 seed: self.cfg.seed,
-                env_steps: self.book.last_row.1,
-                sac_updates,
+                env_steps: self.book.last_row.1.max(tally.real.produced),
+                sac_updates: tally.sac_updates,
                 final_eval_return: self.book.final_return,
                 best_eval_return: self.book.best_return,
                 target_return: self.cfg.target_return(),
                 env_steps_to_target,
                 policy_sha256,
                 wall_seconds: started.elapsed().as_secs_f64(),
-                median_seconds_per_env_step: median,
+                median_seconds_per_env_step: tally.median,
                 // `completed`, `stopped` (checkpointed, resumable), `failed` or `interrupted`.
                 status: status.into(),
-                episodes_cut_by_resume: episodes_cut,
-                episodes_lost_to_env_exit: episodes_lost,
+                episodes_cut_by_resume: tally.episodes_cut,
+                episodes_lost_to_env_exit: tally.episodes_lost,
             },
             mode: self.mode.clone(),
             actors: self.actors,
             run_id: self.run_id.clone(),
-            real_transitions: real,
+            real_transitions: tally.real,
             ratios,
-            ipc,
+            ipc: tally.ipc,
             restarts: self.book.restarts,
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
             hosts: None,
+        }
+    }
+
+    /// Every role of the run with its counters: its `Done` record, or (`false`) one made of
+    /// what its records showed.
+    fn final_counters(&self) -> Vec<(ProducerId, Done, bool)> {
+        let roles = self.pipeline.roles(self.actors).into_iter();
+        roles
+            .map(|r| ProducerId::new(r.kind.wire_role(), r.index))
+            .map(|who| match self.done.get(&who) {
+                Some(d) => (who, *d, true),
+                None => {
+                    let c = self.reached.get(who);
+                    let d = Done {
+                        real: c.real,
+                        work: c.work,
+                        ..Done::default()
+                    };
+                    (who, d, false)
+                }
+            })
+            .collect()
+    }
+
+    /// The roles' counters added up.
+    fn tally(&self) -> Tally {
+        let mut t = Tally::new(&self.cfg);
+        let counters = self.final_counters();
+        let finished_actors = counters
+            .iter()
+            .filter(|(who, _, done)| *done && who.role() == Some(Role::Actor))
+            .count();
+        for (who, d, finished) in &counters {
+            if *finished && d.wall_seconds > 0.0 {
+                t.ipc.insert(who.to_string(), IpcShare::of(d));
+            }
+            match who.role() {
+                Some(Role::Actor) => {
+                    t.real.produced += d.real;
+                    t.episodes_cut += d.episodes_cut;
+                    t.episodes_lost += d.episodes_lost;
+                    if *finished {
+                        self.add_actor_timing(&mut t, d, finished_actors);
+                    }
+                }
+                Some(r @ (Role::ModelTrainer | Role::RolloutGenerator | Role::Learner)) => {
+                    t.real.received.insert(r.name().to_string(), d.real);
+                    t.real.lost += d.lost;
+                    t.real.spilled.insert(r.name().to_string(), d.real_spilled);
+                    self.add_consumer(&mut t, r, d, *finished);
+                }
+                _ => {}
+            }
+        }
+        if t.actor_lag.min.is_finite() {
+            let highest = (!self.plans()).then_some(self.slack.policy_lag);
+            t.ratios.actor_policy_lag = t.actor_lag.allowed(None, highest);
+        }
+        t
+    }
+
+    /// A finished actor's planning time (MPC) and policy lag; the lag's mean is over the
+    /// `finished` actors.
+    fn add_actor_timing(&self, t: &mut Tally, d: &Done, finished: usize) {
+        if self.plans() && d.median_step_seconds > 0.0 {
+            // Median planning time of an MPC step (the slowest actor's).
+            let m = d.median_step_seconds as f64;
+            t.median = Some(t.median.map_or(m, |x: f64| x.max(m)));
+        }
+        t.actor_lag.min = t.actor_lag.min.min(d.slack_min);
+        t.actor_lag.max = t.actor_lag.max.max(d.slack_max);
+        t.actor_lag.mean += d.slack_mean / finished as f32;
+    }
+
+    /// What a consumer of real data adds: its work and (once finished) its lags.
+    fn add_consumer(&self, t: &mut Tally, role: Role, d: &Done, finished: bool) {
+        let range = Range {
+            min: d.slack_min,
+            max: d.slack_max,
+            mean: d.slack_mean,
+            ..Default::default()
+        };
+        match role {
+            Role::Learner => {
+                t.sac_updates = d.work;
+                if finished {
+                    t.median =
+                        (d.median_step_seconds > 0.0).then_some(d.median_step_seconds as f64);
+                    let (buffer, g) = (self.slack.update_buffer, self.cfg.mbpo.updates_per_step);
+                    t.ratios.learner_updates_owed =
+                        range.allowed(Some(buffer), Some(g as u64 + buffer));
+                }
+            }
+            Role::RolloutGenerator => {
+                if finished {
+                    let (model_lag, policy_lag) = (self.slack.model_lag, self.slack.policy_lag);
+                    t.ratios.rollout_policy_lag = range.allowed(Some(model_lag), Some(policy_lag));
+                }
+                t.ratios.rollout_batches = d.work;
+            }
+            _ => t.ratios.model_trainings = d.work,
+        }
+    }
+}
+
+/// The roles' counters added up for the summary.
+struct Tally {
+    real: RealCounts,
+    ratios: Ratios,
+    sac_updates: u64,
+    episodes_cut: u64,
+    episodes_lost: u64,
+    median: Option<f64>,
+    actor_lag: Range,
+    ipc: BTreeMap<String, IpcShare>,
+}
+
+impl Tally {
+    fn new(cfg: &ExperimentConfig) -> Self {
+        Self {
+            real: RealCounts::default(),
+            ratios: Ratios {
+                target_updates_per_env_step: cfg.mbpo.updates_per_step,
+                ..Default::default()
+            },
+            sac_updates: 0,
+            episodes_cut: 0,
+            episodes_lost: 0,
+            median: None,
+            actor_lag: Range {
+                min: f32::INFINITY,
+                max: f32::NEG_INFINITY,
+                ..Default::default()
+            },
+            ipc: BTreeMap::new(),
+        }
+    }
+}
+
+impl IpcShare {
+    /// The share of a role's `Done` record.
+    fn of(d: &Done) -> Self {
+        let (ipc_seconds, wall_seconds) = (d.ipc_seconds as f64, d.wall_seconds as f64);
+        Self {
+            ipc_seconds,
+            wall_seconds,
+            share: ipc_seconds / wall_seconds,
         }
     }
 }

@@ -12,6 +12,7 @@
 
 pub mod checkpoints;
 pub mod collect;
+pub mod reached;
 mod signal;
 
 use std::path::{Path, PathBuf};
@@ -134,6 +135,9 @@ impl Coordinator {
         let mut next_checkpoint = every;
         let mut last_checkpoint = 0;
         if let Some((env_steps, book)) = resume {
+            let trainings = book.models.keys().max().copied().unwrap_or(0);
+            let learner = (book.progress.0, book.progress.1);
+            collector.reached.resume_at(env_steps, trainings, learner);
             collector.restore(book);
             next_checkpoint = env_steps + every;
             last_checkpoint = env_steps;
@@ -177,7 +181,11 @@ impl Coordinator {
         loop {
             match ports.stats.receive() {
                 Ok(Some(r)) => match (Stats::decode(&r.msg), self.barrier.as_mut()) {
-                    (Ok(Stats::Barrier(report)), Some(b)) => b.on_report(r.producer(), report),
+                    (Ok(Stats::Barrier(report)), Some(b)) => {
+                        let counters = &mut self.collector.reached;
+                        counters.see(r.producer(), &Stats::Barrier(report));
+                        b.on_report(r.producer(), report)
+                    }
                     (Ok(Stats::Barrier(report)), None) => {
                         tracing::warn!("{}: {report:?} outside a barrier", r.producer())
                     }

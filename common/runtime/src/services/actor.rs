@@ -102,10 +102,11 @@ pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
     let policy =
         WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
     stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Every service's control subscriber (actors, evaluator, model trainer, rollouts, learner);
+    // Every role's control subscriber (the role table's count, this evaluator's included);
     // our own one confirms only when asked to (same thread).
     control.sub.update_connections();
-    acks.wait_for_subscribers(args.actors as usize + 4, Duration::from_secs(120))?;
+    let subscribers = s.pipeline.subscribers(Channel::Control, args.actors);
+    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
     let mut waiter = Waiter::new()?;
     waiter.attach(&control.sub).attach(&policy);
 

@@ -154,9 +154,10 @@ pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
         d.model.len(),
     )?;
     stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Control subscribers of an MPC run: the actors, the model trainer and this evaluator.
+    // Every role's control subscriber (the role table's count, this evaluator's included).
     control.sub.update_connections();
-    acks.wait_for_subscribers(args.actors as usize + 2, Duration::from_secs(120))?;
+    let subscribers = s.pipeline.subscribers(Channel::Control, args.actors);
+    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
     let mut waiter = Waiter::new()?;
     waiter.attach(&control.sub).attach(&model);
 
