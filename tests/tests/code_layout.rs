@@ -52,7 +52,6 @@ const KNOWN_LONG: &[(&str, &str)] = &[
     ("common/nn/src/mlp.rs", "backward"),
     ("common/plan/src/bench.rs", "plan_latency"),
     ("common/plan/src/model.rs", "mean_step_backward"),
-    ("common/report/src/lib.rs", "draw_panel"),
     ("common/runtime/src/coordinator/mod.rs", "advance"),
     ("common/runtime/src/services/acting.rs", "act"),
     ("common/runtime/src/services/actor.rs", "evaluate"),
@@ -60,11 +59,6 @@ const KNOWN_LONG: &[(&str, &str)] = &[
     ("common/runtime/src/services/model_trainer.rs", "run"),
     ("common/runtime/src/services/planning.rs", "evaluate"),
     ("common/runtime/src/services/rollout.rs", "run"),
-    ("common/train/src/config.rs", "validate"),
-    ("common/train/src/mbpo_trainer.rs", "train_mbpo_with"),
-    ("common/train/src/mpc.rs", "train_mpc_with"),
-    ("common/train/src/sac_trainer.rs", "train_sac_with"),
-    ("common/wire/src/stats.rs", "record"),
 ];
 
 #[test]

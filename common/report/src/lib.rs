@@ -385,6 +385,13 @@ fn reference_within(reference: &PaperCurve, x0: f64, x1: f64) -> Vec<(f64, f64, 
         .collect()
 }
 
+/// The chart of one panel: env steps against a ticked (maybe log) y axis.
+type PanelChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, TickedAxis>,
+>;
+
 /// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot. A
 /// `reference` curve is drawn dashed, in a grey ± std band, over the env steps the runs cover.
 fn draw_panel(
@@ -403,63 +410,31 @@ fn draw_panel(
         .filter(|(_, c)| !c.points.is_empty())
         .collect();
     if series.is_empty() {
-        let (w, h) = area.dim_in_pixel();
-        area.draw(&Text::new(
-            title.to_string(),
-            (w as i32 / 2 - 120, 12),
-            ("sans-serif", 20).into_font(),
-        ))
-        .map_err(e)?;
-        area.draw(&Text::new(
-            "no data in any run".to_string(),
-            (w as i32 / 2 - 80, h as i32 / 2),
-            ("sans-serif", 16)
-                .into_font()
-                .color(&RGBColor(110, 110, 110)),
-        ))
-        .map_err(e)?;
-        return Ok(());
+        return draw_empty_panel(area, title);
     }
     let log = scale == Scale::Log
         && series
             .iter()
             .all(|(_, c)| c.points.iter().all(|p| p.2 > 0.0 && p.1 > 0.0));
     let tf = |y: f64| if log { y.log10() } else { y };
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    for (_, c) in &series {
-        for &(x, _, lo, hi) in &c.points {
-            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(tf(lo)), y1.max(tf(hi)));
-        }
-    }
-    let reference_points = reference.map(|r| reference_within(r, x0, x1));
-    // The reference's ± std band where the scale can show it (a log scale shows the mean only).
-    let spread = |std: f64| if log { 0.0 } else { std };
-    for &(_, mean, std) in reference_points.iter().flatten() {
-        let s = spread(std);
-        (y0, y1) = (y0.min(tf(mean - s)), y1.max(tf(mean + s)));
-    }
-    let pad = ((y1 - y0) * 0.05).max(if log { 0.05 } else { 1e-6 });
-    let y_desc = if log {
-        format!("{y_desc} (log scale)")
-    } else {
-        y_desc.to_string()
+    let (x0, x1, lo, hi, reference_points) = panel_range(&series, reference, log);
+    let y_desc = match log {
+        true => format!("{y_desc} (log scale)"),
+        false => y_desc.to_string(),
     };
-    let (lo, hi) = (y0 - pad, y1 + pad);
     let (bold, light) = y_ticks(lo, hi, log);
+    let y_axis = TickedAxis {
+        lo,
+        hi,
+        bold,
+        light,
+    };
     let mut chart = ChartBuilder::on(area)
         .caption(title, ("sans-serif", 22))
         .margin(14)
         .x_label_area_size(44)
         .y_label_area_size(76)
-        .build_cartesian_2d(
-            x0..x1.max(x0 + 1.0),
-            TickedAxis {
-                lo,
-                hi,
-                bold,
-                light,
-            },
-        )
+        .build_cartesian_2d(x0..x1.max(x0 + 1.0), y_axis)
         .map_err(e)?;
     let y_fmt = |y: &f64| if log { sig(10f64.powf(*y)) } else { sig(*y) };
     chart
@@ -473,58 +448,10 @@ fn draw_panel(
         .draw()
         .map_err(e)?;
     for &(i, c) in &series {
-        let col = color(i);
-        let band: Vec<(f64, f64)> = c
-            .points
-            .iter()
-            .map(|p| (p.0, tf(p.3)))
-            .chain(c.points.iter().rev().map(|p| (p.0, tf(p.2))))
-            .collect();
-        chart
-            .draw_series(std::iter::once(Polygon::new(band, col.mix(0.18).filled())))
-            .map_err(e)?;
-        let line = chart
-            .draw_series(LineSeries::new(
-                c.points.iter().map(|p| (p.0, tf(p.1))),
-                col.stroke_width(3),
-            ))
-            .map_err(e)?;
-        if legend_inside {
-            line.label(legend_text(c)).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(3))
-            });
-        }
+        draw_runs(&mut chart, i, c, &tf, legend_inside)?;
     }
     if let (Some(reference), Some(points)) = (reference, reference_points) {
-        let style = BLACK.stroke_width(2);
-        let band: Vec<(f64, f64)> = points
-            .iter()
-            .map(|&(x, mean, std)| (x, tf(mean + spread(std))))
-            .chain(
-                points
-                    .iter()
-                    .rev()
-                    .map(|&(x, mean, std)| (x, tf(mean - spread(std)))),
-            )
-            .collect();
-        chart
-            .draw_series(std::iter::once(Polygon::new(
-                band,
-                BLACK.mix(0.07).filled(),
-            )))
-            .map_err(e)?;
-        let line = chart
-            .draw_series(DashedLineSeries::new(
-                points.into_iter().map(|(x, mean, _)| (x, tf(mean))),
-                8,
-                6,
-                style,
-            ))
-            .map_err(e)?;
-        if legend_inside {
-            line.label(reference.label.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-        }
+        draw_reference(&mut chart, reference, points, log, legend_inside)?;
     }
     if legend_inside {
         chart
@@ -535,6 +462,131 @@ fn draw_panel(
             .position(SeriesLabelPosition::LowerRight)
             .draw()
             .map_err(e)?;
+    }
+    Ok(())
+}
+
+/// A panel with its title and "no data in any run".
+fn draw_empty_panel(
+    area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+    title: &str,
+) -> Result<(), String> {
+    let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
+    let (w, h) = area.dim_in_pixel();
+    area.draw(&Text::new(
+        title.to_string(),
+        (w as i32 / 2 - 120, 12),
+        ("sans-serif", 20).into_font(),
+    ))
+    .map_err(e)?;
+    area.draw(&Text::new(
+        "no data in any run".to_string(),
+        (w as i32 / 2 - 80, h as i32 / 2),
+        ("sans-serif", 16)
+            .into_font()
+            .color(&RGBColor(110, 110, 110)),
+    ))
+    .map_err(e)?;
+    Ok(())
+}
+
+/// The panel's x range and padded y range (in the axis's units: log10 on a log scale), and
+/// the reference's points within the x range.
+#[allow(clippy::type_complexity)]
+fn panel_range(
+    series: &[(usize, &GroupCurve)],
+    reference: Option<&PaperCurve>,
+    log: bool,
+) -> (f64, f64, f64, f64, Option<Vec<(f64, f64, f64)>>) {
+    let tf = |y: f64| if log { y.log10() } else { y };
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for (_, c) in series {
+        for &(x, _, lo, hi) in &c.points {
+            (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(tf(lo)), y1.max(tf(hi)));
+        }
+    }
+    let reference_points = reference.map(|r| reference_within(r, x0, x1));
+    // The reference's ± std band where the scale can show it (a log scale shows the mean only).
+    let spread = |std: f64| if log { 0.0 } else { std };
+    for &(_, mean, std) in reference_points.iter().flatten() {
+        let s = spread(std);
+        (y0, y1) = (y0.min(tf(mean - s)), y1.max(tf(mean + s)));
+    }
+    let pad = ((y1 - y0) * 0.05).max(if log { 0.05 } else { 1e-6 });
+    (x0, x1, y0 - pad, y1 + pad, reference_points)
+}
+
+/// One group of runs: its min..max band and mean line, in colour `i`.
+fn draw_runs(
+    chart: &mut PanelChart<'_, '_>,
+    i: usize,
+    c: &GroupCurve,
+    tf: &dyn Fn(f64) -> f64,
+    legend_inside: bool,
+) -> Result<(), String> {
+    let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
+    let col = color(i);
+    let band: Vec<(f64, f64)> = c
+        .points
+        .iter()
+        .map(|p| (p.0, tf(p.3)))
+        .chain(c.points.iter().rev().map(|p| (p.0, tf(p.2))))
+        .collect();
+    chart
+        .draw_series(std::iter::once(Polygon::new(band, col.mix(0.18).filled())))
+        .map_err(e)?;
+    let line = chart
+        .draw_series(LineSeries::new(
+            c.points.iter().map(|p| (p.0, tf(p.1))),
+            col.stroke_width(3),
+        ))
+        .map_err(e)?;
+    if legend_inside {
+        line.label(legend_text(c))
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], col.stroke_width(3)));
+    }
+    Ok(())
+}
+
+/// The reference curve: dashed mean in a grey ± std band (the mean only on a log scale).
+fn draw_reference(
+    chart: &mut PanelChart<'_, '_>,
+    reference: &PaperCurve,
+    points: Vec<(f64, f64, f64)>,
+    log: bool,
+    legend_inside: bool,
+) -> Result<(), String> {
+    let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
+    let tf = |y: f64| if log { y.log10() } else { y };
+    let spread = |std: f64| if log { 0.0 } else { std };
+    let style = BLACK.stroke_width(2);
+    let band: Vec<(f64, f64)> = points
+        .iter()
+        .map(|&(x, mean, std)| (x, tf(mean + spread(std))))
+        .chain(
+            points
+                .iter()
+                .rev()
+                .map(|&(x, mean, std)| (x, tf(mean - spread(std)))),
+        )
+        .collect();
+    chart
+        .draw_series(std::iter::once(Polygon::new(
+            band,
+            BLACK.mix(0.07).filled(),
+        )))
+        .map_err(e)?;
+    let line = chart
+        .draw_series(DashedLineSeries::new(
+            points.into_iter().map(|(x, mean, _)| (x, tf(mean))),
+            8,
+            6,
+            style,
+        ))
+        .map_err(e)?;
+    if legend_inside {
+        line.label(reference.label.as_str())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
     }
     Ok(())
 }

@@ -469,25 +469,46 @@ impl ExperimentConfig {
             found,
         };
         self.validate_env(&bad)?;
-        match mbpo_envs::task(&self.env) {
-            _ if self.is_gym_env() => {}
-            Ok(task) if !task.builds() => {
-                return Err(bad(
-                    "env",
-                    "an environment of this build (MuJoCo tasks need `bash deploy/setup_mujoco.sh` \
-                     and a build with `--features mujoco`)",
-                    format!("{:?}", self.env),
-                ));
-            }
-            Ok(_) => {}
-            Err(_) => {
-                return Err(bad(
-                    "env",
-                    &format!("one of {}", mbpo_envs::registry::known_ids()),
-                    format!("{:?}", self.env),
-                ));
-            }
+        self.validate_task(&bad)?;
+        self.validate_positive(&bad)?;
+        self.validate_mbpo(&bad)?;
+        if self.algo == Algo::MPC {
+            self.validate_mpc(&bad)?;
         }
+        if matches!(self.algo, Algo::MBPO | Algo::MPC) {
+            self.validate_model(&bad)?;
+        }
+        self.validate_sac(&bad)
+    }
+
+    /// `env` names a task of this build (or a Python env).
+    fn validate_task(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        match mbpo_envs::task(&self.env) {
+            _ if self.is_gym_env() => Ok(()),
+            Ok(task) if !task.builds() => Err(bad(
+                "env",
+                "an environment of this build (MuJoCo tasks need `bash deploy/setup_mujoco.sh` \
+                 and a build with `--features mujoco`)",
+                format!("{:?}", self.env),
+            )),
+            Ok(_) => Ok(()),
+            Err(_) => Err(bad(
+                "env",
+                &format!("one of {}", mbpo_envs::registry::known_ids()),
+                format!("{:?}", self.env),
+            )),
+        }
+    }
+
+    /// Counts, rates and sizes that must be positive (and finite).
+    fn validate_positive(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        let (m, c) = (&self.mbpo, &self.checkpoint);
         let positive = [
             ("steps", self.steps as f64),
             ("eval.every", self.eval.every as f64),
@@ -501,6 +522,13 @@ impl ExperimentConfig {
                 "sac_loop.replay_capacity",
                 self.sac_loop.replay_capacity as f64,
             ),
+            ("mbpo.epoch_length", m.epoch_length as f64),
+            ("mbpo.model_train_freq", m.model_train_freq as f64),
+            ("mbpo.rollouts_per_step", m.rollouts_per_step as f64),
+            ("mbpo.retain_epochs", m.retain_epochs as f64),
+            ("mbpo.updates_per_step", m.updates_per_step as f64),
+            ("mbpo.replay_capacity", m.replay_capacity as f64),
+            ("checkpoint.keep", c.keep as f64),
         ];
         for (key, v) in positive {
             if !(v > 0.0 && v.is_finite()) {
@@ -510,22 +538,6 @@ impl ExperimentConfig {
         if let Some(t) = self.eval.target_return.filter(|t| !t.is_finite()) {
             return Err(bad("eval.target_return", "a finite number", t.to_string()));
         }
-        let m = &self.mbpo;
-        let positive_mbpo = [
-            ("mbpo.epoch_length", m.epoch_length as f64),
-            ("mbpo.model_train_freq", m.model_train_freq as f64),
-            ("mbpo.rollouts_per_step", m.rollouts_per_step as f64),
-            ("mbpo.retain_epochs", m.retain_epochs as f64),
-            ("mbpo.updates_per_step", m.updates_per_step as f64),
-            ("mbpo.replay_capacity", m.replay_capacity as f64),
-            ("checkpoint.keep", self.checkpoint.keep as f64),
-        ];
-        for (key, v) in positive_mbpo {
-            if v <= 0.0 {
-                return Err(bad(key, "a positive number", v.to_string()));
-            }
-        }
-        let c = &self.checkpoint;
         if c.keep_every > 0 && (c.every == 0 || !c.keep_every.is_multiple_of(c.every)) {
             return Err(bad(
                 "checkpoint.keep_every",
@@ -536,6 +548,15 @@ impl ExperimentConfig {
                 c.keep_every.to_string(),
             ));
         }
+        Ok(())
+    }
+
+    /// MBPO's ratio and rollout schedule.
+    fn validate_mbpo(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        let m = &self.mbpo;
         if !(0.0..=1.0).contains(&m.real_ratio) {
             return Err(bad(
                 "mbpo.real_ratio",
@@ -551,44 +572,55 @@ impl ExperimentConfig {
                 format!("{:?}", m.rollout_schedule),
             ));
         }
-        if self.algo == Algo::MPC {
-            self.validate_mpc(&bad)?;
-        }
-        if matches!(self.algo, Algo::MBPO | Algo::MPC) {
-            // The model crate checks its own ranges (dims, elites <= members, decay lengths).
-            // A Python env's dims are known only once its interpreter runs, and every process
-            // validates its config: its model is checked with placeholder dims (the bridge
-            // refuses an env with no observation or action values).
-            let (obs_dim, act_dim) = match self.is_gym_env() {
-                true => (1, 1),
-                false => {
-                    let env = mbpo_envs::make(&self.env)
-                        .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
-                    (env.obs_dim(), env.act_dim())
-                }
-            };
-            self.model.validate(obs_dim, act_dim).map_err(|e| {
-                let (field, expected, found) = e.parts();
-                bad(&format!("model.{field}"), &expected, found)
-            })?;
-            // The first model trains on the warm-up's transitions alone.
-            let (key, warm_up) = match self.algo {
-                Algo::MPC => ("mpc.init_random_steps", self.mpc.init_random_steps),
-                _ => ("mbpo.init_random_steps", self.mbpo.init_random_steps),
-            };
-            let need = self.model.min_training_transitions();
-            if warm_up < need as u64 {
-                return Err(bad(
-                    key,
-                    &format!(
-                        "at least {need}: the first model trains on the warm-up's transitions \
-                         alone, and model.holdout_ratio = {} needs {need} to hold some out",
-                        self.model.holdout_ratio
-                    ),
-                    warm_up.to_string(),
-                ));
+        Ok(())
+    }
+
+    /// The model's own ranges, and a warm-up long enough for its first training.
+    fn validate_model(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        // The model crate checks its own ranges (dims, elites <= members, decay lengths).
+        // A Python env's dims are known only once its interpreter runs, and every process
+        // validates its config: its model is checked with placeholder dims (the bridge
+        // refuses an env with no observation or action values).
+        let (obs_dim, act_dim) = match self.is_gym_env() {
+            true => (1, 1),
+            false => {
+                let env = mbpo_envs::make(&self.env)
+                    .map_err(|e| bad("env", "an environment that loads", e.to_string()))?;
+                (env.obs_dim(), env.act_dim())
             }
+        };
+        self.model.validate(obs_dim, act_dim).map_err(|e| {
+            let (field, expected, found) = e.parts();
+            bad(&format!("model.{field}"), &expected, found)
+        })?;
+        // The first model trains on the warm-up's transitions alone.
+        let (key, warm_up) = match self.algo {
+            Algo::MPC => ("mpc.init_random_steps", self.mpc.init_random_steps),
+            _ => ("mbpo.init_random_steps", self.mbpo.init_random_steps),
+        };
+        let need = self.model.min_training_transitions();
+        if warm_up < need as u64 {
+            return Err(bad(
+                key,
+                &format!(
+                    "at least {need}: the first model trains on the warm-up's transitions \
+                     alone, and model.holdout_ratio = {} needs {need} to hold some out",
+                    self.model.holdout_ratio
+                ),
+                warm_up.to_string(),
+            ));
         }
+        Ok(())
+    }
+
+    /// SAC's discount, Polyak rate, widths and log-std range.
+    fn validate_sac(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
         for (key, v) in [("sac.gamma", self.sac.gamma), ("sac.tau", self.sac.tau)] {
             if !(v > 0.0 && v <= 1.0) {
                 return Err(bad(key, "in (0, 1]", v.to_string()));

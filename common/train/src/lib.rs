@@ -9,6 +9,7 @@
 //!   checkpoint (`mbpo bench diagnose`).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
+//! * `driver`: the one loop of a single-process run that the SAC, MBPO and MPC trainers share.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
 //! * [`d_model_branches`]: the model buffer in a checkpoint as the rollout branches that filled
 //!   it, done again on restore.
@@ -39,6 +40,7 @@ pub mod config;
 pub mod cpu;
 pub mod d_model_branches;
 pub mod diagnose;
+mod driver;
 pub mod env_config;
 pub mod error;
 pub mod eval;

@@ -23,16 +23,15 @@ use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::checkpoint_writer::{BackgroundWriter, CheckpointFiles};
 use crate::config::ExperimentConfig;
+use crate::driver::{drive, SequentialRun};
 use crate::error::TrainError;
 use crate::eval::Evaluator;
 use crate::phase_times::PhaseTimes;
-use crate::progress::{Display, Progress};
 use crate::roles::{
     ActorRole, LearnerRole, ModelSnapshot, ModelTrainerRole, RolloutRole, Schedule,
 };
 use crate::run_control::RunOptions;
-use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before};
-use crate::run_dir::{MetricsRow, Summary};
+use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, ActorCheckpoint, EvaluatorCheckpoint,
     LearnerCheckpoint, ModelTrainerCheckpoint, RolloutCheckpoint, RunBook,
@@ -369,47 +368,53 @@ pub fn train_mbpo_with(
     out: &Path,
     opts: RunOptions,
 ) -> Result<Summary, TrainError> {
-    let mut mbpo = Mbpo::new(cfg)?;
-    let mut evaluator = Evaluator::new(cfg)?;
-    let (mut run, done) = open_run(cfg, out, opts, |dir, t| {
-        let (rng, book) = mbpo.restore_checkpoint(dir, t)?;
-        evaluator.restore_book(rng, &book);
-        mbpo.book = book;
+    let mut run = MbpoRun {
+        cfg,
+        out,
+        mbpo: Mbpo::new(cfg)?,
+        evaluator: Evaluator::new(cfg)?,
+        writer: BackgroundWriter::default(),
+        phases_at_last_row: PhaseTimes::default(),
+    };
+    drive(&mut run, cfg, out, opts)
+}
+
+/// MBPO under the shared driver: the roles, the evaluator, and the checkpoint writer.
+struct MbpoRun<'a> {
+    cfg: &'a ExperimentConfig,
+    out: &'a Path,
+    mbpo: Mbpo,
+    evaluator: Evaluator,
+    /// Checkpoints are written on the writer's thread while the run goes on
+    /// (crate::checkpoint_writer); pruning follows each one there.
+    writer: BackgroundWriter,
+    phases_at_last_row: PhaseTimes,
+}
+
+impl SequentialRun for MbpoRun<'_> {
+    const NAME: &'static str = "mbpo";
+
+    fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
+        let (rng, book) = self.mbpo.restore_checkpoint(dir, t)?;
+        self.evaluator.restore_book(rng, &book);
+        self.mbpo.book = book;
         Ok(())
-    })?;
-    // Checkpoints are written on the writer's thread while the run goes on
-    // (crate::checkpoint_writer); pruning follows each one there. `wait`: return only once
-    // this one is on disk (the run is about to end).
-    let mut writer = BackgroundWriter::default();
-    let (keep, keep_every) = (cfg.checkpoint.keep, cfg.checkpoint.keep_every);
-    let mut save =
-        |mbpo: &Mbpo, evaluator: &Evaluator, t: u64, wait: bool| -> Result<(), TrainError> {
-            let mut book = mbpo.book.clone();
-            evaluator.write_book(&mut book);
-            book.progress = (t, mbpo.sac().updates(), mbpo.model_trainer.version());
-            let files =
-                mbpo.encode_checkpoint(&checkpoint::dir_for(out, t), t, evaluator, &book)?;
-            let run = out.to_path_buf();
-            writer.submit(files, move || checkpoint::prune(&run, keep, keep_every))?;
-            if wait {
-                writer.wait()?;
-            }
-            Ok(())
-        };
-    let mut status = "completed";
-    let label = format!("mbpo {} s{}", cfg.env, cfg.seed);
-    let mut progress = Progress::new(label, cfg.steps, Display::auto());
-    let mut phases_at_last_row = mbpo.phases;
-    for t in done + 1..=cfg.steps {
+    }
+
+    fn begin(&mut self) {
+        self.phases_at_last_row = self.mbpo.phases;
+    }
+
+    fn step(&mut self, t: u64, stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
         let started = Instant::now();
-        let stepped = match mbpo.step_unless(t, || opts.stopping_at(t, cfg.steps)) {
+        let stepped = match self.mbpo.step_unless(t, stop) {
             // Step t failed at its env step before anything else of it happened (no model
             // training at t): steps 1..t-1 are whole, keep them.
-            Err(TrainError::Env(error)) if mbpo.schedule.train_point(t).is_none() => {
+            Err(TrainError::Env(error)) if self.mbpo.schedule.train_point(t).is_none() => {
                 let kept = match t - 1 {
                     0 => "nothing was kept (it failed at the first step)".to_string(),
                     done => {
-                        save(&mbpo, &evaluator, done, true)?;
+                        self.save(done, true)?;
                         format!("the run stopped with a checkpoint after step {done}")
                     }
                 };
@@ -421,54 +426,68 @@ pub fn train_mbpo_with(
             }
             other => other?,
         };
-        if !stepped {
-            // Stopped during the model training of step t, which was undone.
-            stop_before(t, |at| save(&mbpo, &evaluator, at, true), out)?;
-            status = "stopped";
-            break;
-        }
-        if !mbpo.schedule.is_warm_up(t) {
+        if stepped && !self.mbpo.schedule.is_warm_up(t) {
             let seconds = started.elapsed().as_secs_f64();
-            mbpo.book.step_seconds.push(seconds);
+            self.mbpo.book.step_seconds.push(seconds);
         }
-        if mbpo.schedule.is_eval_point(t) {
-            let row = metrics_row(&mbpo, &mut evaluator, t)?;
-            run.write_metrics(&row)?;
-            mbpo.book.next_row += 1;
-            evaluator.log("mbpo", &row);
-            let phases = mbpo.phases.since(&phases_at_last_row);
-            if phases.steps > 0 {
-                tracing::info!("{}", phases.per_step_line());
-            }
-            phases_at_last_row = mbpo.phases;
-            progress.set_eval(row.eval_return);
-        }
-        progress.update(t, mbpo.sac().updates());
-        let stopping = opts.stopping_at(t, cfg.steps);
-        if checkpoint_due(cfg, t, stopping) {
-            save(&mbpo, &evaluator, t, stopping || t == cfg.steps)?;
-        }
-        if stopping {
-            log_stopped(t, out);
-            status = "stopped";
-            break;
-        }
+        Ok(stepped)
     }
-    progress.finish();
-    let median = mbpo_core::stats::median(&mut mbpo.book.step_seconds.clone());
-    let target = cfg.target_return();
-    let target = (target, run.env_steps_to_target(target)?);
-    let mut summary = evaluator.summary("mbpo", mbpo.learner.sac(), median, target);
-    summary.env_steps = mbpo.env_steps();
-    summary.status = status.into();
-    summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;
-    summary.episodes_lost_to_env_exit = mbpo.actor.env_actor().episodes_lost;
-    if status == "completed" {
-        let actor = &mbpo.learner.sac().actor_params;
-        crate::policy_file::write_final_policy(out, summary.env_steps, actor)?;
+
+    fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError> {
+        let row = metrics_row(&self.mbpo, &mut self.evaluator, t)?;
+        self.mbpo.book.next_row += 1;
+        self.evaluator.log(Self::NAME, &row);
+        let phases = self.mbpo.phases.since(&self.phases_at_last_row);
+        if phases.steps > 0 {
+            tracing::info!("{}", phases.per_step_line());
+        }
+        self.phases_at_last_row = self.mbpo.phases;
+        Ok(row)
     }
-    run.write_summary(&summary)?;
-    Ok(summary)
+
+    fn progress(&self) -> (u64, Option<u64>) {
+        (self.mbpo.sac().updates(), None)
+    }
+
+    fn save(&mut self, t: u64, wait: bool) -> Result<(), TrainError> {
+        let mut book = self.mbpo.book.clone();
+        self.evaluator.write_book(&mut book);
+        book.progress = (
+            t,
+            self.mbpo.sac().updates(),
+            self.mbpo.model_trainer.version(),
+        );
+        let dir = checkpoint::dir_for(self.out, t);
+        let files = self
+            .mbpo
+            .encode_checkpoint(&dir, t, &self.evaluator, &book)?;
+        let (run, keep) = (self.out.to_path_buf(), &self.cfg.checkpoint);
+        let (keep, keep_every) = (keep.keep, keep.keep_every);
+        self.writer
+            .submit(files, move || checkpoint::prune(&run, keep, keep_every))?;
+        if wait {
+            self.writer.wait()?;
+        }
+        Ok(())
+    }
+
+    fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
+        let mbpo = &self.mbpo;
+        let median = mbpo_core::stats::median(&mut mbpo.book.step_seconds.clone());
+        let target = self.cfg.target_return();
+        let target = (target, run.env_steps_to_target(target)?);
+        let sac = mbpo.learner.sac();
+        let mut summary = self.evaluator.summary(Self::NAME, sac, median, target);
+        summary.env_steps = mbpo.env_steps();
+        summary.status = status.into();
+        summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;
+        summary.episodes_lost_to_env_exit = mbpo.actor.env_actor().episodes_lost;
+        if status == "completed" {
+            let actor = &sac.actor_params;
+            crate::policy_file::write_final_policy(self.out, summary.env_steps, actor)?;
+        }
+        Ok(summary)
+    }
 }
 
 /// The metrics row of eval point `t`: evaluation, SAC statistics and the model's (that of the

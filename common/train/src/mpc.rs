@@ -18,12 +18,12 @@
 use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
+use crate::driver::{drive, SequentialRun};
 use crate::error::TrainError;
 use crate::mpc_roles::{PlanningActorRole, PlanningEvaluator};
-use crate::progress::{Display, Progress};
 use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
-use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, RunOptions};
-use crate::run_dir::{policy_sha256, MetricsRow, Summary};
+use crate::run_control::RunOptions;
+use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
 use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
     PlanningEvaluatorCheckpoint, RunBook,
@@ -213,90 +213,108 @@ pub fn train_mpc_with(
     out: &Path,
     opts: RunOptions,
 ) -> Result<Summary, TrainError> {
-    let mut mpc = MpcRun::new(cfg)?;
-    let mut book = RunBook::start();
-    let (mut run, done) = open_run(cfg, out, opts, |dir, t| {
-        book = mpc.restore_checkpoint(dir, t)?;
+    let mut run = MpcDriven {
+        cfg,
+        out,
+        mpc: MpcRun::new(cfg)?,
+        book: RunBook::start(),
+        started: Instant::now(),
+    };
+    drive(&mut run, cfg, out, opts)
+}
+
+/// MPC under the shared driver: the roles, the run's book and its clock.
+struct MpcDriven<'a> {
+    cfg: &'a ExperimentConfig,
+    out: &'a Path,
+    mpc: MpcRun,
+    book: RunBook,
+    started: Instant,
+}
+
+impl SequentialRun for MpcDriven<'_> {
+    const NAME: &'static str = "mpc";
+    const COUNTING: Option<&'static str> = Some("plans");
+
+    fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
+        self.book = self.mpc.restore_checkpoint(dir, t)?;
         Ok(())
-    })?;
-    // The clock continues from the checkpoint's.
-    let started = Instant::now()
-        .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
-        .unwrap_or_else(Instant::now);
-    let save = |mpc: &MpcRun, book: &mut RunBook, t: u64| -> Result<(), TrainError> {
-        book.elapsed_seconds = started.elapsed().as_secs_f64();
-        book.progress = (t, 0, mpc.model_trainer.version());
-        mpc.write_checkpoint(&checkpoint::dir_for(out, t), t, book)?;
-        Ok(checkpoint::prune(
-            out,
-            cfg.checkpoint.keep,
-            cfg.checkpoint.keep_every,
-        )?)
-    };
-    let mut status = "completed";
-    let label = format!("mpc {} s{}", cfg.env, cfg.seed);
-    let mut progress = Progress::new(label, cfg.steps, Display::auto()).counting("plans");
-    for t in done + 1..=cfg.steps {
-        let (version, episodes) = (mpc.model_trainer.version(), mpc.actor.env_actor().episodes);
-        if !mpc.step_unless(t, || opts.stopping_at(t, cfg.steps))? {
-            // Stopped during the model training of step t, which was undone.
-            stop_before(t, |at| save(&mpc, &mut book, at), out)?;
-            status = "stopped";
-            break;
-        }
-        record_step(&mpc, &mut book, version, episodes);
-        if !mpc.schedule.is_warm_up(t) {
-            book.step_seconds.push(mpc.actor.last_plan_seconds);
-        }
-        if mpc.schedule.is_eval_point(t) {
-            // (Not while warming up: there is no model to plan with.)
-            let row = evaluate_at(&mut mpc, &mut book, t, started, cfg.eval.episodes)?;
-            run.write_metrics(&row)?;
-            progress.set_eval(row.eval_return);
-            tracing::info!(
-                "mpc {} seed {}: step {t} eval {:.1} best {:.1} train episode {:.1} model v{} ({:.2} steps/s)",
-                cfg.env,
-                cfg.seed,
-                row.eval_return,
-                book.best_return,
-                row.train_return.unwrap_or(f64::NAN),
-                mpc.actor.model_version(),
-                row.env_steps_per_sec
-            );
-        }
-        progress.set_model_version(mpc.actor.model_version());
-        progress.update(t, mpc.actor.plans());
-        let stopping = opts.stopping_at(t, cfg.steps);
-        if checkpoint_due(cfg, t, stopping) {
-            save(&mpc, &mut book, t)?;
-        }
-        if stopping {
-            log_stopped(t, out);
-            status = "stopped";
-            break;
-        }
     }
-    progress.finish();
-    let target_return = cfg.target_return();
-    let summary = Summary {
-        algo: "mpc".into(),
-        env: cfg.env.clone(),
-        seed: cfg.seed,
-        env_steps: mpc.actor.env_actor().steps,
-        sac_updates: 0,
-        final_eval_return: book.final_return,
-        best_eval_return: book.best_return,
-        target_return,
-        env_steps_to_target: run.env_steps_to_target(target_return)?,
-        policy_sha256: policy_sha256(&mpc.model_params),
-        wall_seconds: started.elapsed().as_secs_f64(),
-        median_seconds_per_env_step: mbpo_core::stats::median(&mut book.step_seconds.clone()),
-        status: status.into(),
-        episodes_cut_by_resume: mpc.actor.env_actor().episodes_cut,
-        episodes_lost_to_env_exit: mpc.actor.env_actor().episodes_lost,
-    };
-    run.write_summary(&summary)?;
-    Ok(summary)
+
+    /// The clock continues from the checkpoint's.
+    fn begin(&mut self) {
+        let elapsed = Duration::from_secs_f64(self.book.elapsed_seconds.max(0.0));
+        self.started = Instant::now()
+            .checked_sub(elapsed)
+            .unwrap_or_else(Instant::now);
+    }
+
+    fn step(&mut self, t: u64, stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
+        let mpc = &mut self.mpc;
+        let (version, episodes) = (mpc.model_trainer.version(), mpc.actor.env_actor().episodes);
+        if !mpc.step_unless(t, stop)? {
+            return Ok(false);
+        }
+        record_step(mpc, &mut self.book, version, episodes);
+        if !mpc.schedule.is_warm_up(t) {
+            self.book.step_seconds.push(mpc.actor.last_plan_seconds);
+        }
+        Ok(true)
+    }
+
+    fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError> {
+        // (Not while warming up: there is no model to plan with.)
+        let episodes = self.cfg.eval.episodes;
+        let row = evaluate_at(&mut self.mpc, &mut self.book, t, self.started, episodes)?;
+        tracing::info!(
+            "mpc {} seed {}: step {t} eval {:.1} best {:.1} train episode {:.1} model v{} ({:.2} steps/s)",
+            self.cfg.env,
+            self.cfg.seed,
+            row.eval_return,
+            self.book.best_return,
+            row.train_return.unwrap_or(f64::NAN),
+            self.mpc.actor.model_version(),
+            row.env_steps_per_sec
+        );
+        Ok(row)
+    }
+
+    fn progress(&self) -> (u64, Option<u64>) {
+        (self.mpc.actor.plans(), Some(self.mpc.actor.model_version()))
+    }
+
+    fn save(&mut self, t: u64, _wait: bool) -> Result<(), TrainError> {
+        self.book.elapsed_seconds = self.started.elapsed().as_secs_f64();
+        self.book.progress = (t, 0, self.mpc.model_trainer.version());
+        let dir = checkpoint::dir_for(self.out, t);
+        self.mpc.write_checkpoint(&dir, t, &self.book)?;
+        let keep = &self.cfg.checkpoint;
+        Ok(checkpoint::prune(self.out, keep.keep, keep.keep_every)?)
+    }
+
+    fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
+        let target_return = self.cfg.target_return();
+        let actor = self.mpc.actor.env_actor();
+        Ok(Summary {
+            algo: Self::NAME.into(),
+            env: self.cfg.env.clone(),
+            seed: self.cfg.seed,
+            env_steps: actor.steps,
+            sac_updates: 0,
+            final_eval_return: self.book.final_return,
+            best_eval_return: self.book.best_return,
+            target_return,
+            env_steps_to_target: run.env_steps_to_target(target_return)?,
+            policy_sha256: policy_sha256(&self.mpc.model_params),
+            wall_seconds: self.started.elapsed().as_secs_f64(),
+            median_seconds_per_env_step: mbpo_core::stats::median(
+                &mut self.book.step_seconds.clone(),
+            ),
+            status: status.into(),
+            episodes_cut_by_resume: actor.episodes_cut,
+            episodes_lost_to_env_exit: actor.episodes_lost,
+        })
+    }
 }
 
 /// Keep what step t added in the run's book: its model's holdout MSE (when it trained one

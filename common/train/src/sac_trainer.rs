@@ -8,14 +8,14 @@
 use crate::actor::{Behaviour, EnvActor};
 use crate::checkpoint;
 use crate::config::ExperimentConfig;
+use crate::driver::{drive, SequentialRun};
 use crate::error::TrainError;
 use crate::eval::Evaluator;
-use crate::progress::{Display, Progress};
-use crate::run_control::{checkpoint_due, log_stopped, open_run, RunOptions};
-use crate::run_dir::Summary;
+use crate::run_control::RunOptions;
+use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::sac_checkpoint::{SacRunState, SAC_CHECKPOINT_FILE, SAC_CHECKPOINT_KIND};
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, ReplayBuffer};
+use mbpo_core::{Batch, ReplayBuffer, Rng};
 use mbpo_sac::{Sac, SacStats};
 use std::path::Path;
 
@@ -30,100 +30,129 @@ pub fn train_sac_with(
     out: &Path,
     opts: RunOptions,
 ) -> Result<Summary, TrainError> {
-    let seed = cfg.seed;
-    let mut actor = EnvActor::new(cfg.make_env()?, seed, 0)?;
-    let (obs_dim, act_dim) = (actor.obs_dim(), actor.act_dim());
-    let mut sac = Sac::new(
-        obs_dim,
-        act_dim,
-        cfg.sac.clone(),
-        &mut stream(seed, "sac.init", 0),
-    );
-    let mut replay = ReplayBuffer::new(obs_dim, act_dim, cfg.sac_loop.replay_capacity);
-    let mut batch = Batch::new(obs_dim, act_dim, cfg.sac.batch_size);
-    let mut sample_rng = stream(seed, "learner.sample", 0);
-    let mut update_rng = stream(seed, "learner.update", 0);
-    let mut evaluator = Evaluator::new(cfg)?;
-    let schedule = crate::Schedule::of(cfg);
-    let mut stats = SacStats::default();
-    let (mut run, done) = open_run(cfg, out, opts, |dir, _| {
+    drive(&mut SacRun::new(cfg, out)?, cfg, out, opts)
+}
+
+/// A SAC run's state: the actor, the agent, its replay buffer and streams, the evaluator.
+struct SacRun<'a> {
+    cfg: &'a ExperimentConfig,
+    out: &'a Path,
+    actor: EnvActor,
+    sac: Sac,
+    replay: ReplayBuffer,
+    batch: Batch,
+    sample_rng: Rng,
+    update_rng: Rng,
+    evaluator: Evaluator,
+    stats: SacStats,
+}
+
+impl<'a> SacRun<'a> {
+    fn new(cfg: &'a ExperimentConfig, out: &'a Path) -> Result<Self, TrainError> {
+        let seed = cfg.seed;
+        let actor = EnvActor::new(cfg.make_env()?, seed, 0)?;
+        let (obs_dim, act_dim) = (actor.obs_dim(), actor.act_dim());
+        let sac = Sac::new(
+            obs_dim,
+            act_dim,
+            cfg.sac.clone(),
+            &mut stream(seed, "sac.init", 0),
+        );
+        Ok(Self {
+            cfg,
+            out,
+            actor,
+            sac,
+            replay: ReplayBuffer::new(obs_dim, act_dim, cfg.sac_loop.replay_capacity),
+            batch: Batch::new(obs_dim, act_dim, cfg.sac.batch_size),
+            sample_rng: stream(seed, "learner.sample", 0),
+            update_rng: stream(seed, "learner.update", 0),
+            evaluator: Evaluator::new(cfg)?,
+            stats: SacStats::default(),
+        })
+    }
+}
+
+impl SequentialRun for SacRun<'_> {
+    const NAME: &'static str = "sac";
+
+    fn restore(&mut self, dir: &Path, _t: u64) -> Result<(), TrainError> {
         let path = dir.join(SAC_CHECKPOINT_FILE);
         let state: SacRunState = checkpoint::read(&path, SAC_CHECKPOINT_KIND)?;
         let bad = |e: String| TrainError::Config(format!("{}: {e}", path.display()));
-        actor.restore(state.actor)?;
-        sac.restore(state.sac).map_err(bad)?;
-        replay = ReplayBuffer::from_snapshot(&state.replay, obs_dim, act_dim)
+        let (obs_dim, act_dim) = (self.actor.obs_dim(), self.actor.act_dim());
+        self.actor.restore(state.actor)?;
+        self.sac.restore(state.sac).map_err(bad)?;
+        self.replay = ReplayBuffer::from_snapshot(&state.replay, obs_dim, act_dim)
             .map_err(|e| bad(e.to_string()))?;
-        (sample_rng, update_rng, stats) = (state.sample_rng, state.update_rng, state.stats);
-        evaluator.restore(state.evaluator);
+        (self.sample_rng, self.update_rng) = (state.sample_rng, state.update_rng);
+        self.stats = state.stats;
+        self.evaluator.restore(state.evaluator);
         Ok(())
-    })?;
-    let label = format!("sac {} s{seed}", cfg.env);
-    let mut progress = Progress::new(label, cfg.steps, Display::auto());
+    }
 
-    let mut status = "completed";
-    for t in done + 1..=cfg.steps {
-        // Act: uniform over the action box during warm-up, then the stochastic policy.
-        let behaviour = if t <= cfg.sac_loop.random_steps {
-            Behaviour::Uniform
-        } else {
-            Behaviour::Policy
+    /// Act (uniform over the action box during warm-up, then the stochastic policy), store,
+    /// then `updates_per_step` SAC updates.
+    fn step(&mut self, t: u64, _stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
+        let warm_up = self.cfg.sac_loop.random_steps;
+        let behaviour = match t <= warm_up {
+            true => Behaviour::Uniform,
+            false => Behaviour::Policy,
         };
-        actor.step(behaviour, &mut sac.policy(), &mut replay)?;
-
-        // Learn.
-        if t >= cfg.sac_loop.random_steps && replay.len() >= cfg.sac.batch_size {
-            for _ in 0..cfg.sac_loop.updates_per_step {
-                replay.sample_into(&mut sample_rng, &mut batch);
-                stats = sac.update(&batch, &mut update_rng);
+        self.actor
+            .step(behaviour, &mut self.sac.policy(), &mut self.replay)?;
+        if t >= warm_up && self.replay.len() >= self.cfg.sac.batch_size {
+            for _ in 0..self.cfg.sac_loop.updates_per_step {
+                self.replay
+                    .sample_into(&mut self.sample_rng, &mut self.batch);
+                self.stats = self.sac.update(&self.batch, &mut self.update_rng);
             }
         }
-
-        // Evaluate and record.
-        if schedule.is_eval_point(t) {
-            let row = evaluator.evaluate(t, &sac, &stats, &actor)?;
-            run.write_metrics(&row)?;
-            evaluator.log("sac", &row);
-            progress.set_eval(row.eval_return);
-        }
-        progress.update(t, sac.updates());
-
-        // Checkpoint.
-        let stopping = opts.stopping_at(t, cfg.steps);
-        if checkpoint_due(cfg, t, stopping) {
-            let dir = checkpoint::dir_for(out, t);
-            std::fs::create_dir_all(&dir)?;
-            let state = SacRunState {
-                actor: actor.checkpoint(),
-                sac: sac.checkpoint(),
-                replay: replay.snapshot(),
-                sample_rng: sample_rng.clone(),
-                update_rng: update_rng.clone(),
-                stats,
-                evaluator: evaluator.checkpoint(),
-            };
-            checkpoint::write(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND, &state)?;
-            checkpoint::mark_complete(&dir, t, &[SAC_CHECKPOINT_FILE])?;
-            checkpoint::prune(out, cfg.checkpoint.keep, cfg.checkpoint.keep_every)?;
-        }
-        if stopping {
-            log_stopped(t, out);
-            status = "stopped";
-            break;
-        }
+        Ok(true)
     }
-    progress.finish();
 
-    let target = cfg.target_return();
-    let target = (target, run.env_steps_to_target(target)?);
-    let mut summary = evaluator.summary("sac", &sac, None, target);
-    summary.env_steps = actor.steps;
-    summary.status = status.into();
-    summary.episodes_cut_by_resume = actor.episodes_cut;
-    summary.episodes_lost_to_env_exit = actor.episodes_lost;
-    if status == "completed" {
-        crate::policy_file::write_final_policy(out, summary.env_steps, &sac.actor_params)?;
+    fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError> {
+        let row = self
+            .evaluator
+            .evaluate(t, &self.sac, &self.stats, &self.actor)?;
+        self.evaluator.log(Self::NAME, &row);
+        Ok(row)
     }
-    run.write_summary(&summary)?;
-    Ok(summary)
+
+    fn progress(&self) -> (u64, Option<u64>) {
+        (self.sac.updates(), None)
+    }
+
+    fn save(&mut self, t: u64, _wait: bool) -> Result<(), TrainError> {
+        let dir = checkpoint::dir_for(self.out, t);
+        std::fs::create_dir_all(&dir)?;
+        let state = SacRunState {
+            actor: self.actor.checkpoint(),
+            sac: self.sac.checkpoint(),
+            replay: self.replay.snapshot(),
+            sample_rng: self.sample_rng.clone(),
+            update_rng: self.update_rng.clone(),
+            stats: self.stats,
+            evaluator: self.evaluator.checkpoint(),
+        };
+        checkpoint::write(&dir.join(SAC_CHECKPOINT_FILE), SAC_CHECKPOINT_KIND, &state)?;
+        checkpoint::mark_complete(&dir, t, &[SAC_CHECKPOINT_FILE])?;
+        let keep = &self.cfg.checkpoint;
+        Ok(checkpoint::prune(self.out, keep.keep, keep.keep_every)?)
+    }
+
+    fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
+        let target = self.cfg.target_return();
+        let target = (target, run.env_steps_to_target(target)?);
+        let mut summary = self.evaluator.summary(Self::NAME, &self.sac, None, target);
+        summary.env_steps = self.actor.steps;
+        summary.status = status.into();
+        summary.episodes_cut_by_resume = self.actor.episodes_cut;
+        summary.episodes_lost_to_env_exit = self.actor.episodes_lost;
+        if status == "completed" {
+            let actor = &self.sac.actor_params;
+            crate::policy_file::write_final_policy(self.out, summary.env_steps, actor)?;
+        }
+        Ok(summary)
+    }
 }

@@ -198,6 +198,51 @@ fn metrics(first: &[f32]) -> [f32; 8] {
     m
 }
 
+/// The record of a learner's metrics row (the two records with the most fields have a
+/// function each, so [`Stats::record`] stays a table).
+fn learner_record(l: &LearnerRow) -> StatsRecord {
+    StatsRecord {
+        kind: StatsKind::Learner as u32,
+        env_steps: l.env_steps,
+        sac_updates: l.sac_updates,
+        policy_version: l.env_steps,
+        model_version: l.model_version,
+        metrics: metrics(&[
+            l.critic_loss,
+            l.actor_loss,
+            l.alpha,
+            l.entropy,
+            l.q_mean,
+            l.rollout_length as f32,
+            l.model_buffer as f32,
+        ]),
+        ..Default::default()
+    }
+}
+
+/// The record of a role's `Done` report.
+fn done_record(d: &Done) -> StatsRecord {
+    StatsRecord {
+        kind: StatsKind::Heartbeat as u32,
+        env_steps: d.real,
+        sac_updates: d.work,
+        model_version: d.episodes_cut,
+        model_trainings: d.episodes_lost,
+        policy_version: d.real_spilled,
+        value: d.lost as f64,
+        metrics: metrics(&[
+            HEARTBEAT_DONE,
+            d.median_step_seconds,
+            d.slack_min,
+            d.slack_max,
+            d.slack_mean,
+            d.ipc_seconds,
+            d.wall_seconds,
+        ]),
+        ..Default::default()
+    }
+}
+
 impl Stats {
     /// The fixed-size record that carries this report.
     pub fn record(&self) -> StatsRecord {
@@ -218,23 +263,7 @@ impl Stats {
                 episode_len: e.episodes,
                 ..Default::default()
             },
-            Stats::Learner(l) => StatsRecord {
-                kind: StatsKind::Learner as u32,
-                env_steps: l.env_steps,
-                sac_updates: l.sac_updates,
-                policy_version: l.env_steps,
-                model_version: l.model_version,
-                metrics: metrics(&[
-                    l.critic_loss,
-                    l.actor_loss,
-                    l.alpha,
-                    l.entropy,
-                    l.q_mean,
-                    l.rollout_length as f32,
-                    l.model_buffer as f32,
-                ]),
-                ..Default::default()
-            },
+            Stats::Learner(l) => learner_record(&l),
             Stats::Model(m) => StatsRecord {
                 kind: StatsKind::Model as u32,
                 env_steps: m.rows,
@@ -262,25 +291,7 @@ impl Stats {
                 metrics: metrics(&[HEARTBEAT_PROGRESS]),
                 ..Default::default()
             },
-            Stats::Done(d) => StatsRecord {
-                kind: StatsKind::Heartbeat as u32,
-                env_steps: d.real,
-                sac_updates: d.work,
-                model_version: d.episodes_cut,
-                model_trainings: d.episodes_lost,
-                policy_version: d.real_spilled,
-                value: d.lost as f64,
-                metrics: metrics(&[
-                    HEARTBEAT_DONE,
-                    d.median_step_seconds,
-                    d.slack_min,
-                    d.slack_max,
-                    d.slack_mean,
-                    d.ipc_seconds,
-                    d.wall_seconds,
-                ]),
-                ..Default::default()
-            },
+            Stats::Done(d) => done_record(&d),
             Stats::EnvFailed(f) => StatsRecord {
                 kind: StatsKind::EnvFailed as u32,
                 env_steps: f.env_steps,
