@@ -42,7 +42,8 @@ TARGETS=(
     "model_snapshot|32768|mbpo_wire::ModelWireLayout::load_into"
     "envelope|4096|mbpo_net::protocol::decode (Envelope)"
     "config|8192|mbpo_train::ExperimentConfig::resolve / load (+ validate, to_toml)"
-    "env_json|512|mbpo_runtime::process::Dims::of_run (env.json)"
+    "env_json|512|mbpo_runtime::Dims::of_run (env.json)"
+    "run_plan|1024|mbpo_runtime::ResolvedRun::parse (run-plan.json, sent to every worker)"
     "checkpoint|16384|mbpo_train::checkpoint::read / verify (every role's file)"
     "checkpoint_manifest|2048|mbpo_train::checkpoint::latest (COMPLETE)"
 )

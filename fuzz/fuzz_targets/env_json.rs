@@ -15,7 +15,7 @@ use std::path::PathBuf;
 
 use libfuzzer_sys::fuzz_target;
 use mbpo_fuzz::{scratch, write_seeds_if_asked};
-use mbpo_runtime::process::Dims;
+use mbpo_runtime::Dims;
 use mbpo_train::ExperimentConfig;
 
 fn seeds() -> Vec<Vec<u8>> {

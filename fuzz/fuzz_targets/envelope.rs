@@ -41,6 +41,7 @@ fn seeds() -> Vec<Vec<u8>> {
             slots: vec![1, 2],
             config_toml: "algo = \"mbpo\"\nenv = \"Pendulum-v1\"\n".into(),
             env_json: Some("{\"obs_dim\": 3, \"act_dim\": 1}".into()),
+            run_plan: "{\"format\": 1}".into(),
             mode: Mode::Pipelined,
             actors: 3,
             slack: Slack {

@@ -145,6 +145,10 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
         s.real_transitions.spilled
     );
     assert_ratios_within_allowed(&serde_json::to_value(&s).unwrap());
+    // The run was resolved once, into the plan every role read its sizes from.
+    let plan = mbpo_runtime::ResolvedRun::read(&run.out).unwrap();
+    assert_eq!(plan.dims, mbpo_runtime::Dims::of(&cfg).unwrap());
+    assert_eq!((plan.mode, plan.actors), (Mode::Pipelined, 2));
     // Rows 200 and 400 (eval.every = 200).
     assert_eq!(metrics_without_timing(&run.out).len(), 3);
     assert_last_step_checkpointed(&run.out, Algo::MBPO, 2, 400);

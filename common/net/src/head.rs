@@ -34,7 +34,7 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use mbpo_runtime::hosts::{LiveHosts, LiveWorker};
-use mbpo_runtime::{configure_run, Dims, PipelineSpec, RuntimeError, ServiceArgs};
+use mbpo_runtime::{configure_run, Dims, PipelineSpec, ResolvedRun, RuntimeError, ServiceArgs};
 use mbpo_train::checkpoint;
 use mbpo_train::run_files::actor_file;
 use mbpo_wire::*;
@@ -117,18 +117,32 @@ impl Gate {
     }
 }
 
-/// Run the head's gateway until the run stops it, or a remote actor's state is lost (error).
-pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
+/// The run's plan, checked against this gateway's slots: it stands in for actors
+/// `--local-actors..--actors`, and there must be at least one.
+fn remote_slots_of_plan(opts: &HeadOptions) -> Result<ResolvedRun, GatewayError> {
     let args = &opts.service;
-    let cfg = mbpo_runtime::process::load_config(&args.run_dir)?;
-    let pipeline = mbpo_runtime::pipeline::spec(cfg.algo)?;
-    let dims = Dims::of_run(&cfg, &args.run_dir)?;
+    let resolved = ResolvedRun::read(&args.run_dir)?;
+    if resolved.local_actors != opts.local_actors {
+        return Err(GatewayError::Failed(format!(
+            "--local-actors {}, but the run plan has {} local actors",
+            opts.local_actors, resolved.local_actors
+        )));
+    }
     if opts.local_actors >= args.actors {
         return Err(GatewayError::Failed(format!(
             "--local-actors {} leaves no remote slot of --actors {}",
             opts.local_actors, args.actors
         )));
     }
+    Ok(resolved)
+}
+
+/// Run the head's gateway until the run stops it, or a remote actor's state is lost (error).
+pub fn run_head(opts: &HeadOptions) -> Result<(), GatewayError> {
+    let args = &opts.service;
+    let cfg = mbpo_runtime::process::load_config(&args.run_dir)?;
+    let pipeline = mbpo_runtime::pipeline::spec(cfg.algo)?;
+    let dims = remote_slots_of_plan(opts)?.dims;
     let remote = usize::from(args.actors - opts.local_actors);
     let session = session::open(Side::Head, &opts.net)?;
     let me = session::new_session_id();
@@ -561,6 +575,10 @@ fn assignment(opts: &HeadOptions, slots: Vec<u16>) -> Result<Assignment, Gateway
     };
     let config_toml =
         String::from_utf8_lossy(&read(&args.run_dir.join("config.toml"))?).into_owned();
+    let run_plan = String::from_utf8_lossy(&read(
+        &args.run_dir.join(mbpo_runtime::run_plan::RUN_PLAN_FILE),
+    )?)
+    .into_owned();
     let env_path = args.run_dir.join(mbpo_train::run_dir::ENV_FILE);
     let env_json = env_path
         .is_file()
@@ -583,6 +601,7 @@ fn assignment(opts: &HeadOptions, slots: Vec<u16>) -> Result<Assignment, Gateway
         slots,
         config_toml,
         env_json,
+        run_plan,
         mode: args.mode,
         actors: args.actors,
         slack: args.slack,

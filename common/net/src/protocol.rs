@@ -106,6 +106,9 @@ pub struct Assignment {
     pub config_toml: String,
     /// The run's `env.json` (a Python env's widths), if it has one.
     pub env_json: Option<String>,
+    /// The run's `run-plan.json`: the sizes of what crosses shared memory, resolved once by
+    /// the head's launcher (the worker makes no env or model to learn them).
+    pub run_plan: String,
     /// Hand-off mode.
     pub mode: Mode,
     /// Actors in the run, local and remote.

@@ -450,9 +450,11 @@ fn start_attempt(
         }
         None => None,
     };
+    let plan_path = run_dir.join(mbpo_runtime::run_plan::RUN_PLAN_FILE);
+    std::fs::write(&plan_path, &a.run_plan).map_err(io(&plan_path))?;
     let cfg = mbpo_runtime::process::load_config(&run_dir)?;
     let pipeline = mbpo_runtime::pipeline::spec(cfg.algo)?;
-    let dims = Dims::of_run(&cfg, &run_dir)?;
+    let dims = mbpo_runtime::ResolvedRun::read(&run_dir)?.dims;
     let local_id = format!("w{:x}-{}", me & 0xffff_ffff_ffff, head & 0xffff);
     let mut ipc = RunIpc::new(&local_id, &opts.ipc_root)?;
     configure_run(&mut ipc);

@@ -14,7 +14,7 @@ use mbpo_wire::{local, RunIpc, StopReason, WaitOutcome, Waiter};
 use crate::coordinator::collect::PipelineSummary;
 use crate::coordinator::{self, Coordinator, CoordinatorPorts, Phase, RunPlan};
 use crate::pipeline;
-use crate::{configure_run, Dims, Mode, Result, RuntimeError, ServiceArgs, Slack};
+use crate::{configure_run, Dims, Mode, ResolvedRun, Result, RuntimeError, ServiceArgs, Slack};
 
 /// How to run a pipeline in this process.
 #[derive(Debug, Clone)]
@@ -82,7 +82,9 @@ fn coordinate(
 ) -> Result<PipelineSummary> {
     // The coordinator's ports first: the roles wait for the stats subscriber.
     let node = coordinator::node::<local::Service>(ipc)?;
+    // The run resolved once: every role thread reads its sizes from the plan.
     let dims = Dims::of(cfg)?;
+    ResolvedRun::new(dims, how.mode, how.actors, how.actors, how.slack).write(&how.out)?;
     let plan = RunPlan {
         pipeline: pipeline::spec(cfg.algo)?,
         run_id: run_id.into(),

@@ -9,6 +9,8 @@
 //! * [`inbox`]: [`ControlInbox`] (stops, acknowledgements, barriers), [`RealInbox`] (real
 //!   transitions held back until a role may see them) and [`wait_for`], the one way to sleep.
 //! * [`pipeline`]: which roles a run has (the one list every launcher and count reads).
+//! * [`run_plan`]: the run resolved once by its launcher ([`ResolvedRun`]), which every
+//!   process reads and trusts.
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
 //! * [`hosts`]: which hosts a multi-host run's actors are on (files the head's gateway writes).
@@ -27,6 +29,7 @@ pub mod in_process;
 pub mod inbox;
 pub mod pipeline;
 pub mod process;
+pub mod run_plan;
 pub mod services;
 
 pub use args::{Mode, ServiceArgs, Slack};
@@ -36,5 +39,6 @@ pub use inbox::{send_ack, wait_for, ControlInbox, RealInbox};
 pub use pipeline::{PipelineSpec, RoleKind};
 pub use process::{
     actor_steps, configure_run, error_chain, exit_code, global_step, init_logging,
-    init_service_process, load_config, pids_in_log, processes_mentioning, Dims, Process,
+    init_service_process, load_config, pids_in_log, processes_mentioning, Process,
 };
+pub use run_plan::{Dims, ResolvedRun};

@@ -3,15 +3,14 @@
 
 use std::path::Path;
 
-use mbpo_core::rng::stream;
-use mbpo_model::ProbabilisticEnsemble;
 use mbpo_sac::TanhGaussianActor;
 use mbpo_train::{ExperimentConfig, Schedule};
-use mbpo_wire::{ModelWireLayout, RowLayout, RunIpc, Transport, WireNode};
+use mbpo_wire::{RunIpc, Transport, WireNode};
 
 use crate::args::{Mode, ServiceArgs, Slack};
 use crate::error::ensure_protocol;
 use crate::pipeline::{self, PipelineSpec, RoleKind};
+use crate::run_plan::{actor_net, Dims, ResolvedRun};
 use crate::{Result, RuntimeError};
 
 /// Logs to stderr (the launcher redirects it to `<run-dir>/logs/<process>.log`).
@@ -36,94 +35,11 @@ pub fn init_service_process() {
     unsafe { libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) };
 }
 
-/// Load `<run_dir>/config.toml` (written by the launcher).
+/// Load `<run_dir>/config.toml`, the config the launcher resolved and validated (parsed, not
+/// validated again: see [`crate::run_plan`]).
 pub fn load_config(run_dir: &Path) -> Result<ExperimentConfig> {
     let path = run_dir.join("config.toml");
-    ExperimentConfig::load(&path).map_err(|source| RuntimeError::Config { path, source })
-}
-
-/// Sizes and layout hashes of everything that crosses shared memory in a run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Dims {
-    /// Observation width.
-    pub obs: usize,
-    /// Action width.
-    pub act: usize,
-    /// `ParamLayout::hash` of the SAC actor.
-    pub policy_hash: u64,
-    /// Floats in a policy snapshot.
-    pub policy_len: usize,
-    /// How model snapshots are laid out.
-    pub model: ModelWireLayout,
-}
-
-impl Dims {
-    /// The dimensions of the run configured by `cfg` (makes its environment once).
-    pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
-        let env = cfg.make_env()?;
-        Self::with_env_dims(cfg, env.obs_dim(), env.act_dim())
-    }
-
-    /// [`Dims::of`] for a process of the run in `run_dir`: a Python env's widths come from the
-    /// `env.json` its launcher wrote, so only the processes that step the env start it (a
-    /// user's env may be costly to make, or drive a robot).
-    pub fn of_run(cfg: &ExperimentConfig, run_dir: &std::path::Path) -> Result<Self> {
-        let path = run_dir.join(mbpo_train::run_dir::ENV_FILE);
-        let text = match cfg.is_gym_env() {
-            true => std::fs::read_to_string(&path).ok(),
-            false => None,
-        };
-        let Some(text) = text else {
-            return Self::of(cfg);
-        };
-        let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
-            RuntimeError::protocol(format!("{}: not an env description: {e}", path.display()))
-        })?;
-        // Every network and wire layout is sized from these: 0 would panic building them, a
-        // huge value would allocate its size (the file may come from another host).
-        const MAX_WIDTH: u64 = 1 << 16;
-        let width = |key: &str| {
-            json[key]
-                .as_u64()
-                .filter(|v| (1..=MAX_WIDTH).contains(v))
-                .map(|v| v as usize)
-                .ok_or_else(|| {
-                    RuntimeError::protocol(format!(
-                        "{}: no `{key}` in 1..={MAX_WIDTH}",
-                        path.display()
-                    ))
-                })
-        };
-        Self::with_env_dims(cfg, width("obs_dim")?, width("act_dim")?)
-    }
-
-    fn with_env_dims(cfg: &ExperimentConfig, obs: usize, act: usize) -> Result<Self> {
-        let net = actor_net(cfg, obs, act);
-        // Architecture only; the stream is never used for anything else.
-        let model = ProbabilisticEnsemble::new(
-            obs,
-            act,
-            cfg.model_config(),
-            &mut stream(cfg.seed, "wire.model-shape", 0),
-        )
-        .map_err(|e| RuntimeError::Model(e.to_string()))?;
-        Ok(Self {
-            obs,
-            act,
-            policy_hash: net.layout().hash(),
-            policy_len: net.num_params(),
-            model: ModelWireLayout::of_model(&model, cfg.model.elites),
-        })
-    }
-    /// The transition row layout.
-    pub fn rows(&self) -> RowLayout {
-        RowLayout::new(self.obs, self.act)
-    }
-}
-
-fn actor_net(cfg: &ExperimentConfig, obs: usize, act: usize) -> TanhGaussianActor {
-    let s = &cfg.sac;
-    TanhGaussianActor::new(obs, act, &s.hidden, s.log_std_min, s.log_std_max)
+    ExperimentConfig::load_resolved(&path).map_err(|source| RuntimeError::Config { path, source })
 }
 
 /// One service: its config, run IPC and node.
@@ -161,7 +77,16 @@ impl<S: Transport> Process<S> {
             pipeline.roles(1).iter().map(|r| r.kind).collect::<Vec<_>>()
         );
         let role = kind.wire_role();
-        let dims = Dims::of_run(&cfg, &args.run_dir)?;
+        let plan = ResolvedRun::read(&args.run_dir)?;
+        ensure_protocol!(
+            (plan.mode, plan.actors) == (args.mode, args.actors),
+            "started with --mode {} --actors {}, but the run plan says {} and {}",
+            args.mode.name(),
+            args.actors,
+            plan.mode.name(),
+            plan.actors
+        );
+        let dims = plan.dims;
         let mut run = RunIpc::new(&args.run_id, &args.ipc_root)?;
         configure_run(&mut run);
         let node = run.node::<S>(role, args.index)?;

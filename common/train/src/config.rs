@@ -384,6 +384,18 @@ impl ExperimentConfig {
         Ok(cfg)
     }
 
+    /// The resolved config of a run its launcher wrote (`<run>/config.toml`), read by the run's
+    /// own processes and gateways: parsed, not validated again. The launcher validated it
+    /// (and validating a model's sizes makes the environment, which only the processes that
+    /// step it should do).
+    pub fn load_resolved(path: &Path) -> Result<Self, ConfigError> {
+        let text = read_config_text(path)?;
+        toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+    }
+
     /// The config a run uses: the file (or the defaults), then each `--set key=value` in order,
     /// validated as a whole. Errors name the file or the override that caused them.
     ///

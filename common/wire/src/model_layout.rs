@@ -13,7 +13,7 @@ use mbpo_model::{ModelWeights, ProbabilisticEnsemble};
 use crate::error::DecodeError;
 
 /// The flat layout of the model snapshots of one run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct ModelWireLayout {
     /// `ParamLayout::hash` of the ensemble.
     pub layout_hash: u64,

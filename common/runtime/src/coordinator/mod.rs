@@ -28,7 +28,7 @@ use mbpo_wire::{
 use crate::args::{Mode, Slack};
 use crate::error::ensure_protocol;
 use crate::pipeline::PipelineSpec;
-use crate::process::Dims;
+use crate::run_plan::Dims;
 use crate::{Result, RuntimeError};
 use checkpoints::{Barrier, SupervisorCheckpoint};
 use collect::{Collector, PipelineSummary, RunBook};

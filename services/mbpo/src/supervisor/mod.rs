@@ -23,7 +23,7 @@ use anyhow::{bail, Context};
 use mbpo_runtime::coordinator::checkpoints::{self, ResumePoint};
 use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
-use mbpo_runtime::{configure_run, pipeline, Mode};
+use mbpo_runtime::{configure_run, pipeline, Mode, ResolvedRun};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::RunDir;
 use mbpo_wire::{ipc, RunIpc, StopReason, WaitOutcome, Waiter};
@@ -575,7 +575,12 @@ fn supervise(
     restarts: &Restarts,
 ) -> anyhow::Result<Attempt> {
     let node = coordinator::node::<ipc::Service>(cx.ipc)?;
+    // The run resolved once: the only place its sizes are computed (making the env and the
+    // model); every process and gateway reads them from the plan.
     let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
+    let local = cx.args.actors - cx.args.remote.remote_actors;
+    let resolved = ResolvedRun::new(dims, cx.args.mode, cx.args.actors, local, cx.args.slack);
+    resolved.write(cx.out)?;
     let plan = RunPlan {
         pipeline: cx.pipeline,
         run_id: cx.run_id.into(),

@@ -1,0 +1,245 @@
+//! A run resolved once. The launcher (`mbpo run`'s supervisor, the in-process pipeline)
+//! validates the config, makes the environment and the model once to learn the sizes of
+//! everything that crosses shared memory, and writes them with the run's shape into
+//! `<run>/run-plan.json`; the head's gateway hands the same file to every worker. Every process
+//! of the run reads it and trusts it: none validates the config again, nor builds an
+//! environment or an ensemble to learn sizes.
+
+use std::path::Path;
+
+use mbpo_core::rng::stream;
+use mbpo_model::ProbabilisticEnsemble;
+use mbpo_sac::TanhGaussianActor;
+use mbpo_train::ExperimentConfig;
+use mbpo_wire::{ModelWireLayout, RowLayout};
+use serde::{Deserialize, Serialize};
+
+use crate::{Mode, Result, RuntimeError, Slack};
+
+/// The file in a run directory.
+pub const RUN_PLAN_FILE: &str = "run-plan.json";
+
+/// This build's format of [`RUN_PLAN_FILE`].
+pub const RUN_PLAN_FORMAT: u32 = 1;
+
+/// Widths above this are refused: every network and wire layout is sized from them, and the
+/// file may come from another host.
+const MAX_WIDTH: usize = 1 << 16;
+
+/// Sizes and layout hashes of everything that crosses shared memory in a run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct Dims {
+    /// Observation width.
+    pub obs: usize,
+    /// Action width.
+    pub act: usize,
+    /// `ParamLayout::hash` of the SAC actor.
+    pub policy_hash: u64,
+    /// Floats in a policy snapshot.
+    pub policy_len: usize,
+    /// How model snapshots are laid out.
+    pub model: ModelWireLayout,
+}
+
+impl Dims {
+    /// The dimensions of the run configured by `cfg` (makes its environment once).
+    pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
+        let env = cfg.make_env()?;
+        Self::with_env_dims(cfg, env.obs_dim(), env.act_dim())
+    }
+
+    /// [`Dims::of`] for a process of the run in `run_dir`: a Python env's widths come from the
+    /// `env.json` its launcher wrote, so only the processes that step the env start it (a
+    /// user's env may be costly to make, or drive a robot).
+    pub fn of_run(cfg: &ExperimentConfig, run_dir: &std::path::Path) -> Result<Self> {
+        let path = run_dir.join(mbpo_train::run_dir::ENV_FILE);
+        let text = match cfg.is_gym_env() {
+            true => std::fs::read_to_string(&path).ok(),
+            false => None,
+        };
+        let Some(text) = text else {
+            return Self::of(cfg);
+        };
+        let json: serde_json::Value = serde_json::from_str(&text).map_err(|e| {
+            RuntimeError::protocol(format!("{}: not an env description: {e}", path.display()))
+        })?;
+        // Every network and wire layout is sized from these: 0 would panic building them, a
+        // huge value would allocate its size (the file may come from another host).
+        let width = |key: &str| {
+            json[key]
+                .as_u64()
+                .filter(|&v| (1..=MAX_WIDTH as u64).contains(&v))
+                .map(|v| v as usize)
+                .ok_or_else(|| {
+                    RuntimeError::protocol(format!(
+                        "{}: no `{key}` in 1..={MAX_WIDTH}",
+                        path.display()
+                    ))
+                })
+        };
+        Self::with_env_dims(cfg, width("obs_dim")?, width("act_dim")?)
+    }
+
+    fn with_env_dims(cfg: &ExperimentConfig, obs: usize, act: usize) -> Result<Self> {
+        let net = actor_net(cfg, obs, act);
+        // Architecture only; the stream is never used for anything else.
+        let model = ProbabilisticEnsemble::new(
+            obs,
+            act,
+            cfg.model_config(),
+            &mut stream(cfg.seed, "wire.model-shape", 0),
+        )
+        .map_err(|e| RuntimeError::Model(e.to_string()))?;
+        Ok(Self {
+            obs,
+            act,
+            policy_hash: net.layout().hash(),
+            policy_len: net.num_params(),
+            model: ModelWireLayout::of_model(&model, cfg.model.elites),
+        })
+    }
+    /// The transition row layout.
+    pub fn rows(&self) -> RowLayout {
+        RowLayout::new(self.obs, self.act)
+    }
+}
+
+pub(crate) fn actor_net(cfg: &ExperimentConfig, obs: usize, act: usize) -> TanhGaussianActor {
+    let s = &cfg.sac;
+    TanhGaussianActor::new(obs, act, &s.hidden, s.log_std_min, s.log_std_max)
+}
+
+/// What every process of a run is told, once.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ResolvedRun {
+    /// [`RUN_PLAN_FORMAT`] of the build that wrote it.
+    pub format: u32,
+    /// Sizes and layout hashes of what crosses shared memory.
+    pub dims: Dims,
+    /// Hand-off mode.
+    pub mode: Mode,
+    /// Training actors, local and remote.
+    pub actors: u16,
+    /// Actors on the head (slots `0..local_actors`); the rest run on workers.
+    pub local_actors: u16,
+    /// Slack of pipelined mode (as given; zero is used in lockstep).
+    pub slack: Slack,
+}
+
+impl ResolvedRun {
+    /// The plan of a run of `dims` with `actors` actors, `local_actors` of them on this host.
+    pub fn new(dims: Dims, mode: Mode, actors: u16, local_actors: u16, slack: Slack) -> Self {
+        Self {
+            format: RUN_PLAN_FORMAT,
+            dims,
+            mode,
+            actors,
+            local_actors,
+            slack,
+        }
+    }
+
+    /// Write `<run_dir>/run-plan.json`.
+    pub fn write(&self, run_dir: &Path) -> Result<()> {
+        let path = run_dir.join(RUN_PLAN_FILE);
+        let text = serde_json::to_string_pretty(self).expect("a plan always serializes");
+        std::fs::write(&path, text + "\n").map_err(|source| RuntimeError::Io { path, source })
+    }
+
+    /// Read `<run_dir>/run-plan.json`; an error names the file and what is wrong with it.
+    pub fn read(run_dir: &Path) -> Result<Self> {
+        let path = run_dir.join(RUN_PLAN_FILE);
+        let text = std::fs::read_to_string(&path).map_err(|source| RuntimeError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        Self::parse(&text).map_err(|why| {
+            RuntimeError::protocol(format!(
+                "{}: {why} (the launcher of the run writes it: start the run with `mbpo run`)",
+                path.display()
+            ))
+        })
+    }
+
+    /// The plan in `text`, checked.
+    pub fn parse(text: &str) -> std::result::Result<Self, String> {
+        let plan: Self = serde_json::from_str(text).map_err(|e| format!("not a run plan: {e}"))?;
+        if plan.format != RUN_PLAN_FORMAT {
+            return Err(format!(
+                "format {}, this build reads format {RUN_PLAN_FORMAT}: run every host with one build",
+                plan.format
+            ));
+        }
+        let d = plan.dims;
+        let widths = [d.obs, d.act, d.policy_len, d.model.in_dim];
+        if widths.contains(&0) || d.obs > MAX_WIDTH || d.act > MAX_WIDTH {
+            return Err(format!(
+                "sizes out of range: obs {}, act {} (1..={MAX_WIDTH}), policy {}, model inputs {}",
+                d.obs, d.act, d.policy_len, d.model.in_dim
+            ));
+        }
+        if plan.local_actors > plan.actors {
+            return Err(format!(
+                "{} local actors of {}",
+                plan.local_actors, plan.actors
+            ));
+        }
+        Ok(plan)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_wire::ModelWireLayout;
+
+    fn plan() -> ResolvedRun {
+        let model = ModelWireLayout {
+            layout_hash: 7,
+            n_params: 100,
+            in_dim: 4,
+            elites: 3,
+            termination: 0,
+        };
+        let dims = Dims {
+            obs: 3,
+            act: 1,
+            policy_hash: 9,
+            policy_len: 50,
+            model,
+        };
+        ResolvedRun::new(dims, Mode::Pipelined, 3, 1, Slack::ZERO)
+    }
+
+    #[test]
+    fn a_plan_reads_back_as_written() {
+        let dir = std::env::temp_dir().join(format!("run-plan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        plan().write(&dir).unwrap();
+        assert_eq!(ResolvedRun::read(&dir).unwrap(), plan());
+        std::fs::remove_dir_all(&dir).unwrap();
+        let err = ResolvedRun::read(&dir).unwrap_err().to_string();
+        assert!(err.contains("run-plan.json"), "{err}");
+    }
+
+    #[test]
+    fn a_damaged_or_foreign_plan_is_refused_with_the_reason() {
+        let text = |p: &ResolvedRun| serde_json::to_string(p).unwrap();
+        let mut p = plan();
+        p.format = 99;
+        assert!(ResolvedRun::parse(&text(&p))
+            .unwrap_err()
+            .contains("format 99"));
+        let mut p = plan();
+        p.dims.obs = 0;
+        assert!(ResolvedRun::parse(&text(&p)).unwrap_err().contains("obs 0"));
+        let mut p = plan();
+        p.local_actors = 4;
+        assert!(ResolvedRun::parse(&text(&p))
+            .unwrap_err()
+            .contains("4 local actors of 3"));
+        assert!(ResolvedRun::parse("{}")
+            .unwrap_err()
+            .contains("not a run plan"));
+    }
+}
