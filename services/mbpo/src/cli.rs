@@ -467,6 +467,14 @@ pub struct RunArgs {
     pub remote: RemoteArgs,
 }
 
+impl RunArgs {
+    /// The actors on this host, slots `0..local_actors()` (once `actors` counts the remote
+    /// ones too): the one place the split is computed; the run plan records it.
+    pub fn local_actors(&self) -> u16 {
+        self.actors - self.remote.remote_actors
+    }
+}
+
 /// Actors on other hosts: `mbpo run --listen E --remote-actors M` here, `mbpo join E` there.
 #[derive(Debug, Clone, Args)]
 pub struct RemoteArgs {

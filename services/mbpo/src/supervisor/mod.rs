@@ -503,7 +503,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
     if let Some(dir) = resume {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
-    let local = args.actors - args.remote.remote_actors;
+    let local = args.local_actors();
     let roles = cx.pipeline.roles(args.actors);
     let mut procs: Vec<Proc> = roles
         .into_iter()
@@ -578,7 +578,7 @@ fn supervise(
     // The run resolved once: the only place its sizes are computed (making the env and the
     // model); every process and gateway reads them from the plan.
     let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
-    let local = cx.args.actors - cx.args.remote.remote_actors;
+    let local = cx.args.local_actors();
     let resolved = ResolvedRun::new(dims, cx.args.mode, cx.args.actors, local, cx.args.slack);
     resolved.write(cx.out)?;
     let plan = RunPlan {
@@ -692,7 +692,7 @@ fn coordinate(
         if cx.args.remote.listen.is_some() && hosts_read.elapsed() >= Duration::from_secs(1) {
             hosts_read = Instant::now();
             if let Some(hosts) = mbpo_runtime::LiveHosts::read(run_dir.path()) {
-                let local = cx.args.actors - cx.args.remote.remote_actors;
+                let local = cx.args.local_actors();
                 progress.set_hosts(hosts.progress_text(local));
             }
         }
