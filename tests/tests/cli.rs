@@ -559,6 +559,24 @@ fn chaos_kills_the_supervisor_and_the_resumed_run_completes_and_cleans_up() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// The output of a command that runs a binary this test just copied. Another test's thread
+/// may fork while the copy's file is still open for writing; until that child execs, it holds
+/// the file open and exec fails with "Text file busy" (ETXTBSY), so that error is retried
+/// (at most 100 times, 20 ms apart).
+fn output_of_fresh_binary(
+    run: impl Fn() -> std::io::Result<std::process::Output>,
+) -> std::process::Output {
+    for _ in 0..100 {
+        match run() {
+            Err(e) if e.kind() == std::io::ErrorKind::ExecutableFileBusy => {
+                std::thread::sleep(Duration::from_millis(20))
+            }
+            other => return other.unwrap(),
+        }
+    }
+    panic!("the copied binary stayed busy (ETXTBSY) for 2 s");
+}
+
 /// A service binary missing beside `mbpo` (a hand-made build of some packages only) is named
 /// with the command that builds it, not left as a bare "No such file or directory".
 #[test]
@@ -566,13 +584,14 @@ fn a_missing_service_binary_is_named_with_the_command_that_builds_it() {
     let dir = scratch("lone-mbpo");
     std::fs::copy(bin_dir().join("mbpo"), dir.join("mbpo")).unwrap();
     let lone = || Command::new(dir.join("mbpo"));
-    let out = lone()
-        .args(["run", "--config"])
-        .arg(config_file())
-        .args(["--steps", "100", "--out"])
-        .arg(dir.join("run"))
-        .output()
-        .unwrap();
+    let out = output_of_fresh_binary(|| {
+        lone()
+            .args(["run", "--config"])
+            .arg(config_file())
+            .args(["--steps", "100", "--out"])
+            .arg(dir.join("run"))
+            .output()
+    });
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(err.contains("No such file"), "{err}");
@@ -582,11 +601,12 @@ fn a_missing_service_binary_is_named_with_the_command_that_builds_it() {
     );
     assert!(!err.contains("panicked"), "{err}");
 
-    let out = lone()
-        .args(["certs", "--out"])
-        .arg(dir.join("creds"))
-        .output()
-        .unwrap();
+    let out = output_of_fresh_binary(|| {
+        lone()
+            .args(["certs", "--out"])
+            .arg(dir.join("creds"))
+            .output()
+    });
     assert!(!out.status.success());
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(

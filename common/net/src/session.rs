@@ -219,64 +219,52 @@ pub fn zenoh_config(side: Side, opts: &NetOptions) -> Result<zenoh::Config, Sess
         }
     }
     if let Some(creds) = creds {
-        if let Some((ca, cert, key)) = &creds.tls {
-            set(
-                &mut c,
-                "transport/link/tls/root_ca_certificate",
-                &quoted(ca),
-            )?;
-            set(&mut c, "transport/link/tls/enable_mtls", "true")?;
-            // The certificates belong to the run, not to host names: a peer is checked by
-            // the CA that signed it.
-            set(&mut c, "transport/link/tls/verify_name_on_connect", "false")?;
-            match side {
-                Side::Head => {
-                    set(
-                        &mut c,
-                        "transport/link/tls/listen_private_key",
-                        &quoted(key),
-                    )?;
-                    set(
-                        &mut c,
-                        "transport/link/tls/listen_certificate",
-                        &quoted(cert),
-                    )?;
-                }
-                Side::Worker => {
-                    set(
-                        &mut c,
-                        "transport/link/tls/connect_private_key",
-                        &quoted(key),
-                    )?;
-                    set(
-                        &mut c,
-                        "transport/link/tls/connect_certificate",
-                        &quoted(cert),
-                    )?;
-                }
-            }
-        }
-        if let Some((user, password, file)) = &creds.user_password {
-            set(
-                &mut c,
-                "transport/auth/usrpwd/user",
-                &serde_json_string(user),
-            )?;
-            set(
-                &mut c,
-                "transport/auth/usrpwd/password",
-                &serde_json_string(password),
-            )?;
-            if side == Side::Head {
-                set(
-                    &mut c,
-                    "transport/auth/usrpwd/dictionary_file",
-                    &quoted(file),
-                )?;
-            }
-        }
+        set_credentials(&mut c, side, &creds)?;
     }
     Ok(c)
+}
+
+/// The credentials' part of the Zenoh configuration of `side`: mutual TLS (the run's CA, this
+/// side's certificate and key) and the user and password (the head checks them against its
+/// dictionary file).
+fn set_credentials(
+    c: &mut zenoh::Config,
+    side: Side,
+    creds: &Credentials,
+) -> Result<(), SessionError> {
+    if let Some((ca, cert, key)) = &creds.tls {
+        set(c, "transport/link/tls/root_ca_certificate", &quoted(ca))?;
+        set(c, "transport/link/tls/enable_mtls", "true")?;
+        // The certificates belong to the run, not to host names: a peer is checked by the CA
+        // that signed it.
+        set(c, "transport/link/tls/verify_name_on_connect", "false")?;
+        let end = match side {
+            Side::Head => "listen",
+            Side::Worker => "connect",
+        };
+        set(
+            c,
+            &format!("transport/link/tls/{end}_private_key"),
+            &quoted(key),
+        )?;
+        set(
+            c,
+            &format!("transport/link/tls/{end}_certificate"),
+            &quoted(cert),
+        )?;
+    }
+    if let Some((user, password, file)) = &creds.user_password {
+        set(c, "transport/auth/usrpwd/user", &serde_json_string(user))?;
+        set(
+            c,
+            "transport/auth/usrpwd/password",
+            &serde_json_string(password),
+        )?;
+        if side == Side::Head {
+            set(c, "transport/auth/usrpwd/dictionary_file", &quoted(file))?;
+        }
+    }
+    Ok(())
 }
 
 /// Open the Zenoh session of `side`.

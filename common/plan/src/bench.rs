@@ -79,6 +79,27 @@ pub struct PlanLatencyReport {
     pub threads: usize,
 }
 
+/// GFLOP of one plan's model passes: the ensemble's forward per row, times the rows of a
+/// model step, the horizon and the passes of the planner's iterations.
+fn gflop_per_plan(cfg: &PlanLatencyConfig, o: usize, a: usize) -> f64 {
+    let p = &cfg.planner;
+    let rows = p.candidates() * p.particles;
+    let dims: Vec<usize> = std::iter::once(o + a)
+        .chain(cfg.hidden.iter().copied())
+        .chain(std::iter::once(2 * (o + 1)))
+        .collect();
+    let flop_per_row: f64 = dims.windows(2).map(|w| 2.0 * (w[0] * w[1]) as f64).sum();
+    // Forward passes per plan; the gradient planner adds one input-only backward pass per Adam
+    // step (dX = dY Wᵀ per layer, the forward's flops; no weight gradients) and evaluates once
+    // more after its last step.
+    let passes = if p.kind == PlannerKind::Grad {
+        2 * p.iterations() + 1
+    } else {
+        p.iterations()
+    };
+    flop_per_row * (rows * p.horizon * passes) as f64 / 1e9
+}
+
 /// Time `cfg.plans` closed-loop MPC steps from random Pendulum-like observations.
 pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanError> {
     let env = mbpo_envs::make(&cfg.env).map_err(|e| PlanError::Dims(e.to_string()))?;
@@ -131,20 +152,7 @@ pub fn plan_latency(cfg: &PlanLatencyConfig) -> Result<PlanLatencyReport, PlanEr
         .ok_or_else(|| PlanError::Dims("plan-latency: plans must be at least 1".into()))?;
     let p = &cfg.planner;
     let rows = p.candidates() * p.particles;
-    let dims: Vec<usize> = std::iter::once(o + a)
-        .chain(cfg.hidden.iter().copied())
-        .chain(std::iter::once(2 * (o + 1)))
-        .collect();
-    let flop_per_row: f64 = dims.windows(2).map(|w| 2.0 * (w[0] * w[1]) as f64).sum();
-    // Forward passes per plan; the gradient planner adds one input-only backward pass per Adam
-    // step (dX = dY Wᵀ per layer, the forward's flops; no weight gradients) and evaluates once
-    // more after its last step.
-    let passes = if p.kind == PlannerKind::Grad {
-        2 * p.iterations() + 1
-    } else {
-        p.iterations()
-    };
-    let gflop = flop_per_row * (rows * p.horizon * passes) as f64 / 1e9;
+    let gflop = gflop_per_plan(cfg, o, a);
     let best = times[0];
     Ok(PlanLatencyReport {
         bench: "plan-latency".into(),

@@ -14,7 +14,7 @@
 
 use std::io::{Read, Write};
 use std::os::unix::process::CommandExt;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -360,6 +360,18 @@ fn start_host(
         env: id.to_string(),
         message,
     };
+    let child = spawn_host(spec, &python, &request, &fail)?;
+    read_hello(child, &python, &fail)
+}
+
+/// The host process: `python -c HOST_PY request` with the config's path in PYTHONPATH, piped,
+/// killed when this process dies.
+fn spawn_host(
+    spec: &GymSpec,
+    python: &Path,
+    request: &serde_json::Value,
+    fail: &dyn Fn(String) -> EnvError,
+) -> Result<Child, EnvError> {
     let mut search = spec.path.clone();
     search.extend(
         std::env::var_os("PYTHONPATH")
@@ -371,7 +383,7 @@ fn start_host(
             "a folder of the config's gym.path cannot be put in PYTHONPATH: {e}"
         ))
     })?;
-    let mut command = Command::new(&python);
+    let mut command = Command::new(python);
     let parent = std::process::id();
     // SAFETY: runs in the child between fork and exec and calls only async-signal-safe
     // functions (prctl, getppid, _exit). A Python process whose actor died (SIGKILL included)
@@ -388,7 +400,7 @@ fn start_host(
             Ok(())
         });
     }
-    let mut child = command
+    command
         .env("PYTHONPATH", pythonpath)
         .arg("-c")
         .arg(HOST_PY)
@@ -404,7 +416,16 @@ fn start_host(
                  table or MBPO_PYTHON, or run `bash deploy/setup_python.sh` to make the project venv",
                 python.display()
             ))
-        })?;
+        })
+}
+
+/// Read the host's hello: the description's bytes, or the start failure it reports (or the
+/// exit it died of), as an error that names the fix.
+fn read_hello(
+    mut child: Child,
+    python: &Path,
+    fail: &dyn Fn(String) -> EnvError,
+) -> Result<(Host, Vec<u8>), EnvError> {
     let to = child.stdin.take().expect("piped");
     let mut from = child.stdout.take().expect("piped");
     let mut head = [0u8; 16];
