@@ -49,7 +49,6 @@ const KNOWN_LONG: &[(&str, &str)] = &[
     ("common/net/src/worker.rs", "to_head_loop"),
     ("common/nn/src/mlp.rs", "backward"),
     ("common/plan/src/model.rs", "mean_step_backward"),
-    ("common/runtime/src/coordinator/mod.rs", "advance"),
     ("common/runtime/src/services/acting.rs", "act"),
     ("common/runtime/src/services/actor.rs", "evaluate"),
     ("common/runtime/src/services/learner.rs", "run"),

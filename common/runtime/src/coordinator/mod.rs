@@ -227,9 +227,49 @@ impl Coordinator {
         run: &mut RunDir,
         started: Instant,
     ) -> Result<Phase> {
+        if self.start_barrier_if_due(ports)? {
+            return Ok(Phase::Finished);
+        }
+        let Some(cut) = self.barrier_cut_complete(ports)? else {
+            return Ok(Phase::Running);
+        };
+        let b = self.barrier.as_ref().expect("a complete barrier");
+        let (barrier_started, stop_after) = (b.started, b.stop_after);
+        self.write_checkpoint(cut, run, started)?;
+        tracing::info!(
+            "checkpoint after step {} complete ({:.2} s barrier): {}",
+            cut.env_steps,
+            barrier_started.elapsed().as_secs_f64(),
+            mbpo_train::checkpoint::dir_for(&self.out, cut.env_steps).display()
+        );
+        self.next_checkpoint = cut.env_steps + self.cfg.checkpoint.every.max(1);
+        self.last_checkpoint = cut.env_steps;
+        if cut.env_steps >= self.cfg.steps && self.all_done() && self.final_params.is_some() {
+            // The last step's checkpoint: the run is complete (a stop asked for meanwhile
+            // changes nothing).
+            self.barrier = None;
+            return Ok(Phase::Finished);
+        }
+        if stop_after {
+            return Ok(Phase::Stopped);
+        }
+        send(
+            ports,
+            ControlCommand::Resume,
+            cut.model_trainings,
+            cut.env_steps,
+        )?;
+        self.barrier = None;
+        Ok(Phase::Running)
+    }
+
+    /// Start a barrier when one is due: the periodic one every `checkpoint.every` env steps,
+    /// or the last step's once every role is done. `true`: the run is over (done, final
+    /// policy in, last step checkpointed), nothing to start.
+    fn start_barrier_if_due<S: Transport>(&mut self, ports: &CoordinatorPorts<S>) -> Result<bool> {
         if self.all_done() && self.final_params.is_some() && self.barrier.is_none() {
             if self.last_checkpoint >= self.cfg.steps {
-                return Ok(Phase::Finished);
+                return Ok(true);
             }
             tracing::info!("every role is done: checkpointing the last step");
             self.start_barrier(ports, false)?;
@@ -242,8 +282,18 @@ impl Coordinator {
         {
             self.start_barrier(ports, false)?;
         }
+        Ok(false)
+    }
+
+    /// Move the barrier under way on: its pause to late subscribers, the cut once every
+    /// pausing role reported; the cut once every file is written (`None` before that, or
+    /// without a barrier).
+    fn barrier_cut_complete<S: Transport>(
+        &mut self,
+        ports: &CoordinatorPorts<S>,
+    ) -> Result<Option<crate::barrier::Cut>> {
         let Some(b) = self.barrier.as_mut() else {
-            return Ok(Phase::Running);
+            return Ok(None);
         };
         resend_barrier_to_late_subscribers(ports, b)?;
         if let Some(cut) = b.take_cut(&self.schedule, self.plan.mode) {
@@ -255,14 +305,23 @@ impl Coordinator {
             b.control_subscribers = ports.control.subscribers();
             send_cut(ports, cut)?;
         }
-        let Some(cut) = b.complete() else {
-            if b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1) {
-                b.warnings += 1;
-                tracing::warn!("checkpoint barrier still waiting for {}", b.waiting_for());
-            }
-            return Ok(Phase::Running);
-        };
-        let (barrier_started, stop_after) = (b.started, b.stop_after);
+        let complete = b.complete();
+        let waited_long = b.started.elapsed() > checkpoints::BARRIER_WARN_AFTER * (b.warnings + 1);
+        if complete.is_none() && waited_long {
+            b.warnings += 1;
+            tracing::warn!("checkpoint barrier still waiting for {}", b.waiting_for());
+        }
+        Ok(complete)
+    }
+
+    /// The run's own files of checkpoint `cut` (the launcher's state and the run book, after
+    /// every row up to it), then `COMPLETE`.
+    fn write_checkpoint(
+        &mut self,
+        cut: crate::barrier::Cut,
+        run: &mut RunDir,
+        started: Instant,
+    ) -> Result<()> {
         self.write_rows(run, started)?;
         let missing = self.collector.missing_at_cut(cut.env_steps);
         ensure_protocol!(
@@ -285,32 +344,7 @@ impl Coordinator {
             &state,
             &book,
             &self.cfg.checkpoint,
-        )?;
-        tracing::info!(
-            "checkpoint after step {} complete ({:.2} s barrier): {}",
-            cut.env_steps,
-            barrier_started.elapsed().as_secs_f64(),
-            mbpo_train::checkpoint::dir_for(&self.out, cut.env_steps).display()
-        );
-        self.next_checkpoint = cut.env_steps + every.max(1);
-        self.last_checkpoint = cut.env_steps;
-        if cut.env_steps >= self.cfg.steps && self.all_done() && self.final_params.is_some() {
-            // The last step's checkpoint: the run is complete (a stop asked for meanwhile
-            // changes nothing).
-            self.barrier = None;
-            return Ok(Phase::Finished);
-        }
-        if stop_after {
-            return Ok(Phase::Stopped);
-        }
-        send(
-            ports,
-            ControlCommand::Resume,
-            cut.model_trainings,
-            cut.env_steps,
-        )?;
-        self.barrier = None;
-        Ok(Phase::Running)
+        )
     }
 
     /// Answer a SIGINT/SIGTERM (see [`on_signal`]); the launcher stops at once on
