@@ -41,7 +41,6 @@ const KNOWN_LONG: &[(&str, &str)] = &[
     ("common/model/src/network.rs", "member_loss_and_grad"),
     ("common/model/src/parallel.rs", "members_loss_and_grads"),
     ("common/model/src/rollout.rs", "rollout"),
-    ("common/model/src/train.rs", "train_unless"),
     ("common/net/src/head.rs", "from_workers"),
     ("common/net/src/head.rs", "deliver"),
     ("common/net/src/worker.rs", "receive"),

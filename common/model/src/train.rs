@@ -242,6 +242,47 @@ pub fn select_elites(mse: &[f32], k: usize) -> Vec<usize> {
     order
 }
 
+/// The standardised holdout split of one training call.
+struct Holdout {
+    /// Inputs, `rows x in`.
+    x: Vec<f32>,
+    /// Targets, `rows x out`.
+    t: Vec<f32>,
+    /// Rows held out.
+    rows: usize,
+}
+
+/// What the epochs of one training call carry from one to the next.
+struct Epochs {
+    stopper: EarlyStopping,
+    /// Each member's weights at its best holdout MSE so far.
+    snapshot: Vec<f32>,
+    improved: Vec<bool>,
+    mse: Vec<f32>,
+    epoch_loss: Vec<f64>,
+}
+
+impl TrainReport {
+    /// The report of a call on `n_train` + `n_holdout` rows before its first epoch.
+    fn empty(n_train: usize, n_holdout: usize, members: usize) -> Self {
+        Self {
+            n_train,
+            n_holdout,
+            epochs: 0,
+            gradient_steps: 0,
+            train_loss: Vec::new(),
+            holdout_mse: Vec::new(),
+            best_epoch: vec![None; members],
+            final_holdout_mse: Vec::new(),
+            elites: Vec::new(),
+            stop: StopReason::NoImprovement,
+            seconds: 0.0,
+            holdout_seconds: 0.0,
+            termination: None,
+        }
+    }
+}
+
 impl ProbabilisticEnsemble {
     /// Fit the ensemble to `data` (all transitions collected so far), continuing from the
     /// current weights; see the module docs for the procedure. Draws the holdout permutation,
@@ -265,134 +306,140 @@ impl ProbabilisticEnsemble {
         let start = Instant::now();
         self.check_training_data(data)?;
         let cfg = self.config.clone();
-        let (members, batch) = (cfg.members, cfg.batch_size);
-        let n = data.len;
-
-        // 1. Holdout split.
-        let n_hold = cfg.holdout_size(n);
-        let mut perm: Vec<u32> = (0..n as u32).collect();
-        shuffle(rng, &mut perm);
-        let (hold_rows, train_rows) = perm.split_at(n_hold);
-        let n_train = train_rows.len();
-
-        // 2. Normaliser on the training split, then standardised inputs and targets.
-        self.normalizer.fit(data, train_rows);
-        let mut x_hold = Vec::new();
-        let mut t_hold = Vec::new();
-        standardize(&self.normalizer, data, hold_rows, &mut x_hold, &mut t_hold);
-        {
-            let Workspace { x_all, t_all, .. } = &mut self.ws;
-            standardize(&self.normalizer, data, train_rows, x_all, t_all);
-        }
-
+        let members = cfg.members;
+        // 1-2. Holdout split, normaliser, standardised inputs and targets.
+        let holdout = self.split_and_standardize(data, rng);
+        let n_train = data.len - holdout.rows;
         // 3. Bootstrap resamples, drawn once for the whole call.
         let mut boot = BootstrapIndices::draw(members, n_train, rng);
-
-        let mut stopper = EarlyStopping::new(
-            members,
-            cfg.max_epochs_since_update,
-            cfg.improvement_threshold,
-        );
-        let mut snapshot = vec![0.0f32; self.net.num_net_params()];
-        let mut improved = vec![false; members];
-        let mut mse = vec![0.0f32; members];
-        let mut epoch_loss = vec![0.0f64; members];
-        let mut report = TrainReport {
-            n_train,
-            n_holdout: n_hold,
-            epochs: 0,
-            gradient_steps: 0,
-            train_loss: Vec::new(),
-            holdout_mse: Vec::new(),
-            best_epoch: vec![None; members],
-            final_holdout_mse: Vec::new(),
-            elites: Vec::new(),
-            stop: StopReason::NoImprovement,
-            seconds: 0.0,
-            holdout_seconds: 0.0,
-            termination: None,
+        let mut epochs = Epochs {
+            stopper: EarlyStopping::new(
+                members,
+                cfg.max_epochs_since_update,
+                cfg.improvement_threshold,
+            ),
+            snapshot: vec![0.0f32; self.net.num_net_params()],
+            improved: vec![false; members],
+            mse: vec![0.0f32; members],
+            epoch_loss: vec![0.0f64; members],
         };
+        let mut report = TrainReport::empty(n_train, holdout.rows, members);
         self.ws.grads.resize(self.theta.len(), 0.0);
-        self.ws.threads.ensure(cfg.threads, &self.net, batch);
-
+        self.ws
+            .threads
+            .ensure(cfg.threads, &self.net, cfg.batch_size);
         loop {
-            // 4. One epoch of minibatch steps over every member's bootstrap vector.
-            epoch_loss.fill(0.0);
-            let mut b0 = 0;
-            while b0 < n_train {
-                let rows = batch.min(n_train - b0);
-                self.train_step(&boot, b0, rows, &mut epoch_loss);
-                report.gradient_steps += 1;
-                b0 += rows;
-            }
-            boot.shuffle_rows(rng);
-
-            // 5. Holdout MSE, snapshots, patience.
-            let holdout_start = Instant::now();
-            holdout_mse(
-                &mut self.ws.threads,
-                &self.net,
-                &self.theta,
-                &x_hold,
-                &t_hold,
-                n_hold,
-                &mut mse,
-            );
-            report.holdout_seconds += holdout_start.elapsed().as_secs_f64();
-            let stop = stopper.update(&mse, &mut improved);
-            for e in (0..members).filter(|&e| improved[e]) {
-                let r = self.net.ensemble().member_range(e);
-                snapshot[r.clone()].copy_from_slice(&self.theta[r]);
-            }
-            report.epochs += 1;
-            report.train_loss.push(
-                epoch_loss
-                    .iter()
-                    .map(|&l| (l / n_train as f64) as f32)
-                    .collect(),
-            );
-            report.holdout_mse.push(mse.clone());
-            if stop {
-                report.stop = StopReason::NoImprovement;
-                break;
-            }
-            if cfg.max_epochs.is_some_and(|m| report.epochs >= m) {
-                report.stop = StopReason::MaxEpochs;
-                break;
-            }
-            if cfg
-                .max_train_seconds
-                .is_some_and(|s| start.elapsed().as_secs_f64() > s)
-            {
-                report.stop = StopReason::TimeLimit;
+            let stop = self.epoch(&mut boot, &holdout, &mut epochs, &mut report, rng);
+            let limit = match () {
+                _ if stop => Some(StopReason::NoImprovement),
+                _ if cfg.max_epochs.is_some_and(|m| report.epochs >= m) => {
+                    Some(StopReason::MaxEpochs)
+                }
+                _ if cfg
+                    .max_train_seconds
+                    .is_some_and(|s| start.elapsed().as_secs_f64() > s) =>
+                {
+                    Some(StopReason::TimeLimit)
+                }
+                _ => None,
+            };
+            if let Some(reason) = limit {
+                report.stop = reason;
                 break;
             }
             if stop_requested() {
                 return Ok(None);
             }
         }
-
-        // 6. Restore every member's best weights and pick the elites. MBPO re-evaluates the
-        // holdout here; the MSE depends only on the member's weights (not on the shared bounds)
-        // and the evaluation is deterministic, so a restored member's MSE is exactly the one
-        // recorded at its snapshot epoch, and a member never snapshotted keeps its last one.
-        report.best_epoch = stopper.best_epoch().to_vec();
-        for (e, best) in report.best_epoch.iter().enumerate() {
-            if best.is_some() {
-                let r = self.net.ensemble().member_range(e);
-                self.theta[r.clone()].copy_from_slice(&snapshot[r]);
-            }
-        }
-        let mse = restored_holdout_mse(&report.best_epoch, &report.holdout_mse);
-        self.elites = select_elites(&mse, cfg.elites);
-        report.final_holdout_mse = mse;
-        report.elites = self.elites.clone();
+        self.restore_best(&epochs, &mut report);
         // The learned termination rule, on the same data, after the ensemble's draws.
         if let Some(c) = self.termination.as_mut() {
             report.termination = Some(c.train(data, rng));
         }
         report.seconds = start.elapsed().as_secs_f64();
         Ok(Some(report))
+    }
+
+    /// Steps 1 and 2: the holdout split (a permutation from `rng`), the normaliser fitted on
+    /// the training split, then both splits standardised (the training split into the
+    /// workspace).
+    fn split_and_standardize(&mut self, data: &Batch, rng: &mut Rng) -> Holdout {
+        let n = data.len;
+        let n_hold = self.config.holdout_size(n);
+        let mut perm: Vec<u32> = (0..n as u32).collect();
+        shuffle(rng, &mut perm);
+        let (hold_rows, train_rows) = perm.split_at(n_hold);
+        self.normalizer.fit(data, train_rows);
+        let mut x = Vec::new();
+        let mut t = Vec::new();
+        standardize(&self.normalizer, data, hold_rows, &mut x, &mut t);
+        let Workspace { x_all, t_all, .. } = &mut self.ws;
+        standardize(&self.normalizer, data, train_rows, x_all, t_all);
+        Holdout { x, t, rows: n_hold }
+    }
+
+    /// Steps 4 and 5: one epoch of minibatch steps over every member's bootstrap vector, then
+    /// the holdout MSE, the snapshots of the members that improved, patience. `true`: no
+    /// member improved for long enough (early stopping).
+    fn epoch(
+        &mut self,
+        boot: &mut BootstrapIndices,
+        holdout: &Holdout,
+        e: &mut Epochs,
+        report: &mut TrainReport,
+        rng: &mut Rng,
+    ) -> bool {
+        let (n_train, batch) = (report.n_train, self.config.batch_size);
+        e.epoch_loss.fill(0.0);
+        let mut b0 = 0;
+        while b0 < n_train {
+            let rows = batch.min(n_train - b0);
+            self.train_step(boot, b0, rows, &mut e.epoch_loss);
+            report.gradient_steps += 1;
+            b0 += rows;
+        }
+        boot.shuffle_rows(rng);
+        let holdout_start = Instant::now();
+        holdout_mse(
+            &mut self.ws.threads,
+            &self.net,
+            &self.theta,
+            &holdout.x,
+            &holdout.t,
+            holdout.rows,
+            &mut e.mse,
+        );
+        report.holdout_seconds += holdout_start.elapsed().as_secs_f64();
+        let stop = e.stopper.update(&e.mse, &mut e.improved);
+        for m in (0..e.mse.len()).filter(|&m| e.improved[m]) {
+            let r = self.net.ensemble().member_range(m);
+            e.snapshot[r.clone()].copy_from_slice(&self.theta[r]);
+        }
+        report.epochs += 1;
+        let per_row = |&l: &f64| (l / n_train as f64) as f32;
+        report
+            .train_loss
+            .push(e.epoch_loss.iter().map(per_row).collect());
+        report.holdout_mse.push(e.mse.clone());
+        stop
+    }
+
+    /// Step 6: restore every member's best weights and pick the elites. MBPO re-evaluates the
+    /// holdout here; the MSE depends only on the member's weights (not on the shared bounds)
+    /// and the evaluation is deterministic, so a restored member's MSE is exactly the one
+    /// recorded at its snapshot epoch, and a member never snapshotted keeps its last one.
+    fn restore_best(&mut self, e: &Epochs, report: &mut TrainReport) {
+        report.best_epoch = e.stopper.best_epoch().to_vec();
+        for (m, best) in report.best_epoch.iter().enumerate() {
+            if best.is_some() {
+                let r = self.net.ensemble().member_range(m);
+                self.theta[r.clone()].copy_from_slice(&e.snapshot[r]);
+            }
+        }
+        let mse = restored_holdout_mse(&report.best_epoch, &report.holdout_mse);
+        self.elites = select_elites(&mse, self.config.elites);
+        report.final_holdout_mse = mse;
+        report.elites = self.elites.clone();
     }
 
     /// One Adam step: every member's loss gradient on rows `b0..b0 + rows` of its bootstrap
