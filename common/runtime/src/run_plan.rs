@@ -27,7 +27,7 @@ pub const RUN_PLAN_FORMAT: u32 = 1;
 const MAX_WIDTH: usize = 1 << 16;
 
 /// Sizes and layout hashes of everything that crosses shared memory in a run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Dims {
     /// Observation width.
     pub obs: usize,
@@ -48,10 +48,10 @@ impl Dims {
         Self::with_env_dims(cfg, env.obs_dim(), env.act_dim())
     }
 
-    /// [`Dims::of`] for a process of the run in `run_dir`: a Python env's widths come from the
-    /// `env.json` its launcher wrote, so only the processes that step the env start it (a
-    /// user's env may be costly to make, or drive a robot).
-    pub fn of_run(cfg: &ExperimentConfig, run_dir: &std::path::Path) -> Result<Self> {
+    /// [`Dims::of`] for the launcher of the run in `run_dir`: a Python env's widths come from
+    /// the `env.json` written when the env was started once to describe it, so it is not
+    /// started again here (a user's env may be costly to make, or drive a robot).
+    pub fn of_run(cfg: &ExperimentConfig, run_dir: &Path) -> Result<Self> {
         let path = run_dir.join(mbpo_train::run_dir::ENV_FILE);
         let text = match cfg.is_gym_env() {
             true => std::fs::read_to_string(&path).ok(),

@@ -101,11 +101,6 @@ impl Reached {
         self.by_role.get(&from).copied().unwrap_or_default()
     }
 
-    /// Every role that sent a record.
-    pub fn roles(&self) -> impl Iterator<Item = (ProducerId, Counters)> + '_ {
-        self.by_role.iter().map(|(&p, &c)| (p, c))
-    }
-
     /// Actor `from`'s local step of global step `g` (steps are dealt round-robin).
     fn local_step(&self, from: ProducerId, g: u64) -> u64 {
         let n = u64::from(self.actors.max(1));
