@@ -48,12 +48,6 @@ const KNOWN_LONG: &[(&str, &str)] = &[
     ("common/net/src/worker.rs", "to_head_loop"),
     ("common/nn/src/mlp.rs", "backward"),
     ("common/plan/src/model.rs", "mean_step_backward"),
-    ("common/runtime/src/services/acting.rs", "act"),
-    ("common/runtime/src/services/actor.rs", "evaluate"),
-    ("common/runtime/src/services/learner.rs", "run"),
-    ("common/runtime/src/services/model_trainer.rs", "run"),
-    ("common/runtime/src/services/planning.rs", "evaluate"),
-    ("common/runtime/src/services/rollout.rs", "run"),
 ];
 
 #[test]

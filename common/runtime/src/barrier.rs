@@ -8,8 +8,8 @@
 //!
 //! 1. **Pause** (to all): actors finish their current step and produce nothing more; the model
 //!    trainer and rollout generator start no new training / branch. Each of those reports its
-//!    counter ([`report_paused`]: an actor its local steps, the others their trainings or
-//!    branches). The learner and evaluator keep consuming.
+//!    counter (an actor its local steps, the others their trainings or branches; the serving
+//!    loop does it, `crate::serving`). The learner and evaluator keep consuming.
 //! 2. **Checkpoint(T, K)** (the cut, to all): T = the actors' steps summed (every real
 //!    transition that exists), K = the model trainings the cut holds: those done (lockstep: at
 //!    least those of the train points ≤ T; more if the trainer had already trained for T + 1).
@@ -30,16 +30,13 @@
 //! Lockstep runs are deterministic whatever the cut's timing, so a resumed lockstep run ends
 //! with the same weights as an uninterrupted one (`tests/tests/pipeline_resume.rs`).
 
-use std::marker::PhantomData;
 use std::path::Path;
 
-use mbpo_core::TransitionSink;
 use mbpo_train::checkpoint;
-use mbpo_wire::{BarrierReport, StatsPublisher, TransitionSubscriber, Transport, Waiter};
+use mbpo_wire::{BarrierReport, StatsPublisher, Transport, Waiter};
 use serde::{de::DeserializeOwned, Serialize};
 
-use crate::error::ensure_protocol;
-use crate::inbox::{wait_for, ControlInbox, RealInbox};
+use crate::inbox::{wait_for, ControlInbox};
 use crate::{Result, RuntimeError};
 
 pub use crate::inbox::{Cut, PAUSE_TO_STOP};
@@ -63,24 +60,6 @@ pub mod kind {
 /// File names of a pipeline checkpoint (actors: [`actor_file`]).
 pub mod file {
     pub use mbpo_train::run_files::file::*;
-}
-
-/// Report the pause with the process's own counter, then sleep until the cut arrives.
-/// `Ok(None)`: stopped instead.
-pub fn report_paused<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-    stats: &StatsPublisher<S>,
-    counter: u64,
-) -> Result<Option<Cut>> {
-    if control.cut().is_none() {
-        stats.report(BarrierReport::Paused(counter))?;
-        tracing::info!("checkpoint barrier: paused at {counter}");
-    }
-    let arrived = wait_for(waiter, control, &|| "the checkpoint cut".into(), || {
-        Ok(control.cut().is_some())
-    })?;
-    Ok(arrived.then(|| control.cut()).flatten())
 }
 
 /// Where a service's checkpoint file goes: `<run_dir>/checkpoints/<T>/<file>`, of its kind.
@@ -144,244 +123,8 @@ pub fn write_and_await_resume<S: Transport, T: Serialize>(
     Ok(resumed)
 }
 
-/// What a producer of trainings or branches (model trainer, rollout generator) may do before
-/// its next one, given the barrier.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Gate {
-    /// No barrier, or the cut still holds this work (`done < K`): go on.
-    Work,
-    /// At the cut: take the transitions ≤ T, write the checkpoint, wait for the resume.
-    AtCut(Cut),
-    /// Stopped.
-    Stop,
-}
-
 /// True when a barrier holds a producer that has done `done` pieces of work: paused and the
 /// cut not yet known, or known and not needing more work. Use it in a wait's wake-up condition.
 pub fn holds<S: Transport>(control: &ControlInbox<S>, done: u64) -> bool {
     control.pause_requested() && control.cut().is_none_or(|c| done >= c.model_trainings)
-}
-
-/// Look at the barrier before the `done + 1`-th piece of work: report the pause (once) and
-/// wait for the cut if a barrier is under way.
-pub fn gate<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-    stats: &StatsPublisher<S>,
-    done: u64,
-) -> Result<Gate> {
-    if !control.pause_requested() {
-        return Ok(Gate::Work);
-    }
-    let cut = match control.cut() {
-        Some(c) => c,
-        None => match report_paused(waiter, control, stats, done)? {
-            Some(c) => c,
-            None => return Ok(Gate::Stop),
-        },
-    };
-    Ok(if done < cut.model_trainings {
-        Gate::Work
-    } else {
-        Gate::AtCut(cut)
-    })
-}
-
-/// Wait until the first `env_steps` real transitions of the run arrived and hand out those not
-/// yet taken to `sink` (a consumer at the cut holds every transition ≤ T). `Ok(false)`: stopped.
-pub fn take_upto<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-    real: &TransitionSubscriber<S>,
-    inbox: &mut RealInbox<S>,
-    sink: &mut dyn TransitionSink,
-    env_steps: u64,
-) -> Result<bool> {
-    let arrived = wait_for(
-        waiter,
-        control,
-        &|| format!("{env_steps} real transitions for the checkpoint"),
-        || {
-            inbox.pull(real, env_steps, sink)?;
-            Ok(inbox.received() >= env_steps)
-        },
-    )?;
-    if arrived {
-        ensure_protocol!(
-            inbox.received() == env_steps,
-            "checkpoint after step {env_steps}: {} real transitions arrived although the actors are paused",
-            inbox.received()
-        );
-        inbox.take((env_steps - inbox.taken()) as usize, sink);
-    }
-    Ok(arrived)
-}
-
-/// After its work, sleep until the supervisor's Stop while still taking part in checkpoint
-/// barriers: `pause_counter` is reported at a pause (`None` for the learner and evaluator,
-/// which never pause), `at_cut` writes the file and waits for the resume (`Ok(false)`: stop).
-pub fn idle_until_stop<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-    stats: &StatsPublisher<S>,
-    pause_counter: Option<u64>,
-    mut at_cut: impl FnMut(Cut) -> Result<bool>,
-) -> Result<()> {
-    loop {
-        let what = || "the supervisor's stop".to_string();
-        if !wait_for(waiter, control, &what, || Ok(control.pause_requested()))? {
-            return Ok(());
-        }
-        let cut = match pause_counter {
-            Some(c) => report_paused(waiter, control, stats, c)?,
-            None => wait_for(waiter, control, &what, || Ok(control.cut().is_some()))?
-                .then(|| control.cut())
-                .flatten(),
-        };
-        match cut {
-            Some(cut) if at_cut(cut)? => {}
-            _ => return Ok(()),
-        }
-    }
-}
-
-/// An actor's step `g` failed with `e`, after `done` local steps. An environment failure (a
-/// Python exception, a Python process that exited again at once) is reported, and the actor
-/// takes part in the checkpoint that stops the run: nothing of step g was sent, so the
-/// checkpoint holds every transition accepted. Any other error ends the process at once.
-pub fn after_env_failure<S: Transport>(
-    waiter: &Waiter<'_, S>,
-    control: &ControlInbox<S>,
-    stats: &StatsPublisher<S>,
-    e: mbpo_train::TrainError,
-    g: u64,
-    done: u64,
-    at_cut: impl FnMut(Cut) -> Result<bool>,
-) -> Result<()> {
-    let mbpo_train::TrainError::Env(env_error) = e else {
-        return Err(e.into());
-    };
-    tracing::error!("env step {g}: {env_error}");
-    stats.report(mbpo_wire::EnvFailed { env_steps: g })?;
-    idle_until_stop(waiter, control, stats, Some(done), at_cut)
-}
-
-/// How a consumer that keeps its own D_env (model trainer, rollout generator) serves a
-/// barrier: its ports, and `at_cut(role, cut)`, called at the cut once every transition ≤ T
-/// is in the role, which writes the role's file and waits for the resume (`Ok(false)`:
-/// stopped).
-pub struct DataGate<'w, 'a, S: Transport, R, F> {
-    waiter: &'w Waiter<'a, S>,
-    control: &'w ControlInbox<S>,
-    stats: &'w StatsPublisher<S>,
-    real: &'w TransitionSubscriber<S>,
-    at_cut: F,
-    pipelined: bool,
-    role: PhantomData<fn(&mut R)>,
-}
-
-impl<'w, 'a, S: Transport, R: TransitionSink, F> DataGate<'w, 'a, S, R, F>
-where
-    F: Fn(&mut R, Cut) -> Result<bool>,
-{
-    /// The gate of a process with these ports, in hand-off `mode` (see [`DataGate::wait_until`]).
-    pub fn new(
-        waiter: &'w Waiter<'a, S>,
-        control: &'w ControlInbox<S>,
-        stats: &'w StatsPublisher<S>,
-        real: &'w TransitionSubscriber<S>,
-        mode: crate::Mode,
-        at_cut: F,
-    ) -> Self {
-        Self {
-            waiter,
-            control,
-            stats,
-            real,
-            at_cut,
-            pipelined: mode == crate::Mode::Pipelined,
-            role: PhantomData,
-        }
-    }
-
-    /// At the cut: take every transition ≤ T out of `inbox` into the role, then `at_cut`.
-    /// `Ok(false)`: stopped.
-    fn serve_cut(&self, inbox: &mut RealInbox<S>, role: &mut R, cut: Cut) -> Result<bool> {
-        let n = cut.env_steps;
-        if !take_upto(self.waiter, self.control, self.real, inbox, role, n)? {
-            return Ok(false);
-        }
-        (self.at_cut)(role, cut)
-    }
-
-    /// Sleep until `ready(role, inbox)` (evaluated after pulling the real transitions on every
-    /// wake-up), serving checkpoint barriers meanwhile (`done`: trainings or branches so far).
-    /// `Ok(false)`: stopped.
-    ///
-    /// The role takes real transitions as they arrive: in lockstep the first `upto` (those its
-    /// next training or branch sees), pipelined all of them (it works on whatever has arrived).
-    /// It reads its D_env only when it works, so this equals taking them then, and nothing it
-    /// may see waits in shared memory.
-    pub fn wait_until(
-        &self,
-        inbox: &mut RealInbox<S>,
-        role: &mut R,
-        done: u64,
-        upto: u64,
-        what: &dyn Fn() -> String,
-        mut ready: impl FnMut(&mut R, &RealInbox<S>) -> Result<bool>,
-    ) -> Result<bool> {
-        loop {
-            let mut is_ready = false;
-            let woke = wait_for(self.waiter, self.control, what, || {
-                let upto = if self.pipelined { u64::MAX } else { upto };
-                inbox.pull(self.real, upto, role)?;
-                is_ready = ready(role, inbox)?;
-                Ok(is_ready || holds(self.control, done))
-            })?;
-            if !woke {
-                return Ok(false);
-            }
-            match gate(self.waiter, self.control, self.stats, done)? {
-                Gate::Stop => return Ok(false),
-                Gate::Work if is_ready => return Ok(true),
-                Gate::Work => {}
-                Gate::AtCut(cut) => {
-                    if !self.serve_cut(inbox, role, cut)? {
-                        return Ok(false);
-                    }
-                }
-            }
-        }
-    }
-
-    /// [`DataGate::wait_until`] the first `need` real transitions arrived.
-    pub fn wait_for_real(
-        &self,
-        inbox: &mut RealInbox<S>,
-        role: &mut R,
-        need: u64,
-        done: u64,
-    ) -> Result<bool> {
-        let what = || format!("{need} real transitions");
-        self.wait_until(inbox, role, done, need, &what, |_, inbox| {
-            Ok(inbox.received() >= need)
-        })
-    }
-
-    /// [`idle_until_stop`] for such a consumer.
-    pub fn idle_until_stop(
-        &self,
-        inbox: &mut RealInbox<S>,
-        role: &mut R,
-        pause_counter: Option<u64>,
-    ) -> Result<()> {
-        idle_until_stop(
-            self.waiter,
-            self.control,
-            self.stats,
-            pause_counter,
-            |cut| self.serve_cut(inbox, role, cut),
-        )
-    }
 }

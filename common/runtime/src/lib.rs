@@ -11,6 +11,8 @@
 //! * [`pipeline`]: which roles a run has (the one list every launcher and count reads).
 //! * [`run_plan`]: the run resolved once by its launcher ([`ResolvedRun`]), which every
 //!   process reads and trusts.
+//! * [`serving`]: the one serving loop every role runs on, and the [`serving::Worker`]
+//!   interface a role implements ([`services`]: the seven roles).
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
 //! * [`hosts`]: which hosts a multi-host run's actors are on (files the head's gateway writes).
@@ -31,6 +33,7 @@ pub mod pipeline;
 pub mod process;
 pub mod run_plan;
 pub mod services;
+pub mod serving;
 
 pub use args::{Mode, ServiceArgs, Slack};
 pub use error::{Result, RuntimeError};

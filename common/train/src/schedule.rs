@@ -93,6 +93,17 @@ impl Schedule {
     pub fn eval_points(&self) -> impl Iterator<Item = u64> + '_ {
         (1..=self.steps).filter(|&t| self.is_eval_point(t))
     }
+    /// The first eval point after step `after` (`None`: none is left).
+    pub fn next_eval_point(&self, after: u64) -> Option<u64> {
+        let mut t = after;
+        while t < self.steps {
+            t = ((t / self.eval_every + 1) * self.eval_every).min(self.steps);
+            if self.is_eval_point(t) {
+                return Some(t);
+            }
+        }
+        None
+    }
     /// Eval points ≤ `t` (the evaluations a checkpoint after step `t` holds).
     pub fn eval_points_upto(&self, t: u64) -> u64 {
         (1..=t).filter(|&p| self.is_eval_point(p)).count() as u64
@@ -157,5 +168,22 @@ mod tests {
         assert_eq!(s.eval_points().collect::<Vec<_>>(), [50, 100, 130]);
         assert_eq!(s.updates_owed(100), 0);
         assert_eq!(s.updates_owed(103), 3 * cfg.mbpo.updates_per_step as u64);
+    }
+
+    #[test]
+    fn the_next_eval_point_is_the_first_listed_after_the_step() {
+        let mut last = ExperimentConfig {
+            steps: 1003,
+            ..Default::default()
+        };
+        last.eval.every = 7;
+        for cfg in [mpc(), ExperimentConfig::default(), last] {
+            let s = Schedule::of(&cfg);
+            let points: Vec<u64> = s.eval_points().collect();
+            for after in 0..=s.steps + 1 {
+                let want = points.iter().copied().find(|&p| p > after);
+                assert_eq!(s.next_eval_point(after), want, "after {after}");
+            }
+        }
     }
 }

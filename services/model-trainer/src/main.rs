@@ -12,7 +12,7 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use mbpo_runtime::services::model_trainer;
+use mbpo_runtime::services::service_loop;
 use mbpo_runtime::ServiceArgs;
 use mbpo_wire::ipc;
 
@@ -27,5 +27,7 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    mbpo_runtime::exit_code(model_trainer::run::<ipc::Service>(&args.svc))
+    mbpo_runtime::exit_code(service_loop::<ipc::Service>(
+        mbpo_runtime::RoleKind::ModelTrainer,
+    )(&args.svc))
 }

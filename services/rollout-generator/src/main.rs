@@ -11,7 +11,7 @@
 use std::process::ExitCode;
 
 use clap::Parser;
-use mbpo_runtime::services::rollout;
+use mbpo_runtime::services::service_loop;
 use mbpo_runtime::ServiceArgs;
 use mbpo_wire::ipc;
 
@@ -26,5 +26,7 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    mbpo_runtime::exit_code(rollout::run::<ipc::Service>(&args.svc))
+    mbpo_runtime::exit_code(service_loop::<ipc::Service>(
+        mbpo_runtime::RoleKind::RolloutGenerator,
+    )(&args.svc))
 }

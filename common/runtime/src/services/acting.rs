@@ -2,13 +2,14 @@
 //! with the learner's policy) and MPC's planning actor (`planning.rs`, planning on the model
 //! trainer's ensemble).
 //!
-//! Per local step t (global step g): serve a stop or a checkpoint barrier, wait until the role
-//! holds weights it may act with at g (lockstep: exactly the sequential run's version), take
-//! the env step straight into a loaned shared-memory sample, report a finished episode before
-//! its transition, send the transition and report progress. After the last step it reports
-//! `Done` and serves barriers until the stop. What differs between the two actors (which
-//! weights, which version g needs, the checkpoint, what `Done` counts) is an [`ActingRole`].
+//! One step of the worker ([`Acting`], on the serving loop) is local step t (global step g):
+//! once the role holds weights it may act with at g (lockstep: exactly the sequential run's
+//! version), take the env step straight into a loaned shared-memory sample, report a finished
+//! episode before its transition, send the transition and report progress. The serving loop
+//! pauses it between steps at a barrier. What differs between the two actors (which weights,
+//! which version g needs, the checkpoint, what `Done` counts) is an [`ActingRole`].
 
+use std::marker::PhantomData;
 use std::time::{Duration, Instant};
 
 use serde::de::DeserializeOwned;
@@ -20,6 +21,7 @@ use mbpo_wire::*;
 
 use crate::barrier;
 use crate::error::ensure_protocol;
+use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
 /// What one kind of actor adds to the shared step loop ([`act`]).
@@ -30,6 +32,9 @@ pub trait ActingRole: Sized {
     const WEIGHTS: WeightsKind;
     /// Its checkpoint file's contents.
     type Checkpoint: Serialize + DeserializeOwned;
+
+    /// Its state at the start of a run of process `s`.
+    fn new<S: Transport>(s: &Process<S>) -> Result<Self>;
 
     /// Its state after `steps` local steps.
     fn checkpoint(&self, steps: u64) -> Self::Checkpoint;
@@ -89,126 +94,176 @@ fn weights_name<R: ActingRole>() -> &'static str {
     }
 }
 
-/// Run the actor of `args` in its own process: `make` builds its role once the ports wait.
-pub fn act<S: Transport, R: ActingRole>(
-    args: &ServiceArgs,
-    make: impl FnOnce(&Process<S>) -> Result<R>,
-) -> Result<()> {
-    let s = Process::<S>::open(args, R::ROLE)?;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let (hash, len) = match R::WEIGHTS {
-        WeightsKind::Policy => (d.policy_hash, d.policy_len),
-        WeightsKind::Model => (d.model.layout_hash, d.model.len()),
-    };
-    let weights = WeightsSubscriber::create(&s.node, R::WEIGHTS, hash, len)?;
-    let real = TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Every consumer of real data (model trainer, and rollout generator and learner in an MBPO
-    // run; or this host's gateway): nothing sent afterwards can be lost.
-    real.wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&weights);
+/// An actor's ports: the weights it acts with, the real transitions it sends.
+pub struct Ports<S: Transport> {
+    weights: WeightsSubscriber<S>,
+    real: TransitionPublisher<S>,
+}
 
-    let mut role = make(&s)?;
-    let mut lag = SlackTracker::default();
-    let mut last_progress = Instant::now();
-    let steps = actor_steps(cfg.steps, args.actors, args.index);
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::actor_file(args.index),
-        R::ROLE.checkpoint_kind(),
-    );
-    let mut first = 1;
-    if let Some(dir) = &args.resume_from {
-        first = role.restore(file.read(dir)?)? + 1;
-    }
-    // At the cut: write the state after `done` local steps, wait for the resume.
-    let write_at = |role: &R, done: u64, cut| {
-        let state = role.checkpoint(done);
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    // At a barrier: report the steps done, then as above.
-    let at_barrier = |role: &R, done: u64| -> Result<bool> {
-        match barrier::report_paused(&waiter, &control, &stats_pub, done)? {
-            Some(cut) => write_at(role, done, cut),
-            None => Ok(false),
-        }
-    };
-    let started = Instant::now();
-    let mut ipc = Duration::ZERO;
-    for t in first..=steps {
-        let g = global_step(t, args.actors, args.index);
-        let behaviour = loop {
-            control.poll()?;
-            if control.stopped() {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                if !at_barrier(&role, t - 1)? {
-                    tracing::info!("stopped after the checkpoint, before step {g}");
-                    return Ok(());
-                }
-                continue;
-            }
-            if s.schedule.is_warm_up(g) {
-                break Behaviour::Uniform;
-            }
-            let need = role.oldest_allowed(g);
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| format!("{} version {need}", weights_name::<R>()),
-                || {
-                    role.take_newest(&weights, &d)?;
-                    Ok(role.holds(need) || control.pause_requested())
-                },
-            )?;
-            if !ok {
-                tracing::info!("stopped before step {g}");
-                return Ok(());
-            }
-            if control.pause_requested() {
-                continue;
-            }
-            let exact = role.sequential_version(g);
-            if s.mode == Mode::Lockstep {
-                ensure_protocol!(
-                    role.version() == exact,
-                    "lockstep {} at step {g} got {} version {} (want {exact})",
-                    R::ROLE.name(args.index),
-                    weights_name::<R>(),
-                    role.version()
-                );
-            }
-            lag.see(exact as f64 - role.version() as f64);
-            break Behaviour::Policy;
+type ActingCx<'a, S> = Cx<'a, S, Ports<S>>;
+
+/// An actor of kind `R` on the serving loop.
+pub struct Acting<S: Transport, R: ActingRole> {
+    role: R,
+    /// The next local step.
+    t: u64,
+    /// Its local steps in the run.
+    steps: u64,
+    /// What it waits for (the weights version of its next step).
+    need: u64,
+    lag: SlackTracker,
+    last_progress: Instant,
+    started: Instant,
+    ipc: Duration,
+    transport: PhantomData<fn() -> S>,
+}
+
+impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
+    const KIND: RoleKind = R::ROLE;
+    type Ports = Ports<S>;
+    type Checkpoint = R::Checkpoint;
+
+    fn ports(s: &Process<S>) -> Result<Ports<S>> {
+        let d = s.dims;
+        let (hash, len) = match R::WEIGHTS {
+            WeightsKind::Policy => (d.policy_hash, d.policy_len),
+            WeightsKind::Model => (d.model.layout_hash, d.model.len()),
         };
-        let episodes = role.env_actor().episodes;
-        // The env step writes its transition straight into the sample it is sent in.
-        let t0 = Instant::now();
-        let mut loan = real.loan_rows(1)?;
-        ipc += t0.elapsed();
-        if let Err(e) = role.act_into(behaviour, &mut loan) {
-            drop(loan);
-            let (w, c, p) = (&waiter, &control, &stats_pub);
-            return barrier::after_env_failure(w, c, p, e, g, t - 1, |cut| {
-                write_at(&role, t - 1, cut)
-            });
+        Ok(Ports {
+            weights: WeightsSubscriber::create(&s.node, R::WEIGHTS, hash, len)?,
+            real: TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?,
+        })
+    }
+    /// Every consumer of real data (model trainer, and rollout generator and learner in an
+    /// MBPO run; or this host's gateway): nothing sent afterwards can be lost.
+    fn connect(s: &Process<S>, _: &ControlInbox<S>, p: &Ports<S>) -> Result<()> {
+        p.real
+            .wait_for_subscribers(s.real_consumers(), Duration::from_secs(120))?;
+        Ok(())
+    }
+    fn attach<'a>(p: &'a Ports<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.weights);
+    }
+    fn new(cx: &ActingCx<'_, S>) -> Result<Self> {
+        let (s, args) = (cx.s, &cx.s.args);
+        Ok(Self {
+            role: R::new(s)?,
+            t: 1,
+            steps: actor_steps(s.cfg.steps, args.actors, args.index),
+            need: 0,
+            lag: SlackTracker::default(),
+            last_progress: Instant::now(),
+            started: Instant::now(),
+            ipc: Duration::ZERO,
+            transport: PhantomData,
+        })
+    }
+    fn restore(&mut self, state: R::Checkpoint, _: &ActingCx<'_, S>) -> Result<()> {
+        self.t = self.role.restore(state)? + 1;
+        Ok(())
+    }
+    fn step(&mut self, cx: &ActingCx<'_, S>) -> Result<Step> {
+        if self.t > self.steps {
+            return Ok(Step::Finished);
         }
-        let report_now = role.after_step(behaviour);
-        let a = role.env_actor();
+        let args = &cx.s.args;
+        let g = global_step(self.t, args.actors, args.index);
+        let Some(behaviour) = self.behaviour(cx, g)? else {
+            return Ok(Step::Waiting);
+        };
+        self.act(cx, g, behaviour)
+    }
+    fn done_so_far(&self) -> u64 {
+        self.t - 1
+    }
+    fn at_cut(&mut self, _: barrier::Cut, _: &ActingCx<'_, S>) -> Result<AtCut<R::Checkpoint>> {
+        Ok(AtCut::Write(self.role.checkpoint(self.t - 1)))
+    }
+    fn finish(&mut self, cx: &ActingCx<'_, S>) -> Result<()> {
+        let finish = self.role.finish();
+        let (lo, hi, mean) = self.lag.get();
+        let a = self.role.env_actor();
+        cx.stats.report(Done {
+            real: self.steps,
+            work: finish.work,
+            episodes_cut: a.episodes_cut,
+            episodes_lost: a.episodes_lost,
+            median_step_seconds: finish.median_step_seconds,
+            slack_min: lo,
+            slack_max: hi,
+            slack_mean: mean,
+            ipc_seconds: self.ipc.as_secs_f32(),
+            wall_seconds: self.started.elapsed().as_secs_f32(),
+            ..Default::default()
+        })?;
+        tracing::info!(
+            "done: {} steps, {}{} lag {lo}..{hi} (mean {mean:.2})",
+            self.steps,
+            finish.log,
+            weights_name::<R>()
+        );
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        format!("{} version {}", weights_name::<R>(), self.need)
+    }
+}
+
+impl<S: Transport, R: ActingRole> Acting<S, R> {
+    /// How global step `g` acts: uniformly in the warm-up, else with the newest weights once
+    /// they are recent enough (`None`: not yet).
+    fn behaviour(&mut self, cx: &ActingCx<'_, S>, g: u64) -> Result<Option<Behaviour>> {
+        if cx.s.schedule.is_warm_up(g) {
+            return Ok(Some(Behaviour::Uniform));
+        }
+        let role = &mut self.role;
+        self.need = role.oldest_allowed(g);
+        role.take_newest(&cx.ports.weights, &cx.s.dims)?;
+        if !role.holds(self.need) {
+            return Ok(None);
+        }
+        let exact = role.sequential_version(g);
+        if cx.s.mode == Mode::Lockstep {
+            ensure_protocol!(
+                role.version() == exact,
+                "lockstep {} at step {g} got {} version {} (want {exact})",
+                R::ROLE.name(cx.s.args.index),
+                weights_name::<R>(),
+                role.version()
+            );
+        }
+        self.lag.see(exact as f64 - role.version() as f64);
+        Ok(Some(Behaviour::Policy))
+    }
+
+    /// Take global step `g`: the env step writes its transition straight into the sample it
+    /// is sent in. An environment failure is reported and ends the acting (nothing of step g
+    /// was sent, so the checkpoint that stops the run holds every transition accepted).
+    fn act(&mut self, cx: &ActingCx<'_, S>, g: u64, behaviour: Behaviour) -> Result<Step> {
+        let episodes = self.role.env_actor().episodes;
+        let t0 = Instant::now();
+        let mut loan = cx.ports.real.loan_rows(1)?;
+        self.ipc += t0.elapsed();
+        if let Err(e) = self.role.act_into(behaviour, &mut loan) {
+            drop(loan);
+            let TrainError::Env(env_error) = e else {
+                return Err(e.into());
+            };
+            tracing::error!("env step {g}: {env_error}");
+            cx.stats.report(EnvFailed { env_steps: g })?;
+            return Ok(Step::Failed);
+        }
+        let report_now = self.role.after_step(behaviour);
+        let a = self.role.env_actor();
         if a.episodes > episodes {
             // Before the transition: the supervisor may rely on having every episode ≤ t.
-            stats_pub.report(EpisodeEnd {
+            cx.stats.report(EpisodeEnd {
                 env_steps: g,
                 episode_return: a.last_return.unwrap_or(f64::NAN),
-                version: role.version(),
+                version: self.role.version(),
             })?;
         }
-        let (policy_version, model_version) = stamp(&role);
+        let (policy_version, model_version) = stamp(&self.role);
         let meta = TransitionMeta {
             policy_version,
             model_version,
@@ -216,39 +271,17 @@ pub fn act<S: Transport, R: ActingRole>(
         };
         let t0 = Instant::now();
         loan.send(meta)?;
-        ipc += t0.elapsed();
-        if report_now || last_progress.elapsed() >= Duration::from_millis(500) {
-            last_progress = Instant::now();
-            stats_pub.report(Progress {
+        self.ipc += t0.elapsed();
+        if report_now || self.last_progress.elapsed() >= Duration::from_millis(500) {
+            self.last_progress = Instant::now();
+            cx.stats.report(Progress {
                 env_steps: g,
                 policy_version,
                 model_version,
                 ..Default::default()
             })?;
         }
+        self.t += 1;
+        Ok(Step::Worked)
     }
-    let finish = role.finish();
-    let (lo, hi, mean) = lag.get();
-    let a = role.env_actor();
-    stats_pub.report(Done {
-        real: steps,
-        work: finish.work,
-        episodes_cut: a.episodes_cut,
-        episodes_lost: a.episodes_lost,
-        median_step_seconds: finish.median_step_seconds,
-        slack_min: lo,
-        slack_max: hi,
-        slack_mean: mean,
-        ipc_seconds: ipc.as_secs_f32(),
-        wall_seconds: started.elapsed().as_secs_f32(),
-        ..Default::default()
-    })?;
-    tracing::info!(
-        "done: {steps} steps, {}{} lag {lo}..{hi} (mean {mean:.2})",
-        finish.log,
-        weights_name::<R>()
-    );
-    barrier::idle_until_stop(&waiter, &control, &stats_pub, Some(steps), |cut| {
-        write_at(&role, steps, cut)
-    })
 }

@@ -10,21 +10,23 @@
 use std::time::Duration;
 
 use mbpo_core::rng::stream;
-use mbpo_core::TransitionSink;
+use mbpo_core::{Rng, TransitionSink};
+use mbpo_envs::Env;
 use mbpo_sac::ActorPolicy;
 use mbpo_train::actor::{Behaviour, EnvActor};
 use mbpo_train::roles::ActorRole;
 use mbpo_train::TrainError;
 use mbpo_wire::*;
 
-use super::acting::{self, ActingRole, Finish};
+use super::acting::{ActingRole, Finish};
 use crate::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
 use crate::error::ensure_protocol;
+use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
 /// The SAC actor on the shared step loop: it acts with the learner's policy; step g needs
 /// version g − 1 (pipelined: at least g − 1 − `policy_lag`).
-struct PolicyActing {
+pub struct PolicyActing {
     role: ActorRole,
     policy_lag: u64,
 }
@@ -33,6 +35,13 @@ impl ActingRole for PolicyActing {
     const ROLE: RoleKind = RoleKind::Actor;
     const WEIGHTS: WeightsKind = WeightsKind::Policy;
     type Checkpoint = ActorCheckpoint;
+
+    fn new<S: Transport>(s: &Process<S>) -> Result<Self> {
+        Ok(Self {
+            role: ActorRole::new(&s.cfg, s.args.index as u64)?,
+            policy_lag: s.slack.policy_lag,
+        })
+    }
 
     fn checkpoint(&self, steps: u64) -> ActorCheckpoint {
         ActorCheckpoint {
@@ -82,88 +91,92 @@ impl ActingRole for PolicyActing {
     }
 }
 
-/// An actor's service loop.
-pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    acting::act(args, |s: &Process<S>| {
-        Ok(PolicyActing {
-            role: ActorRole::new(&s.cfg, args.index as u64)?,
-            policy_lag: s.slack.policy_lag,
-        })
-    })
+/// The evaluator's ports: the policy it evaluates, and the acknowledgements it sends the
+/// learner (lockstep).
+pub struct EvaluatorPorts<S: Transport> {
+    acks: ControlPublisher<S>,
+    policy: WeightsSubscriber<S>,
 }
 
-/// The evaluator's service loop.
-pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::Evaluator)?;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let acks = ControlPublisher::<S>::create(&s.node)?;
-    let policy =
-        WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Every role's control subscriber (the role table's count, this evaluator's included);
-    // our own one confirms only when asked to (same thread).
-    control.sub.update_connections();
-    let subscribers = s.pipeline.subscribers(Channel::Control, args.actors);
-    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&policy);
+type EvalCx<'a, S> = Cx<'a, S, EvaluatorPorts<S>>;
 
-    let mut env = cfg.make_env()?;
-    let mut rng = stream(cfg.seed, "eval.env", 0);
-    let mut pol = ActorPolicy::new(s.actor_net(), vec![0.0; d.policy_len], true);
-    let learner = ProducerId::new(Role::Learner, 0);
-    let mut version = 0;
-    let mut evals = 0;
-    let mut after = 0;
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::file::EVALUATOR,
-        barrier::kind::EVALUATOR,
-    );
-    if let Some(dir) = &args.resume_from {
-        let state: EvaluatorCheckpoint = file.read(dir)?;
-        (rng, version, evals, after) = (state.rng, state.version, state.evals, state.env_steps);
+/// The evaluator on the serving loop: one step evaluates the next eval point t once policy
+/// version t arrived.
+pub struct Evaluator {
+    env: Box<dyn Env>,
+    rng: Rng,
+    policy: ActorPolicy,
+    version: u64,
+    evals: u64,
+    /// The next eval point (`None`: all evaluated).
+    next: Option<u64>,
+}
+
+impl<S: Transport> Worker<S> for Evaluator {
+    const KIND: RoleKind = RoleKind::Evaluator;
+    type Ports = EvaluatorPorts<S>;
+    type Checkpoint = EvaluatorCheckpoint;
+
+    fn ports(s: &Process<S>) -> Result<EvaluatorPorts<S>> {
+        let d = s.dims;
+        Ok(EvaluatorPorts {
+            acks: ControlPublisher::<S>::create(&s.node)?,
+            policy: WeightsSubscriber::create(
+                &s.node,
+                WeightsKind::Policy,
+                d.policy_hash,
+                d.policy_len,
+            )?,
+        })
     }
-    for t in (after + 1..=cfg.steps).filter(|&t| s.schedule.is_eval_point(t)) {
-        // Wait for policy version t, writing the checkpoint of a cut before t meanwhile.
-        loop {
-            let ok = wait_for(
-                &waiter,
-                &control,
-                &|| format!("policy version {t} to evaluate"),
-                || {
-                    if let Some(h) = policy.receive_latest_into(&mut pol.params)? {
-                        version = policy_version_of(h.version);
-                    }
-                    Ok(version >= t || control.cut().is_some_and(|c| c.env_steps < t))
-                },
-            )?;
-            if !ok {
-                return Ok(());
-            }
-            match control.cut() {
-                Some(cut) if cut.env_steps < t => {
-                    let state = evaluator_state(&rng, version, evals, cut);
-                    let (w, c) = (&waiter, &control);
-                    if !barrier::write_and_await_resume(w, c, &stats_pub, &file, cut, &state)? {
-                        return Ok(());
-                    }
-                }
-                _ => break,
-            }
+    fn connect(s: &Process<S>, control: &ControlInbox<S>, p: &EvaluatorPorts<S>) -> Result<()> {
+        wait_for_control_subscribers(s, control, &p.acks)
+    }
+    fn attach<'a>(p: &'a EvaluatorPorts<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.policy);
+    }
+    fn new(cx: &EvalCx<'_, S>) -> Result<Self> {
+        let (cfg, d) = (&cx.s.cfg, cx.s.dims);
+        Ok(Self {
+            env: cfg.make_env()?,
+            rng: stream(cfg.seed, "eval.env", 0),
+            policy: ActorPolicy::new(cx.s.actor_net(), vec![0.0; d.policy_len], true),
+            version: 0,
+            evals: 0,
+            next: cx.s.schedule.next_eval_point(0),
+        })
+    }
+    fn restore(&mut self, state: EvaluatorCheckpoint, cx: &EvalCx<'_, S>) -> Result<()> {
+        (self.rng, self.version, self.evals) = (state.rng, state.version, state.evals);
+        self.next = cx.s.schedule.next_eval_point(state.env_steps);
+        Ok(())
+    }
+    fn step(&mut self, cx: &EvalCx<'_, S>) -> Result<Step> {
+        let Some(t) = self.next else {
+            return Ok(Step::Finished);
+        };
+        if let Some(h) = cx
+            .ports
+            .policy
+            .receive_latest_into(&mut self.policy.params)?
+        {
+            self.version = policy_version_of(h.version);
         }
-        if s.mode == Mode::Lockstep {
+        if self.version < t {
+            return Ok(Step::Waiting);
+        }
+        let (cfg, version) = (&cx.s.cfg, self.version);
+        if cx.s.mode == Mode::Lockstep {
             ensure_protocol!(
                 version == t,
                 "lockstep evaluator expected policy version {t}, got {version}"
             );
             // The learner publishes version t + 1 only after this: no version is skipped.
-            send_ack(&acks, learner, t)?;
+            send_ack(&cx.ports.acks, ProducerId::new(Role::Learner, 0), t)?;
         }
-        let ret = mbpo_train::eval::evaluate(&mut pol, env.as_mut(), cfg.eval.episodes, &mut rng)?;
-        stats_pub.report(EvalResult {
+        let (env, rng) = (self.env.as_mut(), &mut self.rng);
+        let ret = mbpo_train::eval::evaluate(&mut self.policy, env, cfg.eval.episodes, rng)?;
+        cx.stats.report(EvalResult {
             env_steps: t,
             policy_version: version,
             model_version: 0,
@@ -171,29 +184,52 @@ pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
             episodes: cfg.eval.episodes as u32,
         })?;
         tracing::info!("eval after step {t} (policy version {version}): {ret:.2}");
-        evals += 1;
+        self.evals += 1;
+        self.next = cx.s.schedule.next_eval_point(t);
+        Ok(Step::Worked)
     }
-    stats_pub.report(Done {
-        work: evals,
-        ..Default::default()
-    })?;
-    barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
-        let state = evaluator_state(&rng, version, evals, cut);
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    })
+    fn done_so_far(&self) -> u64 {
+        self.evals
+    }
+    /// At the cut every eval point ≤ T is evaluated.
+    fn at_cut(
+        &mut self,
+        cut: barrier::Cut,
+        _: &EvalCx<'_, S>,
+    ) -> Result<AtCut<EvaluatorCheckpoint>> {
+        if self.next.is_some_and(|t| t <= cut.env_steps) {
+            return Ok(AtCut::Work);
+        }
+        Ok(AtCut::Write(EvaluatorCheckpoint {
+            rng: self.rng.clone(),
+            version: self.version,
+            evals: self.evals,
+            env_steps: cut.env_steps,
+        }))
+    }
+    fn finish(&mut self, cx: &EvalCx<'_, S>) -> Result<()> {
+        cx.stats.report(Done {
+            work: self.evals,
+            ..Default::default()
+        })?;
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        let t = self.next.unwrap_or_default();
+        format!("policy version {t} to evaluate")
+    }
 }
 
-/// The evaluator's file at `cut` (every eval point ≤ T evaluated).
-fn evaluator_state(
-    rng: &mbpo_core::Rng,
-    version: u64,
-    evals: u64,
-    cut: barrier::Cut,
-) -> EvaluatorCheckpoint {
-    EvaluatorCheckpoint {
-        rng: rng.clone(),
-        version,
-        evals,
-        env_steps: cut.env_steps,
-    }
+/// An evaluator sends acknowledgements on the control channel: wait until every role's
+/// control subscriber is there (the role table's count, this evaluator's own included, which
+/// confirms only when asked to: same thread).
+pub(crate) fn wait_for_control_subscribers<S: Transport>(
+    s: &Process<S>,
+    control: &ControlInbox<S>,
+    acks: &ControlPublisher<S>,
+) -> Result<()> {
+    control.sub.update_connections();
+    let subscribers = s.pipeline.subscribers(Channel::Control, s.args.actors);
+    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
+    Ok(())
 }

@@ -1,9 +1,10 @@
-//! Every role's service loop, generic over the transport: a binary under `services/` runs one
-//! of them in its own process (`ipc::Service`); a test can run them all as threads of one
-//! process (`local::Service`).
+//! Every role of the pipeline as a worker on the one serving loop (`crate::serving`), generic
+//! over the transport: a binary under `services/` serves one in its own process
+//! (`ipc::Service`); a test can serve them all as threads of one process (`local::Service`).
 
 mod acting;
 pub mod actor;
+mod data;
 pub mod learner;
 pub mod model_trainer;
 pub mod planning;
@@ -11,18 +12,20 @@ pub mod rollout;
 
 use mbpo_wire::Transport;
 
+use crate::serving::serve;
 use crate::{Result, RoleKind, ServiceArgs};
 
 /// The service loop of role `kind` on transport `S` (the one place that maps a role to its
-/// loop: the service binaries and the in-process pipeline both ask here).
+/// worker: the service binaries and the in-process pipeline both ask here).
 pub fn service_loop<S: Transport>(kind: RoleKind) -> fn(&ServiceArgs) -> Result<()> {
+    use acting::Acting;
     match kind {
-        RoleKind::Learner => learner::run::<S>,
-        RoleKind::ModelTrainer => model_trainer::run::<S>,
-        RoleKind::RolloutGenerator => rollout::run::<S>,
-        RoleKind::Evaluator => actor::evaluate::<S>,
-        RoleKind::Actor => actor::act::<S>,
-        RoleKind::PlanningEvaluator => planning::evaluate::<S>,
-        RoleKind::PlanningActor => planning::act::<S>,
+        RoleKind::Learner => serve::<S, learner::Learner<S>>,
+        RoleKind::ModelTrainer => serve::<S, model_trainer::ModelTrainer<S>>,
+        RoleKind::RolloutGenerator => serve::<S, rollout::RolloutGenerator<S>>,
+        RoleKind::Evaluator => serve::<S, actor::Evaluator>,
+        RoleKind::Actor => serve::<S, Acting<S, actor::PolicyActing>>,
+        RoleKind::PlanningEvaluator => serve::<S, planning::ModelEvaluator>,
+        RoleKind::PlanningActor => serve::<S, Acting<S, planning::ModelActing>>,
     }
 }

@@ -4,157 +4,227 @@
 //!
 //! Lockstep: trains on exactly the first t − 1 real transitions (transition t may already have
 //! arrived; it is held back). Pipelined: trains on every transition received by then (≥ t − 1).
-//! In an MPC run (algo = "mpc") the same loop feeds the planning actors; in lockstep it also
+//! In an MPC run (algo = "mpc") the same worker feeds the planning actors; in lockstep it also
 //! waits for the planning evaluator's acknowledgements before replacing a model version.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use mbpo_model::TrainReport;
 use mbpo_train::roles::{ModelSnapshot, ModelTrainerRole};
 use mbpo_train::Schedule;
 use mbpo_wire::*;
 
+use super::data;
 use crate::barrier::{self, ModelTrainerCheckpoint};
+use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
-/// The model trainer's service loop.
-pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::ModelTrainer)?;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let real = TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?;
-    let model_pub = WeightsPublisher::create(
-        &s.node,
-        WeightsKind::Model,
-        d.model.layout_hash,
-        d.model.len(),
-    )?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&real).attach(&model_pub);
+/// The model trainer's ports.
+pub struct Ports<S: Transport> {
+    real: TransitionSubscriber<S>,
+    model: WeightsPublisher<S>,
+}
 
-    let mut role = ModelTrainerRole::new(cfg, d.obs, d.act)?;
-    let schedule = s.schedule;
-    let mut inbox = RealInbox::new(d.rows());
-    let mut flat = Vec::with_capacity(d.model.len());
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::file::MODEL_TRAINER,
-        barrier::kind::MODEL_TRAINER,
-    );
-    // Planners act on the models: they are republished on resume, and (lockstep) each waits
-    // for the evaluations of the model before it.
-    let plans = s.pipeline.plans();
-    let mut prev_train_point = 0;
-    if let Some(dir) = &args.resume_from {
-        let state: ModelTrainerCheckpoint = file.read(dir)?;
-        role.restore(state.role)?;
-        inbox.resume_at(role.real_received());
-        if plans && role.version() > 0 {
-            // The planners' checkpoints hold no model: they plan on this version again. (MBPO:
-            // no republish, the rollout generator's checkpoint holds this model version.)
-            d.model.encode(&role.snapshot().weights, &mut flat)?;
-            let counters = WeightsCounters {
-                env_steps: role.real_received(),
-                sac_updates: 0,
-                model_trainings: role.version(),
-            };
-            model_pub.publish(&flat, role.version(), counters)?;
+type TrainerCx<'a, S> = Cx<'a, S, Ports<S>>;
+
+/// The model trainer on the serving loop.
+pub struct ModelTrainer<S: Transport> {
+    role: ModelTrainerRole,
+    inbox: RealInbox<S>,
+    /// The encoded weights (reused).
+    flat: Vec<f32>,
+    /// MPC lockstep: the train point of the model version last published (its eval points
+    /// are acknowledged before the next version replaces it).
+    prev_train_point: u64,
+}
+
+impl<S: Transport> Worker<S> for ModelTrainer<S> {
+    const KIND: RoleKind = RoleKind::ModelTrainer;
+    type Ports = Ports<S>;
+    type Checkpoint = ModelTrainerCheckpoint;
+
+    fn ports(s: &Process<S>) -> Result<Ports<S>> {
+        let d = s.dims;
+        Ok(Ports {
+            real: TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?,
+            model: WeightsPublisher::create(
+                &s.node,
+                WeightsKind::Model,
+                d.model.layout_hash,
+                d.model.len(),
+            )?,
+        })
+    }
+    fn attach<'a>(p: &'a Ports<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.real).attach(&p.model);
+    }
+    fn new(cx: &TrainerCx<'_, S>) -> Result<Self> {
+        let d = cx.s.dims;
+        Ok(Self {
+            role: ModelTrainerRole::new(&cx.s.cfg, d.obs, d.act)?,
+            inbox: RealInbox::new(d.rows()),
+            flat: Vec::with_capacity(d.model.len()),
+            prev_train_point: 0,
+        })
+    }
+    fn restore(&mut self, state: ModelTrainerCheckpoint, cx: &TrainerCx<'_, S>) -> Result<()> {
+        self.role.restore(state.role)?;
+        self.inbox.resume_at(self.role.real_received());
+        // Planners act on the models: the planners' checkpoints hold no model, so they plan on
+        // this version again. (MBPO: no republish, the rollout generator's checkpoint holds
+        // this model version.)
+        if cx.s.pipeline.plans() && self.role.version() > 0 {
+            let snapshot = self.role.snapshot();
+            self.publish(cx, &snapshot)?;
             // The evaluator acknowledged every eval point ≤ T before the cut (those messages
             // went with the stopped processes): only later ones are waited for.
-            let last = schedule.nth_train_point(role.version()).unwrap_or(0);
-            prev_train_point = last.max(role.real_received() + 1);
+            let last =
+                cx.s.schedule
+                    .nth_train_point(self.role.version())
+                    .unwrap_or(0);
+            self.prev_train_point = last.max(self.role.real_received() + 1);
         }
+        Ok(())
     }
-    let mut version = role.version();
-    let at_cut = |role: &mut ModelTrainerRole, cut: barrier::Cut| {
-        let state = ModelTrainerCheckpoint {
-            role: role.checkpoint(),
+    fn step(&mut self, cx: &TrainerCx<'_, S>) -> Result<Step> {
+        let s = cx.s;
+        let version = self.role.version();
+        // After the last train point, take the rest so that no actor blocks and the counts
+        // are complete.
+        let Some(t) = s.schedule.nth_train_point(version + 1) else {
+            let all = data::pull(
+                s.mode,
+                &cx.ports.real,
+                &mut self.inbox,
+                &mut self.role,
+                s.cfg.steps,
+            )?;
+            return Ok(if all { Step::Finished } else { Step::Waiting });
         };
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, s.mode, at_cut);
-    let mut train_points = (1..=cfg.steps)
-        .filter(|&t| schedule.train_point(t).is_some())
-        .skip(version as usize)
-        .peekable();
-    while let Some(&t) = train_points.peek() {
-        if !gate.wait_for_real(&mut inbox, &mut role, t - 1, version)? {
-            return Ok(());
+        if !data::pull(
+            s.mode,
+            &cx.ports.real,
+            &mut self.inbox,
+            &mut self.role,
+            t - 1,
+        )? {
+            return Ok(Step::Waiting);
         }
-        let n = match s.mode {
-            Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
-            Mode::Pipelined => inbox.pending(),
-        };
-        inbox.take(n, &mut role);
+        data::take_for(s.mode, &mut self.inbox, &mut self.role, t);
         tracing::info!(
             "training model v{} for step {t} on {} transitions",
             version + 1,
-            role.real_received()
+            self.role.real_received()
         );
         let started = Instant::now();
         let abandon = s.pipeline.abandons_training_on_stop(s.mode);
-        let Some((snapshot, report)) = train(&mut role, abandon, &control, version)? else {
-            // Back to the gate, which serves the barrier (a resumed run trains again) or stops.
+        let Some((snapshot, report)) = train(&mut self.role, abandon, cx.control, version)? else {
+            // The loop serves the barrier next (a resumed run trains again) or stops.
             tracing::info!(
                 "model training for step {t} abandoned after {:.1} s: the run is stopping",
                 started.elapsed().as_secs_f64()
             );
-            continue;
+            return Ok(Step::Worked);
         };
-        train_points.next();
         let seconds = started.elapsed().as_secs_f64();
-        version = snapshot.version;
+        self.trained(cx, t, &snapshot, &report, seconds)
+    }
+    fn done_so_far(&self) -> u64 {
+        self.role.version()
+    }
+    fn at_cut(
+        &mut self,
+        cut: barrier::Cut,
+        cx: &TrainerCx<'_, S>,
+    ) -> Result<AtCut<ModelTrainerCheckpoint>> {
+        if self.role.version() < cut.model_trainings {
+            return Ok(AtCut::Work);
+        }
+        if !data::take_upto_cut(&cx.ports.real, &mut self.inbox, &mut self.role, cut)? {
+            return Ok(AtCut::Wait);
+        }
+        Ok(AtCut::Write(ModelTrainerCheckpoint {
+            role: self.role.checkpoint(),
+        }))
+    }
+    fn finish(&mut self, cx: &TrainerCx<'_, S>) -> Result<()> {
+        let lost = cx.ports.real.stats().missing;
+        let version = self.role.version();
+        cx.stats.report(Done {
+            real: self.inbox.received(),
+            lost,
+            real_spilled: self.inbox.spilled(),
+            work: version,
+            ..Default::default()
+        })?;
+        tracing::info!(
+            "done: {} real transitions received, {lost} lost, {version} trainings",
+            self.inbox.received()
+        );
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        let v = self.role.version() + 1;
+        format!(
+            "the real transitions of model v{v} ({} received)",
+            self.inbox.received()
+        )
+    }
+}
+
+impl<S: Transport> ModelTrainer<S> {
+    /// After training model `snapshot` for step `t`: its record, then (MPC lockstep: once the
+    /// evaluations of the version it replaces are acknowledged) the weights.
+    fn trained(
+        &mut self,
+        cx: &TrainerCx<'_, S>,
+        t: u64,
+        snapshot: &ModelSnapshot,
+        report: &TrainReport,
+        seconds: f64,
+    ) -> Result<Step> {
+        let version = snapshot.version;
+        let rows = self.role.real_received();
         // The same number the sequential metrics row shows.
         let mse = report.elite_holdout_mse();
         // Stats before weights: whoever sees a later consequence of this model finds its record.
-        stats_pub.report(ModelTrained {
-            rows: role.real_received(),
+        cx.stats.report(ModelTrained {
+            rows,
             version,
             holdout_mse: mse,
             epochs: report.epochs as u32,
             seconds: seconds as f32,
         })?;
-        if plans && s.mode == Mode::Lockstep {
-            if !wait_for_mpc_eval_acks(&schedule, &waiter, &control, prev_train_point, t, version)?
-            {
-                return Ok(());
+        if cx.s.pipeline.plans() && cx.s.mode == Mode::Lockstep {
+            let from = self.prev_train_point;
+            if !wait_for_mpc_eval_acks(&cx.s.schedule, cx.waiter, cx.control, from, t, version)? {
+                // Stopped: the loop sees it next.
+                return Ok(Step::Worked);
             }
-            prev_train_point = t;
+            self.prev_train_point = t;
         }
-        d.model.encode(&snapshot.weights, &mut flat)?;
-        let counters = WeightsCounters {
-            env_steps: role.real_received(),
-            sac_updates: 0,
-            model_trainings: version,
-        };
-        model_pub.publish(&flat, version, counters)?;
+        self.publish(cx, snapshot)?;
         tracing::info!(
-            "model v{version} trained for step {t} on {} transitions: {} epochs, holdout mse {mse:.5}, {seconds:.2} s{}",
-            role.real_received(),
+            "model v{version} trained for step {t} on {rows} transitions: {} epochs, holdout mse {mse:.5}, {seconds:.2} s{}",
             report.epochs,
             report.termination.map(|t| format!("; {t}")).unwrap_or_default()
         );
+        Ok(Step::Worked)
     }
-    // Take the rest so that no actor blocks and the counts are complete.
-    let total = cfg.steps;
-    if !gate.wait_for_real(&mut inbox, &mut role, total, version)? {
-        return Ok(());
+
+    /// Publish `snapshot` as its version, with the transitions it was trained on.
+    fn publish(&mut self, cx: &TrainerCx<'_, S>, snapshot: &ModelSnapshot) -> Result<()> {
+        cx.s.dims.model.encode(&snapshot.weights, &mut self.flat)?;
+        let counters = WeightsCounters {
+            env_steps: self.role.real_received(),
+            sac_updates: 0,
+            model_trainings: snapshot.version,
+        };
+        cx.ports
+            .model
+            .publish(&self.flat, snapshot.version, counters)?;
+        Ok(())
     }
-    let lost = real.stats().missing;
-    stats_pub.report(Done {
-        real: inbox.received(),
-        lost,
-        real_spilled: inbox.spilled(),
-        work: version,
-        ..Default::default()
-    })?;
-    tracing::info!(
-        "done: {} real transitions received, {lost} lost, {version} trainings",
-        inbox.received()
-    );
-    gate.idle_until_stop(&mut inbox, &mut role, Some(version))
 }
 
 /// Train on the role's data, abandoning the training after the epoch under way (`None`; the

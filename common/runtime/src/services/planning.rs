@@ -19,7 +19,7 @@
 //! its first eval point after the cut (it may have gone past the cut, see `evaluate`). The
 //! list of states it keeps for that holds one entry per eval point not yet covered by a cut.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use mbpo_core::TransitionSink;
 use mbpo_model::ProbabilisticEnsemble;
@@ -28,9 +28,11 @@ use mbpo_train::mpc_roles::{PlanningActorRole, PlanningEvaluator};
 use mbpo_train::{Schedule, TrainError};
 use mbpo_wire::*;
 
-use super::acting::{self, ActingRole, Finish};
+use super::acting::{ActingRole, Finish};
+use super::actor::wait_for_control_subscribers;
 use crate::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
 use crate::error::ensure_protocol;
+use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
 /// The model version the sequential run plans with at step `g`, minus the allowed lag.
@@ -57,7 +59,7 @@ fn pull_model<S: Transport>(
 
 /// The planning actor on the shared step loop: it plans on the model trainer's ensemble; step g
 /// needs the version the sequential run plans with (pipelined: that of step g − `model_lag`).
-struct ModelActing {
+pub struct ModelActing {
     role: PlanningActorRole,
     schedule: Schedule,
     model_lag: u64,
@@ -69,6 +71,15 @@ impl ActingRole for ModelActing {
     const ROLE: RoleKind = RoleKind::PlanningActor;
     const WEIGHTS: WeightsKind = WeightsKind::Model;
     type Checkpoint = PlanningActorCheckpoint;
+
+    fn new<S: Transport>(s: &Process<S>) -> Result<Self> {
+        Ok(Self {
+            role: PlanningActorRole::new(&s.cfg, s.args.index as u64)?,
+            schedule: s.schedule,
+            model_lag: s.slack.model_lag,
+            plan_seconds: Vec::new(),
+        })
+    }
 
     fn checkpoint(&self, steps: u64) -> PlanningActorCheckpoint {
         PlanningActorCheckpoint {
@@ -127,177 +138,190 @@ impl ActingRole for ModelActing {
     }
 }
 
-/// A planning actor's service loop.
-pub fn act<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    acting::act(args, |s: &Process<S>| {
-        Ok(ModelActing {
-            role: PlanningActorRole::new(&s.cfg, args.index as u64)?,
-            schedule: s.schedule,
-            model_lag: s.slack.model_lag,
-            plan_seconds: Vec::new(),
-        })
-    })
+/// The planning evaluator's ports: the models it plans on, and the acknowledgements it sends
+/// the model trainer (lockstep).
+pub struct EvaluatorPorts<S: Transport> {
+    acks: ControlPublisher<S>,
+    model: WeightsSubscriber<S>,
 }
 
-/// The planning evaluator's service loop (`s`: its opened process).
-pub fn evaluate<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::PlanningEvaluator)?;
-    let args = &s.args;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let acks = ControlPublisher::<S>::create(&s.node)?;
-    let model = WeightsSubscriber::create(
-        &s.node,
-        WeightsKind::Model,
-        d.model.layout_hash,
-        d.model.len(),
-    )?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    // Every role's control subscriber (the role table's count, this evaluator's included).
-    control.sub.update_connections();
-    let subscribers = s.pipeline.subscribers(Channel::Control, args.actors);
-    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter.attach(&control.sub).attach(&model);
+type EvalCx<'a, S> = Cx<'a, S, EvaluatorPorts<S>>;
 
-    let mut evaluator = PlanningEvaluator::new(cfg)?;
-    let schedule = s.schedule;
-    let trainer = ProducerId::new(Role::ModelTrainer, 0);
-    let mut evals = 0;
-    let mut after = 0;
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::file::EVALUATOR,
-        barrier::kind::PLANNING_EVALUATOR,
-    );
-    if let Some(dir) = &args.resume_from {
-        let state: PlanningEvaluatorCheckpoint = file.read(dir)?;
-        evaluator.restore(state.role);
-        (evals, after) = (state.evals, state.env_steps);
+/// The planning evaluator on the serving loop: one step evaluates the next eval point t once
+/// model version `train_points_upto(t)` arrived (or abandons it for a cut before t).
+///
+/// Unlike a policy version, the model of eval point t can exist before the actors reach t, so
+/// the evaluator may have evaluated points after the cut T by the time it learns T. Its file
+/// must hold the state after T: the state before each evaluation no cut covers yet is kept
+/// (`before_eval`), and a cut writes the one before its first eval point after T (those
+/// evaluations are done again on resume, with the same streams).
+pub struct ModelEvaluator {
+    evaluator: PlanningEvaluator,
+    evals: u64,
+    /// The next eval point (`None`: all evaluated).
+    next: Option<u64>,
+    /// Lockstep: the next eval point was acknowledged (once, also when an abandoned
+    /// evaluation of it is done again).
+    acknowledged: bool,
+    before_eval: Vec<(u64, PlanningEvaluatorCheckpoint)>,
+}
+
+impl<S: Transport> Worker<S> for ModelEvaluator {
+    const KIND: RoleKind = RoleKind::PlanningEvaluator;
+    type Ports = EvaluatorPorts<S>;
+    type Checkpoint = PlanningEvaluatorCheckpoint;
+
+    fn ports(s: &Process<S>) -> Result<EvaluatorPorts<S>> {
+        let d = s.dims;
+        Ok(EvaluatorPorts {
+            acks: ControlPublisher::<S>::create(&s.node)?,
+            model: WeightsSubscriber::create(
+                &s.node,
+                WeightsKind::Model,
+                d.model.layout_hash,
+                d.model.len(),
+            )?,
+        })
     }
-    // Unlike a policy version, the model of eval point t can exist before the actors reach t,
-    // so the evaluator may have evaluated points after the cut T by the time it learns T. Its
-    // file must hold the state after T: the state before each evaluation no cut covers yet is
-    // kept, and a cut writes the one before its first eval point after T (those evaluations
-    // are done again on resume, with the same streams).
-    let mut before_eval: Vec<(u64, PlanningEvaluatorCheckpoint)> = Vec::new();
-    let write_at = |before_eval: &mut Vec<(u64, PlanningEvaluatorCheckpoint)>,
-                    now: PlanningEvaluatorCheckpoint,
-                    cut: barrier::Cut| {
-        let mut state = before_eval
+    fn connect(s: &Process<S>, control: &ControlInbox<S>, p: &EvaluatorPorts<S>) -> Result<()> {
+        wait_for_control_subscribers(s, control, &p.acks)
+    }
+    fn attach<'a>(p: &'a EvaluatorPorts<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.model);
+    }
+    fn new(cx: &EvalCx<'_, S>) -> Result<Self> {
+        Ok(Self {
+            evaluator: PlanningEvaluator::new(&cx.s.cfg)?,
+            evals: 0,
+            next: cx.s.schedule.next_eval_point(0),
+            acknowledged: false,
+            before_eval: Vec::new(),
+        })
+    }
+    fn restore(&mut self, state: PlanningEvaluatorCheckpoint, cx: &EvalCx<'_, S>) -> Result<()> {
+        self.evaluator.restore(state.role);
+        self.evals = state.evals;
+        self.next = cx.s.schedule.next_eval_point(state.env_steps);
+        Ok(())
+    }
+    fn step(&mut self, cx: &EvalCx<'_, S>) -> Result<Step> {
+        let Some(t) = self.next else {
+            return Ok(Step::Finished);
+        };
+        // Lockstep keeps a model once copied: the trainer may publish need + 1 as soon as t is
+        // acknowledged, and an evaluation of t abandoned at a barrier is done again with
+        // version need.
+        let need = cx.s.schedule.train_points_upto(t);
+        if cx.s.mode == Mode::Pipelined || self.evaluator.model_version() < need {
+            let evaluator = &mut self.evaluator;
+            pull_model(&cx.ports.model, &cx.s.dims, |v, load| {
+                Ok(evaluator.load_model(v, load)?)
+            })?;
+        }
+        if self.evaluator.model_version() < need {
+            return Ok(Step::Waiting);
+        }
+        self.before_eval.push((t, self.state_now()));
+        if cx.s.mode == Mode::Lockstep {
+            ensure_protocol!(
+                self.evaluator.model_version() == need,
+                "lockstep evaluator at step {t} expected model version {need}, got {}",
+                self.evaluator.model_version()
+            );
+            // The model trainer publishes version need + 1 only after this.
+            if !self.acknowledged {
+                send_ack(&cx.ports.acks, ProducerId::new(Role::ModelTrainer, 0), t)?;
+                self.acknowledged = true;
+            }
+        }
+        self.evaluate(cx, t)?;
+        Ok(Step::Worked)
+    }
+    fn done_so_far(&self) -> u64 {
+        self.evals
+    }
+    fn at_cut(
+        &mut self,
+        cut: barrier::Cut,
+        _: &EvalCx<'_, S>,
+    ) -> Result<AtCut<PlanningEvaluatorCheckpoint>> {
+        if self.next.is_some_and(|t| t <= cut.env_steps) {
+            return Ok(AtCut::Work);
+        }
+        let mut state = self
+            .before_eval
             .iter()
             .find(|(t, _)| *t > cut.env_steps)
-            .map_or(now, |(_, s)| s.clone());
+            .map_or_else(|| self.state_now(), |(_, s)| s.clone());
         state.env_steps = cut.env_steps;
-        before_eval.retain(|(t, _)| *t > cut.env_steps);
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    let state_now = |evaluator: &PlanningEvaluator, evals: u64| PlanningEvaluatorCheckpoint {
-        role: evaluator.checkpoint(),
-        evals,
-        env_steps: 0,
-    };
-    for t in (after + 1..=cfg.steps).filter(|&t| schedule.is_eval_point(t)) {
-        let need = schedule.train_points_upto(t);
-        let mut acknowledged = false;
-        let ret = loop {
-            // Wait for model version `need`, writing the checkpoint of a cut before t meanwhile.
-            // (Lockstep keeps a model once copied: the trainer may publish need + 1 as soon as
-            // t is acknowledged, and an evaluation of t abandoned at a barrier is done again
-            // with version need.)
-            loop {
-                let ok = wait_for(
-                    &waiter,
-                    &control,
-                    &|| format!("model version {need} to evaluate step {t}"),
-                    || {
-                        if s.mode == Mode::Pipelined || evaluator.model_version() < need {
-                            pull_model(&model, &d, |v, load| Ok(evaluator.load_model(v, load)?))?;
-                        }
-                        Ok(evaluator.model_version() >= need
-                            || control.cut().is_some_and(|c| c.env_steps < t))
-                    },
-                )?;
-                if !ok {
-                    return Ok(());
-                }
-                match control.cut() {
-                    Some(cut) if cut.env_steps < t => {
-                        let now = state_now(&evaluator, evals);
-                        if !write_at(&mut before_eval, now, cut)? {
-                            return Ok(());
-                        }
-                    }
-                    _ => break,
-                }
+        self.before_eval.retain(|(t, _)| *t > cut.env_steps);
+        Ok(AtCut::Write(state))
+    }
+    fn finish(&mut self, cx: &EvalCx<'_, S>) -> Result<()> {
+        cx.stats.report(Done {
+            work: self.evals,
+            ..Default::default()
+        })?;
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        format!(
+            "the model to evaluate step {}",
+            self.next.unwrap_or_default()
+        )
+    }
+}
+
+impl ModelEvaluator {
+    /// Its state now, as a checkpoint (the cut's step is set when written).
+    fn state_now(&self) -> PlanningEvaluatorCheckpoint {
+        PlanningEvaluatorCheckpoint {
+            role: self.evaluator.checkpoint(),
+            evals: self.evals,
+            env_steps: 0,
+        }
+    }
+
+    /// Evaluate eval point `t`. A cut before t (or a stop) abandons the evaluation: the barrier
+    /// would otherwise wait for an evaluation it discards (t is evaluated again after the cut,
+    /// from the state before it).
+    fn evaluate<S: Transport>(&mut self, cx: &EvalCx<'_, S>, t: u64) -> Result<()> {
+        let (cfg, control) = (&cx.s.cfg, cx.control);
+        let started = Instant::now();
+        let mut poll_error = None;
+        let ret = self.evaluator.evaluate_unless(cfg.eval.episodes, || {
+            if let Err(e) = control.poll() {
+                poll_error = Some(e);
+                return true;
             }
-            before_eval.push((t, state_now(&evaluator, evals)));
-            if s.mode == Mode::Lockstep {
-                ensure_protocol!(
-                    evaluator.model_version() == need,
-                    "lockstep evaluator at step {t} expected model version {need}, got {}",
-                    evaluator.model_version()
-                );
-                // The model trainer publishes version need + 1 only after this (once per
-                // eval point, also when an abandoned evaluation of t is done again).
-                if !acknowledged {
-                    send_ack(&acks, trainer, t)?;
-                    acknowledged = true;
-                }
-            }
-            let started = Instant::now();
-            // A cut before t (or a stop) abandons the evaluation: the barrier would otherwise
-            // wait for an evaluation it discards (t is evaluated again after the cut).
-            let mut poll_error = None;
-            let ret = evaluator.evaluate_unless(cfg.eval.episodes, || {
-                if let Err(e) = control.poll() {
-                    poll_error = Some(e);
-                    return true;
-                }
-                control.stopped() || control.cut().is_some_and(|c| c.env_steps < t)
-            })?;
-            if let Some(e) = poll_error {
-                return Err(e);
-            }
-            match ret {
-                Some(ret) => {
-                    let seconds = started.elapsed().as_secs_f64();
-                    break (ret, seconds);
-                }
-                None => {
-                    // Back to the state before t, as if t had not been started.
-                    let (_, before) = before_eval.pop().expect("pushed before evaluating t");
-                    evaluator.restore(before.role);
-                    tracing::info!(
-                        "eval after step {t} abandoned after {:.1} s for the checkpoint barrier",
-                        started.elapsed().as_secs_f64()
-                    );
-                    if control.stopped() {
-                        return Ok(());
-                    }
-                }
-            }
+            control.stopped() || control.cut().is_some_and(|c| c.env_steps < t)
+        })?;
+        if let Some(e) = poll_error {
+            return Err(e);
+        }
+        let seconds = started.elapsed().as_secs_f64();
+        let Some(ret) = ret else {
+            let (_, before) = self.before_eval.pop().expect("pushed before evaluating t");
+            self.evaluator.restore(before.role);
+            tracing::info!(
+                "eval after step {t} abandoned after {seconds:.1} s for the checkpoint barrier"
+            );
+            return Ok(());
         };
-        let (ret, seconds) = ret;
-        stats_pub.report(EvalResult {
+        let model_version = self.evaluator.model_version();
+        cx.stats.report(EvalResult {
             env_steps: t,
             policy_version: 0,
-            model_version: evaluator.model_version(),
+            model_version,
             mean_return: ret,
             episodes: cfg.eval.episodes as u32,
         })?;
         tracing::info!(
-            "eval after step {t} (model version {}): {ret:.2} in {seconds:.1} s",
-            evaluator.model_version()
+            "eval after step {t} (model version {model_version}): {ret:.2} in {seconds:.1} s"
         );
-        evals += 1;
+        self.evals += 1;
+        self.acknowledged = false;
+        self.next = cx.s.schedule.next_eval_point(t);
+        Ok(())
     }
-    stats_pub.report(Done {
-        work: evals,
-        ..Default::default()
-    })?;
-    barrier::idle_until_stop(&waiter, &control, &stats_pub, None, |cut| {
-        write_at(&mut before_eval, state_now(&evaluator, evals), cut)
-    })
 }

@@ -11,105 +11,199 @@ use std::time::{Duration, Instant};
 use mbpo_train::roles::RolloutRole;
 use mbpo_wire::*;
 
+use super::data;
 use crate::barrier::{self, RolloutCheckpoint};
 use crate::error::ensure_protocol;
+use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
-/// The rollout generator's service loop.
-pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
-    let s = Process::<S>::open(args, RoleKind::RolloutGenerator)?;
-    let (cfg, d) = (&s.cfg, s.dims);
-    let control = ControlInbox::create(&s.node)?;
-    let stats_pub = StatsPublisher::<S>::create(&s.node)?;
-    let real = TransitionSubscriber::create(&s.node, Channel::Real, d.rows())?;
-    let model = WeightsSubscriber::create(
-        &s.node,
-        WeightsKind::Model,
-        d.model.layout_hash,
-        d.model.len(),
-    )?;
-    let policy =
-        WeightsSubscriber::create(&s.node, WeightsKind::Policy, d.policy_hash, d.policy_len)?;
-    let n_rollouts = cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize;
-    let imagined = TransitionPublisher::create(&s.node, Channel::Imagined, d.rows(), n_rollouts)?;
-    stats_pub.wait_for_subscribers(1, Duration::from_secs(60))?;
-    imagined.wait_for_subscribers(1, Duration::from_secs(120))?;
-    let mut waiter = Waiter::new()?;
-    waiter
-        .attach(&control.sub)
-        .attach(&real)
-        .attach(&model)
-        .attach(&policy);
+/// The rollout generator's ports.
+pub struct Ports<S: Transport> {
+    real: TransitionSubscriber<S>,
+    model: WeightsSubscriber<S>,
+    policy: WeightsSubscriber<S>,
+    imagined: TransitionPublisher<S>,
+}
 
-    let mut role = RolloutRole::new(cfg, d.obs, d.act)?;
-    let schedule = s.schedule;
-    let mut inbox = RealInbox::new(d.rows());
-    let mut model_version = 0;
-    let mut staleness = SlackTracker::default();
-    let mut branches = 0;
-    let file = barrier::FileTarget::new(
-        &args.run_dir,
-        barrier::file::ROLLOUT,
-        barrier::kind::ROLLOUT,
-    );
-    if let Some(dir) = &args.resume_from {
-        let state: RolloutCheckpoint = file.read(dir)?;
-        branches = state.branches;
-        role.restore(state.role)?;
-        model_version = role.model_version();
-        inbox.resume_at(role.real_received());
+type RolloutCx<'a, S> = Cx<'a, S, Ports<S>>;
+
+/// The rollout generator on the serving loop.
+pub struct RolloutGenerator<S: Transport> {
+    role: RolloutRole,
+    inbox: RealInbox<S>,
+    /// The version of the model it holds.
+    model_version: u64,
+    /// Branches done (= imagined batches sent).
+    branches: u64,
+    /// Policy staleness of each branch.
+    staleness: SlackTracker,
+}
+
+/// Rollouts per branch: M per env step of the retrain period.
+fn rollouts_per_branch(cfg: &mbpo_train::ExperimentConfig) -> usize {
+    cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize
+}
+
+impl<S: Transport> Worker<S> for RolloutGenerator<S> {
+    const KIND: RoleKind = RoleKind::RolloutGenerator;
+    type Ports = Ports<S>;
+    type Checkpoint = RolloutCheckpoint;
+
+    fn ports(s: &Process<S>) -> Result<Ports<S>> {
+        let (d, node) = (s.dims, &s.node);
+        let rows = rollouts_per_branch(&s.cfg);
+        Ok(Ports {
+            real: TransitionSubscriber::create(node, Channel::Real, d.rows())?,
+            model: WeightsSubscriber::create(
+                node,
+                WeightsKind::Model,
+                d.model.layout_hash,
+                d.model.len(),
+            )?,
+            policy: WeightsSubscriber::create(
+                node,
+                WeightsKind::Policy,
+                d.policy_hash,
+                d.policy_len,
+            )?,
+            imagined: TransitionPublisher::create(node, Channel::Imagined, d.rows(), rows)?,
+        })
     }
-    // At the cut the branches done are the cut's K.
-    let at_cut = |role: &mut RolloutRole, cut: barrier::Cut| {
-        let state = RolloutCheckpoint {
-            role: role.checkpoint(),
-            branches: cut.model_trainings,
+    fn connect(_: &Process<S>, _: &ControlInbox<S>, p: &Ports<S>) -> Result<()> {
+        p.imagined
+            .wait_for_subscribers(1, Duration::from_secs(120))?;
+        Ok(())
+    }
+    fn attach<'a>(p: &'a Ports<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.real).attach(&p.model).attach(&p.policy);
+    }
+    fn new(cx: &RolloutCx<'_, S>) -> Result<Self> {
+        let d = cx.s.dims;
+        Ok(Self {
+            role: RolloutRole::new(&cx.s.cfg, d.obs, d.act)?,
+            inbox: RealInbox::new(d.rows()),
+            model_version: 0,
+            branches: 0,
+            staleness: SlackTracker::default(),
+        })
+    }
+    fn restore(&mut self, state: RolloutCheckpoint, _: &RolloutCx<'_, S>) -> Result<()> {
+        self.branches = state.branches;
+        self.role.restore(state.role)?;
+        self.model_version = self.role.model_version();
+        self.inbox.resume_at(self.role.real_received());
+        Ok(())
+    }
+    fn step(&mut self, cx: &RolloutCx<'_, S>) -> Result<Step> {
+        let s = cx.s;
+        let Some(t) = s.schedule.nth_train_point(self.branches + 1) else {
+            let all = data::pull(
+                s.mode,
+                &cx.ports.real,
+                &mut self.inbox,
+                &mut self.role,
+                s.cfg.steps,
+            )?;
+            return Ok(if all { Step::Finished } else { Step::Waiting });
         };
-        barrier::write_and_await_resume(&waiter, &control, &stats_pub, &file, cut, &state)
-    };
-    let gate = barrier::DataGate::new(&waiter, &control, &stats_pub, &real, s.mode, at_cut);
-    let train_points = (1..=cfg.steps).filter(|&t| schedule.train_point(t).is_some());
-    for t in train_points.skip(branches as usize) {
-        let epoch = schedule.train_point(t).expect("train point");
-        let v = branches + 1;
-        let need_policy = (t - 1).saturating_sub(s.slack.policy_lag);
-        let what = || {
-            format!(
-                "model v{v}, policy v{need_policy}, {} real transitions",
-                t - 1
-            )
-        };
-        let ready = |role: &mut RolloutRole, inbox: &RealInbox<S>| {
-            if let Some(w) = model.receive_latest()? {
-                role.load_model(w.version(), |m| d.model.load_into(w.params(), m))?;
-                model_version = w.version();
-            }
-            if let Some(w) = policy.receive_latest()? {
-                role.set_policy_params(w.params(), policy_version_of(w.version()));
-            }
-            Ok(model_version >= v && role.has_policy(need_policy) && inbox.received() >= t - 1)
-        };
-        if !gate.wait_until(&mut inbox, &mut role, branches, t - 1, &what, ready)? {
-            return Ok(());
+        if !self.ready(cx, t)? {
+            return Ok(Step::Waiting);
         }
         if s.mode == Mode::Lockstep {
             ensure_protocol!(
-                model_version == v && role.policy_version() == t - 1,
-                "lockstep rollouts for step {t}: model v{model_version} (want v{v}), policy v{} (want v{})",
-                role.policy_version(),
+                self.model_version == self.branches + 1 && self.role.policy_version() == t - 1,
+                "lockstep rollouts for step {t}: model v{} (want v{}), policy v{} (want v{})",
+                self.model_version,
+                self.branches + 1,
+                self.role.policy_version(),
                 t - 1
             );
         }
-        staleness.see((t - 1) as f64 - role.policy_version() as f64);
-        let n = match s.mode {
-            Mode::Lockstep => (t - 1 - inbox.taken()) as usize,
-            Mode::Pipelined => inbox.pending(),
-        };
-        inbox.take(n, &mut role);
+        self.staleness
+            .see((t - 1) as f64 - self.role.policy_version() as f64);
+        data::take_for(s.mode, &mut self.inbox, &mut self.role, t);
+        self.branch(cx, t)?;
+        Ok(Step::Worked)
+    }
+    fn done_so_far(&self) -> u64 {
+        self.branches
+    }
+    /// At the cut the branches done are the cut's K.
+    fn at_cut(
+        &mut self,
+        cut: barrier::Cut,
+        cx: &RolloutCx<'_, S>,
+    ) -> Result<AtCut<RolloutCheckpoint>> {
+        if self.branches < cut.model_trainings {
+            return Ok(AtCut::Work);
+        }
+        if !data::take_upto_cut(&cx.ports.real, &mut self.inbox, &mut self.role, cut)? {
+            return Ok(AtCut::Wait);
+        }
+        Ok(AtCut::Write(RolloutCheckpoint {
+            role: self.role.checkpoint(),
+            branches: cut.model_trainings,
+        }))
+    }
+    fn finish(&mut self, cx: &RolloutCx<'_, S>) -> Result<()> {
+        let (lo, hi, mean) = self.staleness.get();
+        let lost = cx.ports.real.stats().missing;
+        cx.stats.report(Done {
+            real: self.inbox.received(),
+            lost,
+            real_spilled: self.inbox.spilled(),
+            work: self.branches,
+            slack_min: lo,
+            slack_max: hi,
+            slack_mean: mean,
+            ..Default::default()
+        })?;
+        tracing::info!(
+            "done: {} real transitions received, {lost} lost, {} branches",
+            self.inbox.received(),
+            self.branches
+        );
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        format!(
+            "model v{} and the policy and real transitions of branch {} ({} received)",
+            self.branches + 1,
+            self.branches + 1,
+            self.inbox.received()
+        )
+    }
+}
+
+impl<S: Transport> RolloutGenerator<S> {
+    /// Take the newest model and policy and what real data arrived; true once the branch of
+    /// train point `t` has model v, a policy of at least t − 1 − policy_lag and t − 1 real
+    /// transitions.
+    fn ready(&mut self, cx: &RolloutCx<'_, S>, t: u64) -> Result<bool> {
+        let (s, p, d) = (cx.s, cx.ports, cx.s.dims);
+        data::pull(s.mode, &p.real, &mut self.inbox, &mut self.role, t - 1)?;
+        if let Some(w) = p.model.receive_latest()? {
+            let role = &mut self.role;
+            role.load_model(w.version(), |m| d.model.load_into(w.params(), m))?;
+            self.model_version = w.version();
+        }
+        if let Some(w) = p.policy.receive_latest()? {
+            self.role
+                .set_policy_params(w.params(), policy_version_of(w.version()));
+        }
+        let need_policy = (t - 1).saturating_sub(s.slack.policy_lag);
+        Ok(self.model_version > self.branches
+            && self.role.has_policy(need_policy)
+            && self.inbox.received() >= t - 1)
+    }
+
+    /// Branch the rollouts of train point `t` and send them as one imagined batch.
+    fn branch(&mut self, cx: &RolloutCx<'_, S>, t: u64) -> Result<()> {
+        let epoch = cx.s.schedule.train_point(t).expect("a train point");
         let started = Instant::now();
-        let batch = role.branch(epoch)?;
+        let batch = self.role.branch(epoch)?;
         let seconds = started.elapsed().as_secs_f64();
-        stats_pub.report(RolloutBranch {
+        cx.stats.report(RolloutBranch {
             env_steps: t - 1,
             model_version: batch.model_version,
             policy_version: batch.policy_version,
@@ -122,37 +216,16 @@ pub fn run<S: Transport>(args: &ServiceArgs) -> Result<()> {
             model_version: batch.model_version,
             env_steps: t - 1,
         };
-        imagined.send_batch(&batch.rows, meta)?;
-        branches += 1;
+        cx.ports.imagined.send_batch(&batch.rows, meta)?;
+        self.branches += 1;
         tracing::info!(
             "step {t}: {} rollouts of k={} with model v{} and policy v{}: {} rows in {seconds:.2} s",
-            n_rollouts,
+            rollouts_per_branch(&cx.s.cfg),
             batch.rollout_length,
             batch.model_version,
             batch.policy_version,
             batch.rows.len
         );
+        Ok(())
     }
-    let total = cfg.steps;
-    if !gate.wait_for_real(&mut inbox, &mut role, total, branches)? {
-        return Ok(());
-    }
-    let (lo, hi, mean) = staleness.get();
-    let lost = real.stats().missing;
-    let done = Done {
-        real: inbox.received(),
-        lost,
-        real_spilled: inbox.spilled(),
-        work: branches,
-        slack_min: lo,
-        slack_max: hi,
-        slack_mean: mean,
-        ..Default::default()
-    };
-    stats_pub.report(done)?;
-    tracing::info!(
-        "done: {} real transitions received, {lost} lost, {branches} branches",
-        inbox.received()
-    );
-    gate.idle_until_stop(&mut inbox, &mut role, Some(branches))
 }
