@@ -6,7 +6,11 @@
 //!   a new episode;
 //! - an algorithm the project does not ship (a uniform-random baseline: one function, one
 //!   `mbpo_train::algorithm::register` call) is a config's `algo`, runs where `mbpo train`
-//!   runs algorithms, and is refused by the pipeline by name.
+//!   runs algorithms, and is refused by the pipeline by name;
+//! - a role served by a worker of one's own (one `Worker` impl on the serving loop: a toy
+//!   evaluator) over a transport the project does not use (iceoryx2's `ipc_threadsafe`, picked
+//!   at the call site), with a checkpoint barrier, and lockstep still equals sequential;
+//! - a planner of one's own (one `Planner` impl) drives the MPC controller.
 
 use std::path::Path;
 use std::time::Duration;
@@ -15,13 +19,21 @@ use mbpo_core::rng::{stream, uniform_range_f32, Rng};
 use mbpo_core::{BatchPolicy, UniformPolicy};
 use mbpo_envs::{register, BoxSpace, Env, EnvError, Step, TaskSpec};
 use mbpo_integration_tests::*;
-use mbpo_runtime::in_process::{run_in_process, InProcessRun};
-use mbpo_runtime::{Mode, Slack};
+use mbpo_plan::{Mpc, PlanError, Planner, PlanningModel};
+use mbpo_runtime::barrier::Cut;
+use mbpo_runtime::in_process::{run_in_process, run_in_process_with, InProcessRun};
+use mbpo_runtime::services::{service_loop, ServiceLoop};
+use mbpo_runtime::serving::{self, serve, AtCut, Cx, Worker};
+use mbpo_runtime::{send_ack, ControlInbox, Mode, Process, RoleKind, Slack};
 use mbpo_train::algorithm::{self, AlgorithmSpec};
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{
     train_mbpo, train_mbpo_with, ExperimentConfig, RunDir, RunOptions, Schedule, Summary,
     TrainError,
+};
+use mbpo_wire::{
+    ControlPublisher, Done, EvalResult, ProducerId, Role, Transport, Waiter, WeightsKind,
+    WeightsSubscriber,
 };
 
 /// A point on a line pushed by the action; reward −x² − 0.1·a²; 50-step episodes.
@@ -267,4 +279,292 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
     let err = run_in_process(&cfg, &run).unwrap_err().to_string();
     assert!(err.contains("runs mbpo or mpc, not random-policy"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A toy evaluator: at each eval point t it waits for policy version t, acknowledges it (the
+/// lockstep learner waits for that) and reports t / 1000 as the evaluation's return.
+struct CountingEvaluator {
+    params: Vec<f32>,
+    version: u64,
+    evals: u64,
+    next: Option<u64>,
+}
+
+/// Its ports: the policy, and acknowledgements to the learner.
+struct CountingPorts<S: Transport> {
+    acks: ControlPublisher<S>,
+    policy: WeightsSubscriber<S>,
+}
+
+impl<S: Transport> Worker<S> for CountingEvaluator {
+    const KIND: RoleKind = RoleKind::Evaluator;
+    type Ports = CountingPorts<S>;
+    /// Evaluations done, and the cut's step.
+    type Checkpoint = (u64, u64);
+
+    fn ports(s: &Process<S>) -> mbpo_runtime::Result<CountingPorts<S>> {
+        let policy = WeightsKind::Policy;
+        Ok(CountingPorts {
+            acks: ControlPublisher::create(&s.node)?,
+            policy: WeightsSubscriber::create(
+                &s.node,
+                policy,
+                s.dims.policy_hash,
+                s.dims.policy_len,
+            )?,
+        })
+    }
+    fn connect(
+        s: &Process<S>,
+        control: &ControlInbox<S>,
+        p: &CountingPorts<S>,
+    ) -> mbpo_runtime::Result<()> {
+        control.sub.update_connections();
+        let n = s
+            .pipeline
+            .subscribers(mbpo_wire::Channel::Control, s.args.actors);
+        p.acks.wait_for_subscribers(n, Duration::from_secs(60))?;
+        Ok(())
+    }
+    fn attach<'a>(p: &'a CountingPorts<S>, waiter: &mut Waiter<'a, S>) {
+        waiter.attach(&p.policy);
+    }
+    fn new(cx: &Cx<'_, S, CountingPorts<S>>) -> mbpo_runtime::Result<Self> {
+        Ok(Self {
+            params: vec![0.0; cx.s.dims.policy_len],
+            version: 0,
+            evals: 0,
+            next: cx.s.schedule.next_eval_point(0),
+        })
+    }
+    fn restore(
+        &mut self,
+        (evals, after): (u64, u64),
+        cx: &Cx<'_, S, CountingPorts<S>>,
+    ) -> mbpo_runtime::Result<()> {
+        (self.evals, self.next) = (evals, cx.s.schedule.next_eval_point(after));
+        Ok(())
+    }
+    fn step(&mut self, cx: &Cx<'_, S, CountingPorts<S>>) -> mbpo_runtime::Result<serving::Step> {
+        let Some(t) = self.next else {
+            return Ok(serving::Step::Finished);
+        };
+        if let Some(h) = cx.ports.policy.receive_latest_into(&mut self.params)? {
+            self.version = mbpo_wire::policy_version_of(h.version);
+        }
+        if self.version < t {
+            return Ok(serving::Step::Waiting);
+        }
+        send_ack(&cx.ports.acks, ProducerId::new(Role::Learner, 0), t)?;
+        cx.stats.report(EvalResult {
+            env_steps: t,
+            policy_version: self.version,
+            model_version: 0,
+            mean_return: t as f64 / 1000.0,
+            episodes: 1,
+        })?;
+        self.evals += 1;
+        self.next = cx.s.schedule.next_eval_point(t);
+        Ok(serving::Step::Worked)
+    }
+    fn done_so_far(&self) -> u64 {
+        self.evals
+    }
+    fn at_cut(
+        &mut self,
+        cut: Cut,
+        _: &Cx<'_, S, CountingPorts<S>>,
+    ) -> mbpo_runtime::Result<AtCut<(u64, u64)>> {
+        if self.next.is_some_and(|t| t <= cut.env_steps) {
+            return Ok(AtCut::Work);
+        }
+        Ok(AtCut::Write((self.evals, cut.env_steps)))
+    }
+    fn finish(&mut self, cx: &Cx<'_, S, CountingPorts<S>>) -> mbpo_runtime::Result<()> {
+        cx.stats.report(Done {
+            work: self.evals,
+            ..Default::default()
+        })?;
+        Ok(())
+    }
+    fn waiting_for(&self) -> String {
+        format!("policy version {:?}", self.next)
+    }
+}
+
+/// The `eval_return` column of a run's metrics.csv.
+fn eval_returns(run: &Path) -> Vec<f64> {
+    let text = std::fs::read_to_string(run.join("metrics.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = header.iter().position(|&h| h == "eval_return").unwrap();
+    lines
+        .map(|l| l.split(',').nth(col).unwrap().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn a_role_served_by_a_worker_of_ones_own_over_another_transport_equals_sequential() {
+    let mut cfg = tiny_config(400);
+    cfg.eval.every = 100;
+    (cfg.checkpoint.every, cfg.checkpoint.keep) = (200, 5);
+    let dir = scratch("extension-toy-role");
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let run = InProcessRun {
+        out: dir.join("lockstep"),
+        ipc_root: ipc_root("ext-toy-role"),
+        mode: Mode::Lockstep,
+        actors: 1,
+        slack: Slack::ZERO,
+        timeout: Duration::from_secs(240),
+    };
+    type Threadsafe = mbpo_wire::ipc_threadsafe::Service;
+    let loops = |kind: RoleKind| -> ServiceLoop {
+        match kind {
+            RoleKind::Evaluator => serve::<Threadsafe, CountingEvaluator>,
+            other => service_loop::<Threadsafe>(other),
+        }
+    };
+    let s = run_in_process_with::<Threadsafe>(&cfg, &run, &loops).unwrap();
+    // The toy's evaluations are the run's; learning is the sequential run's, bit for bit.
+    assert_eq!(eval_returns(&run.out), [0.1, 0.2, 0.3, 0.4]);
+    assert_eq!(s.summary.policy_sha256, seq.policy_sha256);
+    // It took part in the barriers (the periodic one near step 200, the last one) with a file
+    // of its own: the evaluations of the eval points <= T.
+    let mut cuts = Vec::new();
+    for entry in std::fs::read_dir(run.out.join("checkpoints")).unwrap() {
+        let t: u64 = entry.unwrap().file_name().to_str().unwrap().parse().unwrap();
+        let file = mbpo_train::checkpoint::dir_for(&run.out, t).join("evaluator");
+        let kind = RoleKind::Evaluator.checkpoint_kind();
+        let state: (u64, u64) = mbpo_train::checkpoint::read(&file, kind).unwrap();
+        assert_eq!(state, (t / 100, t), "checkpoint after step {t}");
+        cuts.push(t);
+    }
+    cuts.sort();
+    assert_eq!((cuts.len(), cuts.last()), (2, Some(&400)), "{cuts:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A toy planner: the constant plan of the better of "push" (+1) and "pull" (−1) over its
+/// horizon, by the model's predicted return.
+struct BangBang {
+    horizon: usize,
+    plan: Vec<f32>,
+    predicted: f32,
+}
+
+impl Planner for BangBang {
+    fn horizon(&self) -> usize {
+        self.horizon
+    }
+    fn act_dim(&self) -> usize {
+        1
+    }
+    fn plan(
+        &mut self,
+        model: &mut dyn PlanningModel,
+        obs: &[f32],
+        rng: &mut Rng,
+    ) -> Result<&[f32], PlanError> {
+        let mut best = (f32::NEG_INFINITY, 0.0);
+        for a in [1.0f32, -1.0] {
+            let (mut o, mut ret) = (obs.to_vec(), 0.0);
+            for _ in 0..self.horizon {
+                let (mut r, mut next) = ([0.0f32], vec![0.0f32; o.len()]);
+                model.step(&o, &[a], &[0], rng, &mut r, &mut next)?;
+                (ret, o) = (ret + r[0], next);
+            }
+            if ret > best.0 {
+                best = (ret, a);
+            }
+        }
+        self.predicted = best.0;
+        self.plan = vec![best.1; self.horizon];
+        Ok(&self.plan)
+    }
+    fn predicted_return(&self) -> f32 {
+        self.predicted
+    }
+    fn shift(&mut self, _k: usize) {}
+    fn reset(&mut self) {
+        self.plan.clear();
+    }
+    fn warm_start(&self) -> Option<&[f32]> {
+        None
+    }
+    fn set_warm_start(&mut self, _: Option<&[f32]>) -> Result<(), PlanError> {
+        Ok(())
+    }
+}
+
+/// The toy task's dynamics as a planning model: x' = x + 0.1·a, reward −x'².
+struct LineModel;
+
+impl PlanningModel for LineModel {
+    fn obs_dim(&self) -> usize {
+        1
+    }
+    fn act_dim(&self) -> usize {
+        1
+    }
+    fn members(&self) -> usize {
+        1
+    }
+    fn step(
+        &mut self,
+        obs: &[f32],
+        act: &[f32],
+        members: &[usize],
+        _rng: &mut Rng,
+        reward: &mut [f32],
+        next_obs: &mut [f32],
+    ) -> Result<(), PlanError> {
+        for i in 0..members.len() {
+            next_obs[i] = obs[i] + 0.1 * act[i];
+            reward[i] = -next_obs[i] * next_obs[i];
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn a_planner_of_ones_own_drives_the_mpc_controller() {
+    let mut rng = stream(0, "toy.plan", 0);
+    let planner = BangBang {
+        horizon: 5,
+        plan: Vec::new(),
+        predicted: 0.0,
+    };
+    // Closed loop: a plan per step, its first action executed; the point is driven to 0.
+    let mut mpc = Mpc::new(Box::new(planner), false);
+    let (mut x, mut action) = (1.0f32, [0.0f32]);
+    mpc.act(&mut LineModel, &[x], &mut rng, &mut action).unwrap();
+    // Pulling for 5 steps: x = 0.9 .. 0.5, return −(0.81 + 0.64 + 0.49 + 0.36 + 0.25).
+    assert!((mpc.planner().predicted_return() + 2.55).abs() < 1e-5);
+    assert_eq!(action[0], -1.0);
+    x += 0.1 * action[0];
+    for _ in 1..10 {
+        assert!(mpc
+            .act(&mut LineModel, &[x], &mut rng, &mut action)
+            .unwrap());
+        assert_eq!(action[0], if x > 0.0 { -1.0 } else { 1.0 }, "x = {x}");
+        x += 0.1 * action[0];
+    }
+    assert!(x.abs() < 1e-5, "x = {x}");
+    assert_eq!(mpc.plans(), 10);
+    // Open loop: one plan per horizon, executed to its end.
+    let planner = BangBang {
+        horizon: 5,
+        plan: Vec::new(),
+        predicted: 0.0,
+    };
+    let mut mpc = Mpc::new(Box::new(planner), true);
+    let planned: Vec<bool> = (0..10)
+        .map(|_| {
+            mpc.act(&mut LineModel, &[-1.0], &mut rng, &mut action)
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(planned.iter().filter(|&&p| p).count(), 2);
+    assert_eq!(action[0], 1.0);
 }

@@ -1,7 +1,9 @@
-//! The whole pipeline in one process: every role's service loop on its own thread and the
-//! coordinator on the caller's, all on iceoryx2's `local::Service`. The same loops and the
-//! same coordinator as `mbpo run`, without spawning binaries, so a test can run the lockstep
-//! ≡ sequential oracle in the normal suite (and a debugger sees every role at once).
+//! The whole pipeline in one process: every role's worker on its own thread and the
+//! coordinator on the caller's, on iceoryx2's `local::Service` ([`run_in_process`]). The same
+//! workers and the same coordinator as `mbpo run`, without spawning binaries, so a test can run
+//! the lockstep ≡ sequential oracle in the normal suite (and a debugger sees every role at
+//! once). [`run_in_process_with`] picks another transport and may serve a role with a worker of
+//! the caller's (`tests/tests/extension_points.rs`: a toy evaluator over `ipc_threadsafe`).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -9,12 +11,13 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use mbpo_train::{ExperimentConfig, RunDir};
-use mbpo_wire::{local, RunIpc, StopReason, WaitOutcome, Waiter};
+use mbpo_wire::{local, RunIpc, StopReason, Transport, WaitOutcome, Waiter};
 
 use crate::coordinator::collect::PipelineSummary;
 use crate::coordinator::{self, Coordinator, CoordinatorPorts, Phase, RunPlan};
-use crate::pipeline;
+use crate::services::{service_loop, ServiceLoop};
 use crate::{configure_run, Dims, Mode, ResolvedRun, Result, RuntimeError, ServiceArgs, Slack};
+use crate::{pipeline, RoleKind};
 
 /// How to run a pipeline in this process.
 #[derive(Debug, Clone)]
@@ -38,6 +41,16 @@ type RoleThread = (String, JoinHandle<Result<()>>);
 /// Run `cfg` to its end with every role as a thread; returns the run's summary (also in
 /// `<out>/summary.json`).
 pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<PipelineSummary> {
+    run_in_process_with::<local::Service>(cfg, how, &service_loop::<local::Service>)
+}
+
+/// [`run_in_process`] on transport `S`, each role served by `loops(kind)` (the project's own:
+/// [`service_loop`]).
+pub fn run_in_process_with<S: Transport>(
+    cfg: &ExperimentConfig,
+    how: &InProcessRun,
+    loops: &dyn Fn(RoleKind) -> ServiceLoop,
+) -> Result<PipelineSummary> {
     static RUNS: AtomicU64 = AtomicU64::new(0);
     let run_id = format!(
         "inproc-{}-{}",
@@ -51,11 +64,11 @@ pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<Pipe
     })?;
     let mut ipc = RunIpc::new(&run_id, &how.ipc_root)?;
     configure_run(&mut ipc);
-    let result = coordinate(cfg, how, &run_id, &ipc, &mut run_dir);
+    let result = coordinate::<S>(cfg, how, loops, &run_id, &ipc, &mut run_dir);
     // (Not when a role thread is still running on the run's services: see `join_roles`.)
     let stuck = matches!(&result, Err(RuntimeError::RolesStuck(_)));
     if !stuck {
-        if let Err(e) = ipc.remove_all::<local::Service>() {
+        if let Err(e) = ipc.remove_all::<S>() {
             tracing::warn!("removing the in-process run's resources: {e}");
         }
     }
@@ -73,15 +86,16 @@ pub fn run_in_process(cfg: &ExperimentConfig, how: &InProcessRun) -> Result<Pipe
     Ok(summary)
 }
 
-fn coordinate(
+fn coordinate<S: Transport>(
     cfg: &ExperimentConfig,
     how: &InProcessRun,
+    loops: &dyn Fn(RoleKind) -> ServiceLoop,
     run_id: &str,
     ipc: &RunIpc,
     run_dir: &mut RunDir,
 ) -> Result<PipelineSummary> {
     // The coordinator's ports first: the roles wait for the stats subscriber.
-    let node = coordinator::node::<local::Service>(ipc)?;
+    let node = coordinator::node::<S>(ipc)?;
     // The run resolved once: every role thread reads its sizes from the plan.
     let dims = Dims::of(cfg)?;
     ResolvedRun::new(dims, how.mode, how.actors, how.actors, how.slack).write(&how.out)?;
@@ -109,7 +123,7 @@ fn coordinate(
     let started = Instant::now();
     // Whatever ends the run, every role started is told to stop and joined before the caller
     // removes the run's shared memory.
-    let outcome = start_roles(cfg, &args, &mut threads)
+    let outcome = start_roles(cfg, &args, loops, &mut threads)
         .and_then(|()| drive(&mut coord, &ports, &mut threads, how, run_dir, started));
     coord.send_stop(&ports, threads.len(), StopReason::RunOver);
     let ended = join_roles(&mut threads, STOP_DEADLINE);
@@ -119,9 +133,9 @@ fn coordinate(
 }
 
 /// The coordinator's loop, until every role is done (or one ended early, or the timeout).
-fn drive(
+fn drive<S: Transport>(
     coord: &mut Coordinator,
-    ports: &CoordinatorPorts<local::Service>,
+    ports: &CoordinatorPorts<S>,
     threads: &mut Vec<RoleThread>,
     how: &InProcessRun,
     run_dir: &mut RunDir,
@@ -169,10 +183,11 @@ fn drive(
 fn start_roles(
     cfg: &ExperimentConfig,
     args: &ServiceArgs,
+    loops: &dyn Fn(RoleKind) -> ServiceLoop,
     threads: &mut Vec<RoleThread>,
 ) -> Result<()> {
     for role in pipeline::spec(cfg.algo)?.roles(args.actors) {
-        let run = crate::services::service_loop::<local::Service>(role.kind);
+        let run = loops(role.kind);
         let a = ServiceArgs {
             index: role.index,
             ..args.clone()

@@ -15,9 +15,12 @@ use mbpo_wire::Transport;
 use crate::serving::serve;
 use crate::{Result, RoleKind, ServiceArgs};
 
+/// What a role's process (or thread) runs: `serving::serve` of its worker.
+pub type ServiceLoop = fn(&ServiceArgs) -> Result<()>;
+
 /// The service loop of role `kind` on transport `S` (the one place that maps a role to its
 /// worker: the service binaries and the in-process pipeline both ask here).
-pub fn service_loop<S: Transport>(kind: RoleKind) -> fn(&ServiceArgs) -> Result<()> {
+pub fn service_loop<S: Transport>(kind: RoleKind) -> ServiceLoop {
     use acting::Acting;
     match kind {
         RoleKind::Learner => serve::<S, learner::Learner<S>>,
