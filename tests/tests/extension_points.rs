@@ -6,7 +6,8 @@
 //!   a new episode;
 //! - an algorithm the project does not ship (a uniform-random baseline: one function, one
 //!   `mbpo_train::algorithm::register` call) is a config's `algo`, runs where `mbpo train`
-//!   runs algorithms, and is refused by the pipeline by name;
+//!   runs algorithms, and is refused by the pipeline by name, as it names no roles; one that
+//!   names its roles (MBPO's, under another name) runs in the in-process pipeline too;
 //! - a role served by a worker of one's own (one `Worker` impl on the serving loop: a toy
 //!   evaluator) over a transport the project does not use (iceoryx2's `ipc_threadsafe`, picked
 //!   at the call site), with a checkpoint barrier, and lockstep still equals sequential;
@@ -249,6 +250,7 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
     let algo = algorithm::register(AlgorithmSpec {
         name: "random-policy",
         train: train_random,
+        pipeline: None,
     })
     .unwrap();
     let mut cfg: ExperimentConfig =
@@ -277,7 +279,46 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
         timeout: Duration::from_secs(30),
     };
     let err = run_in_process(&cfg, &run).unwrap_err().to_string();
-    assert!(err.contains("runs mbpo or mpc, not random-policy"), "{err}");
+    // (The test below may have registered one more by now.)
+    assert!(err.contains("the pipeline runs mbpo or mpc"), "{err}");
+    assert!(err.contains("not random-policy (run it with `mbpo train`)"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
+    // One row: a name, a single-process run and the roles it runs as (here MBPO's own, so
+    // lockstep must equal the sequential run bit for bit).
+    let mbpo = algorithm::lookup("mbpo").unwrap();
+    let algo = algorithm::register(AlgorithmSpec {
+        name: "mbpo-again",
+        train: train_mbpo_with,
+        pipeline: mbpo.pipeline,
+    })
+    .unwrap();
+    let mut cfg = tiny_config(300);
+    cfg.algo = algo;
+    cfg.eval.every = 100;
+    let dir = scratch("extension-algo-roles");
+    let seq = algorithm::train(&cfg, &dir.join("sequential"), RunOptions::default()).unwrap();
+    let run = InProcessRun {
+        out: dir.join("lockstep"),
+        ipc_root: ipc_root("ext-roles"),
+        mode: Mode::Lockstep,
+        actors: 1,
+        slack: Slack::ZERO,
+        timeout: Duration::from_secs(240),
+    };
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(
+        (s.summary.algo.as_str(), seq.algo.as_str()),
+        ("mbpo-again", "mbpo-again")
+    );
+    assert_eq!(s.summary.policy_sha256, seq.policy_sha256);
+    assert_eq!(
+        metrics_without_timing(&run.out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -433,7 +474,13 @@ fn a_role_served_by_a_worker_of_ones_own_over_another_transport_equals_sequentia
     // of its own: the evaluations of the eval points <= T.
     let mut cuts = Vec::new();
     for entry in std::fs::read_dir(run.out.join("checkpoints")).unwrap() {
-        let t: u64 = entry.unwrap().file_name().to_str().unwrap().parse().unwrap();
+        let t: u64 = entry
+            .unwrap()
+            .file_name()
+            .to_str()
+            .unwrap()
+            .parse()
+            .unwrap();
         let file = mbpo_train::checkpoint::dir_for(&run.out, t).join("evaluator");
         let kind = RoleKind::Evaluator.checkpoint_kind();
         let state: (u64, u64) = mbpo_train::checkpoint::read(&file, kind).unwrap();
@@ -538,7 +585,8 @@ fn a_planner_of_ones_own_drives_the_mpc_controller() {
     // Closed loop: a plan per step, its first action executed; the point is driven to 0.
     let mut mpc = Mpc::new(Box::new(planner), false);
     let (mut x, mut action) = (1.0f32, [0.0f32]);
-    mpc.act(&mut LineModel, &[x], &mut rng, &mut action).unwrap();
+    mpc.act(&mut LineModel, &[x], &mut rng, &mut action)
+        .unwrap();
     // Pulling for 5 steps: x = 0.9 .. 0.5, return −(0.81 + 0.64 + 0.49 + 0.36 + 0.25).
     assert!((mpc.planner().predicted_return() + 2.55).abs() < 1e-5);
     assert_eq!(action[0], -1.0);

@@ -267,6 +267,16 @@ pub const ROLES: [RoleRow; 7] = [
     },
 ];
 
+/// The roles an algorithm runs as under `mbpo run`: its column of the algorithm table
+/// (`mbpo_train::algorithm::AlgorithmSpec::pipeline`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PipelineRoles {
+    /// Its roles besides the training actors, in start order (the actors start last).
+    pub services: &'static [RoleKind],
+    /// What its training actors are.
+    pub actor: RoleKind,
+}
+
 impl RoleKind {
     /// Every role kind.
     pub const ALL: [RoleKind; 7] = [

@@ -1,20 +1,20 @@
 //! How each algorithm runs as a pipeline: its roles (the one list the launcher spawns, the
 //! in-process pipeline starts as threads, the coordinator counts and the checkpoint barrier
-//! names files after) and the few facts the shared loops ask of it.
+//! names files after) and the few facts the shared workers ask of it.
 //!
-//! An algorithm the pipeline runs is one [`PipelineSpec`] row in [`PIPELINES`]; the service
-//! loops and the coordinator read the row, never the algorithm's name. MBPO runs a learner, a
-//! model trainer, a rollout generator, an evaluator and the actors; MPC plans on the model
-//! trainer's ensemble, so it has no learner or rollout generator, and its actors and evaluator
-//! are planners.
+//! The roles are the `pipeline` column of the algorithm table (`mbpo_train::algorithm`, one
+//! row per algorithm, built in or registered); [`spec`] makes a [`PipelineSpec`] of it. The
+//! workers and the coordinator read the spec, never the algorithm's name.
 
-use mbpo_train::Algo;
+use std::sync::RwLock;
+
+use mbpo_train::{algorithm, Algo};
 use mbpo_wire::{Channel, WeightsKind};
 
 use crate::barrier::{file, kind};
 use crate::{Mode, Result, RuntimeError};
 
-pub use mbpo_core::roles::RoleKind;
+pub use mbpo_core::roles::{PipelineRoles, RoleKind};
 
 /// One role of a run: a process of `mbpo run`, a thread of the in-process pipeline.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -71,46 +71,43 @@ pub struct PipelineSpec {
     pub services: &'static [RoleKind],
     /// What its training actors are.
     pub actor: RoleKind,
-    /// The weights whose final version is the run's result, hashed into `policy_sha256`: the
-    /// SAC policy, or the model the planners plan on.
-    pub result: WeightsKind,
 }
 
-/// Every algorithm the pipeline runs. SAC and algorithms registered at run time
-/// (`mbpo_train::algorithm::register`) run under `mbpo train` only.
-pub const PIPELINES: [PipelineSpec; 2] = [
-    PipelineSpec {
-        algo: "mbpo",
-        services: &[
-            RoleKind::Learner,
-            RoleKind::ModelTrainer,
-            RoleKind::RolloutGenerator,
-            RoleKind::Evaluator,
-        ],
-        actor: RoleKind::Actor,
-        result: WeightsKind::Policy,
-    },
-    PipelineSpec {
-        algo: "mpc",
-        services: &[RoleKind::ModelTrainer, RoleKind::PlanningEvaluator],
-        actor: RoleKind::PlanningActor,
-        result: WeightsKind::Model,
-    },
-];
-
-/// The pipeline of `algo`, or an error that names the algorithms it runs.
+/// The pipeline of `algo` (its row of the algorithm table), or an error that names the
+/// algorithms the pipeline runs.
 pub fn spec(algo: Algo) -> Result<&'static PipelineSpec> {
-    PIPELINES
-        .iter()
-        .find(|p| p.algo == algo.name())
-        .ok_or_else(|| {
-            let known: Vec<&str> = PIPELINES.iter().map(|p| p.algo).collect();
-            RuntimeError::protocol(format!(
-                "the pipeline runs {}, not {} (run it with `mbpo train`)",
-                known.join(" or "),
-                algo.name()
-            ))
-        })
+    // One spec per algorithm for the life of the process (a handful: the built-in and the
+    // registered ones), so every holder can keep a `&'static`.
+    static SPECS: RwLock<Vec<&'static PipelineSpec>> = RwLock::new(Vec::new());
+    let known =
+        |specs: &[&'static PipelineSpec]| specs.iter().copied().find(|p| p.algo == algo.name());
+    if let Some(p) = known(&SPECS.read().unwrap_or_else(|e| e.into_inner())) {
+        return Ok(p);
+    }
+    let row = algorithm::lookup(algo.name()).and_then(|a| Some((a.name, a.pipeline?)));
+    let Some((name, roles)) = row else {
+        let runs: Vec<&str> = algorithm::all()
+            .iter()
+            .filter(|a| a.pipeline.is_some())
+            .map(|a| a.name)
+            .collect();
+        return Err(RuntimeError::protocol(format!(
+            "the pipeline runs {}, not {} (run it with `mbpo train`)",
+            runs.join(" or "),
+            algo.name()
+        )));
+    };
+    let mut specs = SPECS.write().unwrap_or_else(|e| e.into_inner());
+    if let Some(p) = known(&specs) {
+        return Ok(p);
+    }
+    let spec: &'static PipelineSpec = Box::leak(Box::new(PipelineSpec {
+        algo: name,
+        services: roles.services,
+        actor: roles.actor,
+    }));
+    specs.push(spec);
+    Ok(spec)
 }
 
 impl PipelineSpec {
@@ -128,6 +125,11 @@ impl PipelineSpec {
     /// with (metrics rows come from model versions, there is no learner).
     pub fn plans(&self) -> bool {
         self.actor == RoleKind::PlanningActor
+    }
+    /// The weights whose final version is the run's result, hashed into `policy_sha256`: the
+    /// SAC policy, or the model the planners plan on (what its actors act with).
+    pub fn result(&self) -> WeightsKind {
+        self.actor_weights()
     }
     /// The weights its actors act with: the learner's policy, or the model they plan on.
     pub fn actor_weights(&self) -> WeightsKind {
@@ -227,7 +229,7 @@ mod tests {
 
     #[test]
     fn the_actor_binary_runs_the_role_its_flags_name() {
-        for spec in &PIPELINES {
+        for spec in [spec(Algo::MBPO).unwrap(), spec(Algo::MPC).unwrap()] {
             for role in spec.roles(2).iter().filter(|r| r.binary() == "mbpo-actor") {
                 let args = role.binary_args();
                 let flags: Vec<&str> = args.iter().map(String::as_str).collect();

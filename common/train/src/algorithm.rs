@@ -1,15 +1,17 @@
 //! The algorithm registry: what `mbpo train` runs for a config's `algo`.
 //!
-//! An algorithm is one [`AlgorithmSpec`] row: its name (the config key) and its single-process
+//! An algorithm is one [`AlgorithmSpec`] row: its name (the config key), its single-process
 //! run, which starts fresh or from the run directory's newest checkpoint, writes the metrics
-//! rows, the checkpoints and the summary, and stops cleanly when asked ([`RunOptions`]).
-//! `sac`, `mbpo` and `mpc` are built in; a program adds one with [`register`]
-//! (`tests/tests/extension_points.rs` adds a random-policy baseline from the test file alone).
-//! The multi-process `mbpo run` has the role lists of MBPO and MPC
-//! (`mbpo_runtime::pipeline`).
+//! rows, the checkpoints and the summary, and stops cleanly when asked ([`RunOptions`]), and
+//! the roles it runs as under `mbpo run` (none: `mbpo train` only; `mbpo_runtime::pipeline`
+//! reads them). `sac`, `mbpo` and `mpc` are built in; a program adds one with [`register`]
+//! (`tests/tests/extension_points.rs` adds a random-policy baseline, and an algorithm on MBPO's
+//! roles that the in-process pipeline runs, from the test file alone).
 
 use std::path::Path;
 use std::sync::RwLock;
+
+use mbpo_core::roles::{PipelineRoles, RoleKind};
 
 use crate::config::{Algo, ExperimentConfig};
 use crate::error::TrainError;
@@ -26,6 +28,8 @@ pub struct AlgorithmSpec {
     pub name: &'static str,
     /// Its single-process run (`mbpo train`).
     pub train: TrainFn,
+    /// Its roles under `mbpo run` (`None`: it runs under `mbpo train` only).
+    pub pipeline: Option<PipelineRoles>,
 }
 
 /// The runs of [`Algo::BUILT_IN`].
@@ -33,14 +37,31 @@ const BUILT_IN: [AlgorithmSpec; 3] = [
     AlgorithmSpec {
         name: Algo::SAC.name(),
         train: crate::sac_trainer::train_sac_with,
+        pipeline: None,
     },
+    // A learner, a model trainer, a rollout generator, an evaluator and the actors.
     AlgorithmSpec {
         name: Algo::MBPO.name(),
         train: crate::mbpo_trainer::train_mbpo_with,
+        pipeline: Some(PipelineRoles {
+            services: &[
+                RoleKind::Learner,
+                RoleKind::ModelTrainer,
+                RoleKind::RolloutGenerator,
+                RoleKind::Evaluator,
+            ],
+            actor: RoleKind::Actor,
+        }),
     },
+    // Planning on the model trainer's ensemble: no learner or rollout generator, and its
+    // actors and evaluator are planners.
     AlgorithmSpec {
         name: Algo::MPC.name(),
         train: crate::mpc::train_mpc_with,
+        pipeline: Some(PipelineRoles {
+            services: &[RoleKind::ModelTrainer, RoleKind::PlanningEvaluator],
+            actor: RoleKind::PlanningActor,
+        }),
     },
 ];
 
@@ -64,6 +85,12 @@ pub fn lookup(name: &str) -> Option<AlgorithmSpec> {
         .chain(registered.iter())
         .find(|s| s.name == name)
         .copied()
+}
+
+/// Every algorithm, built in and registered, in order.
+pub fn all() -> Vec<AlgorithmSpec> {
+    let registered = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
+    BUILT_IN.iter().chain(registered.iter()).copied().collect()
 }
 
 /// Run `cfg`'s algorithm in one process into `out` (what `mbpo train` does).

@@ -19,8 +19,6 @@ use crate::schedule::Schedule;
 
 /// One algorithm's run in one process, as [`drive`] calls it.
 pub(crate) trait SequentialRun {
-    /// The algorithm's name (progress label, logs).
-    const NAME: &'static str;
     /// What the progress line counts besides env steps, when not SAC updates.
     const COUNTING: Option<&'static str> = None;
 
@@ -52,7 +50,7 @@ pub(crate) fn drive<R: SequentialRun>(
     let (mut run, done) = open_run(cfg, out, opts, |dir, t| algo.restore(dir, t))?;
     algo.begin();
     let schedule = Schedule::of(cfg);
-    let label = format!("{} {} s{}", R::NAME, cfg.env, cfg.seed);
+    let label = format!("{} {} s{}", cfg.algo.name(), cfg.env, cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
     if let Some(what) = R::COUNTING {
         progress = progress.counting(what);

@@ -392,7 +392,6 @@ struct MbpoRun<'a> {
 }
 
 impl SequentialRun for MbpoRun<'_> {
-    const NAME: &'static str = "mbpo";
 
     fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
         let (rng, book) = self.mbpo.restore_checkpoint(dir, t)?;
@@ -436,7 +435,7 @@ impl SequentialRun for MbpoRun<'_> {
     fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError> {
         let row = metrics_row(&self.mbpo, &mut self.evaluator, t)?;
         self.mbpo.book.next_row += 1;
-        self.evaluator.log(Self::NAME, &row);
+        self.evaluator.log(self.cfg.algo.name(), &row);
         let phases = self.mbpo.phases.since(&self.phases_at_last_row);
         if phases.steps > 0 {
             tracing::info!("{}", phases.per_step_line());
@@ -477,7 +476,7 @@ impl SequentialRun for MbpoRun<'_> {
         let target = self.cfg.target_return();
         let target = (target, run.env_steps_to_target(target)?);
         let sac = mbpo.learner.sac();
-        let mut summary = self.evaluator.summary(Self::NAME, sac, median, target);
+        let mut summary = self.evaluator.summary(self.cfg.algo.name(), sac, median, target);
         summary.env_steps = mbpo.env_steps();
         summary.status = status.into();
         summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;

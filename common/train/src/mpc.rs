@@ -233,7 +233,6 @@ struct MpcDriven<'a> {
 }
 
 impl SequentialRun for MpcDriven<'_> {
-    const NAME: &'static str = "mpc";
     const COUNTING: Option<&'static str> = Some("plans");
 
     fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
@@ -296,7 +295,7 @@ impl SequentialRun for MpcDriven<'_> {
         let target_return = self.cfg.target_return();
         let actor = self.mpc.actor.env_actor();
         Ok(Summary {
-            algo: Self::NAME.into(),
+            algo: self.cfg.algo.name().into(),
             env: self.cfg.env.clone(),
             seed: self.cfg.seed,
             env_steps: actor.steps,

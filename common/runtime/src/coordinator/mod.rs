@@ -62,7 +62,7 @@ pub struct CoordinatorPorts<S: Transport> {
 impl<S: Transport> CoordinatorPorts<S> {
     /// The ports of the coordinator's `node` for a run of `plan`.
     pub fn create(node: &WireNode<S>, plan: &RunPlan, dims: &Dims) -> Result<Self> {
-        let result = plan.pipeline.result;
+        let result = plan.pipeline.result();
         let (hash, len) = result_layout(result, dims);
         let policy = WeightsSubscriber::create(node, result, hash, len)?;
         Ok(Self {
@@ -143,7 +143,7 @@ impl Coordinator {
             last_checkpoint = env_steps;
         }
         collector.book.restarts = restarts;
-        let final_wire = match plan.pipeline.result {
+        let final_wire = match plan.pipeline.result() {
             WeightsKind::Model => schedule.train_points_upto(cfg.steps),
             WeightsKind::Policy => policy_wire_version(cfg.steps),
         };
@@ -461,7 +461,7 @@ impl Coordinator {
         run: &mut RunDir,
         started: Instant,
     ) -> Result<PipelineSummary> {
-        let result = self.plan.pipeline.result;
+        let result = self.plan.pipeline.result();
         // A model snapshot is θ | normaliser | elites; `train_mpc` hashes θ.
         let hashed = match result {
             WeightsKind::Model => self.dims.model.n_params,
