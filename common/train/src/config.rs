@@ -403,42 +403,25 @@ impl ExperimentConfig {
     /// `sac.autotune_alpha=false`); anything that is not one is taken as a string
     /// (`env=MountainCarContinuous-v0`).
     pub fn resolve(path: Option<&Path>, overrides: &[String]) -> Result<Self, ConfigError> {
-        let (mut table, source) = match path {
-            Some(path) => {
-                let text = read_config_text(path)?;
-                let table: toml::Table = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-                    path: path.to_path_buf(),
-                    message: e.to_string(),
-                })?;
-                // Full typed parse first, so errors in the file point at its line and column.
-                toml::from_str::<Self>(&text).map_err(|e| ConfigError::Parse {
-                    path: path.to_path_buf(),
-                    message: e.to_string(),
-                })?;
-                (table, path.display().to_string())
-            }
-            None => (toml::Table::new(), "defaults".to_string()),
-        };
-        let mut cfg: Self =
-            toml::Value::Table(table.clone())
-                .try_into()
-                .map_err(|e: toml::de::Error| ConfigError::Parse {
-                    path: PathBuf::from(&source),
-                    message: e.to_string(),
-                })?;
-        for spec in overrides {
-            apply_override(&mut table, spec)?;
-            cfg = toml::Value::Table(table.clone())
-                .try_into()
-                .map_err(|e: toml::de::Error| ConfigError::Override {
-                    spec: spec.clone(),
-                    message: e.message().trim().to_string(),
-                })?;
-        }
-        let source = if overrides.is_empty() {
-            source
-        } else {
-            format!("{source} with --set {}", overrides.join(" --set "))
+        Self::resolve_with(path, overrides, |_| Ok(()))
+    }
+
+    /// [`ExperimentConfig::resolve`] with a command's own flags (`--seed`, `--steps`, `--algo`,
+    /// `--env`) applied by `flags` after the overrides, before the one validation.
+    pub fn resolve_with(
+        path: Option<&Path>,
+        overrides: &[String],
+        flags: impl FnOnce(&mut Self) -> Result<(), ConfigError>,
+    ) -> Result<Self, ConfigError> {
+        let mut cfg = Self::layered(path, overrides)?;
+        let source = match (path, overrides.is_empty()) {
+            (Some(p), true) => p.display().to_string(),
+            (None, true) => "defaults".to_string(),
+            (p, false) => format!(
+                "{} with --set {}",
+                p.map_or("defaults".into(), |p| p.display().to_string()),
+                overrides.join(" --set ")
+            ),
         };
         // gym.path entries are relative to the config file (or to the working directory).
         let base = match path.and_then(Path::parent) {
@@ -450,8 +433,38 @@ impl ExperimentConfig {
                 *p = base.join(&*p);
             }
         }
+        let before = cfg.clone();
+        flags(&mut cfg)?;
+        let source = match cfg == before {
+            true => source,
+            false => format!("{source} and the command line's flags"),
+        };
         cfg.validate(&source)?;
         Ok(cfg)
+    }
+
+    /// The file (or the defaults) with the overrides applied in order. The file is
+    /// deserialised on its own (its errors point at its line and column, also where an
+    /// override would replace the bad value), then once more with all the overrides; a
+    /// failure there is blamed on the first override that breaks it.
+    fn layered(path: Option<&Path>, overrides: &[String]) -> Result<Self, ConfigError> {
+        let text = path.map(read_config_text).transpose()?;
+        let in_file = |e: toml::de::Error| ConfigError::Parse {
+            path: path.map_or("defaults".into(), Path::to_path_buf),
+            message: e.to_string(),
+        };
+        let text = text.as_deref().unwrap_or("");
+        let file: Self = toml::from_str(text).map_err(in_file)?;
+        if overrides.is_empty() {
+            return Ok(file);
+        }
+        let mut table: toml::Table = toml::from_str(text).map_err(in_file)?;
+        for spec in overrides {
+            apply_override(&mut table, spec)?;
+        }
+        toml::Value::Table(table)
+            .try_into()
+            .map_err(|e| blame_override(text, overrides, e))
     }
 
     /// The eval return the run's "env steps to target" refers to: `eval.target_return`, else the
@@ -658,6 +671,28 @@ impl ExperimentConfig {
 
 /// The text of the config file `path`. An empty file is refused: it would run every default,
 /// which is rarely what naming a file meant (no file at all runs the defaults on purpose).
+/// The first of `overrides` (applied in order over the file's `text`) after which the config
+/// no longer deserialises, as an error naming it; `error` is the whole stack's.
+fn blame_override(text: &str, overrides: &[String], error: toml::de::Error) -> ConfigError {
+    let mut table: toml::Table = toml::from_str(text).unwrap_or_default();
+    for spec in overrides {
+        if let Err(e) = apply_override(&mut table, spec) {
+            return e;
+        }
+        let layer: Result<ExperimentConfig, _> = toml::Value::Table(table.clone()).try_into();
+        if let Err(e) = layer {
+            return ConfigError::Override {
+                spec: spec.clone(),
+                message: e.message().trim().to_string(),
+            };
+        }
+    }
+    ConfigError::Override {
+        spec: overrides.join(" --set "),
+        message: error.message().trim().to_string(),
+    }
+}
+
 fn read_config_text(path: &Path) -> Result<String, ConfigError> {
     let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
         path: path.to_path_buf(),
@@ -941,6 +976,27 @@ mod tests {
         let no_file = ExperimentConfig::resolve(None, &["seed=7".into()]).unwrap();
         assert_eq!(no_file.seed, 7);
         assert_eq!(no_file.sac, ExperimentConfig::default().sac);
+    }
+
+    #[test]
+    fn a_bad_file_is_refused_where_an_override_replaces_the_value_and_flags_are_named() {
+        let dir = std::env::temp_dir().join(format!("mbpo-config-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("bad.toml");
+        std::fs::write(&file, "seed = 1\n[sac]\ngamma = \"x\"\n").unwrap();
+        let err = ExperimentConfig::resolve(Some(&file), &["sac.gamma=0.9".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("bad.toml") && err.contains("line 3"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+        let err = ExperimentConfig::resolve_with(None, &["seed=3".into()], |cfg| {
+            cfg.steps = 0;
+            Ok(())
+        })
+        .unwrap_err()
+        .to_string();
+        let want = "config defaults with --set seed=3 and the command line's flags: key `steps`";
+        assert!(err.contains(want), "{err}");
     }
 
     #[test]

@@ -392,7 +392,6 @@ struct MbpoRun<'a> {
 }
 
 impl SequentialRun for MbpoRun<'_> {
-
     fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
         let (rng, book) = self.mbpo.restore_checkpoint(dir, t)?;
         self.evaluator.restore_book(rng, &book);
@@ -476,7 +475,9 @@ impl SequentialRun for MbpoRun<'_> {
         let target = self.cfg.target_return();
         let target = (target, run.env_steps_to_target(target)?);
         let sac = mbpo.learner.sac();
-        let mut summary = self.evaluator.summary(self.cfg.algo.name(), sac, median, target);
+        let mut summary = self
+            .evaluator
+            .summary(self.cfg.algo.name(), sac, median, target);
         summary.env_steps = mbpo.env_steps();
         summary.status = status.into();
         summary.episodes_cut_by_resume = mbpo.actor.env_actor().episodes_cut;

@@ -74,7 +74,6 @@ impl<'a> SacRun<'a> {
 }
 
 impl SequentialRun for SacRun<'_> {
-
     fn restore(&mut self, dir: &Path, _t: u64) -> Result<(), TrainError> {
         let path = dir.join(SAC_CHECKPOINT_FILE);
         let state: SacRunState = checkpoint::read(&path, SAC_CHECKPOINT_KIND)?;
@@ -143,7 +142,9 @@ impl SequentialRun for SacRun<'_> {
     fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
         let target = self.cfg.target_return();
         let target = (target, run.env_steps_to_target(target)?);
-        let mut summary = self.evaluator.summary(self.cfg.algo.name(), &self.sac, None, target);
+        let mut summary = self
+            .evaluator
+            .summary(self.cfg.algo.name(), &self.sac, None, target);
         summary.env_steps = self.actor.steps;
         summary.status = status.into();
         summary.episodes_cut_by_resume = self.actor.episodes_cut;

@@ -3,7 +3,7 @@
 use crate::cli::{CommonTrainArgs, TrainArgs};
 use anyhow::Context;
 use mbpo_train::run_dir::holds_a_run;
-use mbpo_train::{algorithm, Algo, ExperimentConfig, RunOptions, Summary, TrainError};
+use mbpo_train::{algorithm, Algo, ConfigError, ExperimentConfig, RunOptions, Summary, TrainError};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -13,21 +13,25 @@ pub fn resolve_config(
     algo: Option<&str>,
     env: Option<&str>,
 ) -> anyhow::Result<ExperimentConfig> {
-    let mut cfg =
-        ExperimentConfig::resolve(common.source.config.as_deref(), &common.source.overrides)?;
-    if let Some(a) = algo {
-        cfg.algo = Algo::parse(a).map_err(|e| anyhow::anyhow!("--algo: {e}"))?;
-    }
-    if let Some(e) = env {
-        cfg.env = e.to_string();
-    }
-    if let Some(s) = common.seed {
-        cfg.seed = s;
-    }
-    if let Some(s) = common.steps {
-        cfg.steps = s;
-    }
-    cfg.validate("command line")?;
+    let source = &common.source;
+    let algo = algo.map(Algo::parse).transpose();
+    let algo = algo.map_err(|e| anyhow::anyhow!("--algo: {e}"))?;
+    let flags = |cfg: &mut ExperimentConfig| -> Result<(), ConfigError> {
+        if let Some(a) = algo {
+            cfg.algo = a;
+        }
+        if let Some(e) = env {
+            cfg.env = e.to_string();
+        }
+        if let Some(s) = common.seed {
+            cfg.seed = s;
+        }
+        if let Some(s) = common.steps {
+            cfg.steps = s;
+        }
+        Ok(())
+    };
+    let cfg = ExperimentConfig::resolve_with(source.config.as_deref(), &source.overrides, flags)?;
     Ok(cfg)
 }
 
