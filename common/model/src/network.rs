@@ -180,8 +180,6 @@ pub(crate) fn member_loss_and_grad(
 ) -> f64 {
     buf.ensure(net, batch);
     let mlp = net.mlp();
-    let dims = mlp.dims();
-    let hidden = net.hidden_layers();
     let d = net.d;
     let member = net.ensemble().member_range(e);
     debug_assert_eq!(g_member.len(), member.len());
@@ -191,8 +189,41 @@ pub(crate) fn member_loss_and_grad(
         &theta[net.min_logvar_range()],
     );
     let (d_max, d_min) = g_bounds.split_at_mut(d);
+    train_forward(net, p, x, batch, buf);
 
-    // Forward: z_l = a_{l−1} W_l, then a_l = SiLU(z_l + b_l) with σ kept.
+    // Loss and ∂L/∂(output), ∂L/∂b_out, ∂L/∂bounds in one pass.
+    let out = net.hidden_layers();
+    let scale = 1.0 / (mean_over * d) as f32;
+    let (_, gb_out) = layer_grads(mlp, g_member, out);
+    let mut acc = NllAccumulators {
+        db: gb_out,
+        d_max,
+        d_min,
+        scratch: &mut buf.scratch,
+    };
+    let bounds = LogvarBounds {
+        max: max_lv,
+        min: min_lv,
+    };
+    let loss = dispatch!(gaussian_nll_rows(
+        &mut buf.y[..batch * mlp.dims()[out + 1]],
+        &targets[..batch * d],
+        &p[mlp.bias_range(out)],
+        &bounds,
+        scale,
+        &mut acc
+    ));
+    train_backward(net, p, x, batch, buf, g_member);
+    loss
+}
+
+/// The forward pass of [`member_loss_and_grad`] with member parameters `p`: z_l = a_{l−1} W_l,
+/// then a_l = SiLU(z_l + b_l) with σ kept, and the output layer's z (its bias is added by the
+/// loss pass) into `buf.y`.
+fn train_forward(net: &Net, p: &[f32], x: &[f32], batch: usize, buf: &mut TrainBuffers) {
+    let mlp = net.mlp();
+    let dims = mlp.dims();
+    let hidden = net.hidden_layers();
     for l in 0..hidden {
         let (n_in, n_out) = (dims[l], dims[l + 1]);
         let (done, todo) = buf.act.split_at_mut(l);
@@ -231,30 +262,27 @@ pub(crate) fn member_loss_and_grad(
         n_out,
         false,
     );
+}
 
-    // Loss and ∂L/∂(output), ∂L/∂b_out, ∂L/∂bounds in one pass.
-    let scale = 1.0 / (mean_over * d) as f32;
-    let (gw_out, gb_out) = layer_grads(mlp, g_member, out);
-    let mut acc = NllAccumulators {
-        db: gb_out,
-        d_max,
-        d_min,
-        scratch: &mut buf.scratch,
-    };
-    let bounds = LogvarBounds {
-        max: max_lv,
-        min: min_lv,
-    };
-    let loss = dispatch!(gaussian_nll_rows(
-        y,
-        &targets[..batch * d],
-        &p[mlp.bias_range(out)],
-        &bounds,
-        scale,
-        &mut acc
-    ));
-
-    // Backward through the output layer.
+/// The backward pass of [`member_loss_and_grad`], `buf.y` holding ∂L/∂(output): the weight
+/// gradients into `g_member` (the biases' were added by the loss pass and by
+/// `silu_backward_bias_grad`), layer by layer from the top.
+fn train_backward(
+    net: &Net,
+    p: &[f32],
+    x: &[f32],
+    batch: usize,
+    buf: &mut TrainBuffers,
+    g_member: &mut [f32],
+) {
+    let mlp = net.mlp();
+    let dims = mlp.dims();
+    let hidden = net.hidden_layers();
+    let out = hidden;
+    let (n_in, n_out) = (dims[out], dims[out + 1]);
+    let top = &buf.act[out - 1][..batch * n_in];
+    let y = &buf.y[..batch * n_out];
+    let (gw_out, _) = layer_grads(mlp, g_member, out);
     gemm(gw_out, top, Op::T, y, Op::N, n_in, batch, n_out, false);
     let [g0, g1] = &mut buf.g;
     gemm(
@@ -301,7 +329,6 @@ pub(crate) fn member_loss_and_grad(
             std::mem::swap(&mut g_cur, &mut g_next);
         }
     }
-    loss
 }
 
 /// Buffers of an inference forward pass over up to [`INFER_CHUNK`] rows.

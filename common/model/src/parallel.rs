@@ -209,7 +209,7 @@ pub(crate) fn members_loss_and_grads<'r>(
     grads: &mut [f32],
     losses: &mut [f64],
 ) {
-    let (members, in_dim, d) = (net.members(), net.in_dim(), net.d());
+    let (members, d) = (net.members(), net.d());
     let parts = threads.parts;
     let units = parts * members;
     let block = units.div_ceil(threads.threads().max(1));
@@ -252,8 +252,64 @@ pub(crate) fn members_loss_and_grads<'r>(
         });
         used += 1;
     }
+    let data = StepData::new(net, theta, (x_all, t_all), &rows_of, parts);
     pool.for_each_mut(&mut items[..used], |_, item| {
-        let Some(b) = item.take() else { return };
+        if let Some(b) = item.take() {
+            data.run_units(b);
+        }
+    });
+    sum_bound_slots(bound_slots, g_bounds);
+    // The members cut between two blocks (a block boundary at an odd unit).
+    for t in 1..used {
+        let boundary = t * block;
+        if boundary % parts == 1 {
+            let member = (boundary / parts) * per_member..(boundary / parts + 1) * per_member;
+            add_second_halves(pool, &mut g_net[member.clone()], &second_halves[member]);
+        }
+    }
+    for (e, loss) in losses.iter_mut().enumerate() {
+        *loss +=
+            half_losses[parts * e..parts * (e + 1)].iter().sum::<f64>() * rows_of(e).len() as f64;
+    }
+}
+
+/// What every thread of step 1 reads.
+struct StepData<'a, 'r> {
+    net: &'a Net,
+    theta: &'a [f32],
+    /// The standardised training split.
+    x_all: &'a [f32],
+    t_all: &'a [f32],
+    /// Member e's minibatch: row indices into the split.
+    rows_of: &'a (dyn Fn(usize) -> &'r [u32] + Sync),
+    parts: usize,
+    per_member: usize,
+}
+
+impl<'a, 'r> StepData<'a, 'r> {
+    fn new(
+        net: &'a Net,
+        theta: &'a [f32],
+        (x_all, t_all): (&'a [f32], &'a [f32]),
+        rows_of: &'a (dyn Fn(usize) -> &'r [u32] + Sync),
+        parts: usize,
+    ) -> Self {
+        let per_member = net.ensemble().mlp().num_params();
+        Self {
+            net,
+            theta,
+            x_all,
+            t_all,
+            rows_of,
+            parts,
+            per_member,
+        }
+    }
+
+    /// One thread's units: each (member, half) gathers its rows and runs its loss and gradient.
+    fn run_units(&self, b: UnitBlock<'_>) {
+        let (parts, per_member) = (self.parts, self.per_member);
+        let (in_dim, d) = (self.net.in_dim(), self.net.d());
         let w = b.worker;
         let first_members = members_with_part(&b.units, 0, parts);
         let second_members = members_with_part(&b.units, 1, parts);
@@ -277,7 +333,7 @@ pub(crate) fn members_loss_and_grads<'r>(
                 let k = e - second_members.start;
                 &mut b.second_halves[k * per_member..(k + 1) * per_member]
             };
-            let member_rows = rows_of(e);
+            let member_rows = (self.rows_of)(e);
             let idx = if whole {
                 member_rows
             } else {
@@ -286,12 +342,12 @@ pub(crate) fn members_loss_and_grads<'r>(
             for (r, &i) in idx.iter().enumerate() {
                 let i = i as usize;
                 w.x_chunk[r * in_dim..(r + 1) * in_dim]
-                    .copy_from_slice(&x_all[i * in_dim..(i + 1) * in_dim]);
-                w.t_chunk[r * d..(r + 1) * d].copy_from_slice(&t_all[i * d..(i + 1) * d]);
+                    .copy_from_slice(&self.x_all[i * in_dim..(i + 1) * in_dim]);
+                w.t_chunk[r * d..(r + 1) * d].copy_from_slice(&self.t_all[i * d..(i + 1) * d]);
             }
             *loss = half_loss_and_grad(
-                net,
-                theta,
+                self.net,
+                self.theta,
                 e,
                 (&w.x_chunk, &w.t_chunk, idx.len()),
                 member_rows.len(),
@@ -300,19 +356,6 @@ pub(crate) fn members_loss_and_grads<'r>(
                 slot,
             );
         }
-    });
-    sum_bound_slots(bound_slots, g_bounds);
-    // The members cut between two blocks (a block boundary at an odd unit).
-    for t in 1..used {
-        let boundary = t * block;
-        if boundary % parts == 1 {
-            let member = (boundary / parts) * per_member..(boundary / parts + 1) * per_member;
-            add_second_halves(pool, &mut g_net[member.clone()], &second_halves[member]);
-        }
-    }
-    for (e, loss) in losses.iter_mut().enumerate() {
-        let member_loss: f64 = half_losses[parts * e..parts * (e + 1)].iter().sum();
-        *loss += member_loss * rows_of(e).len() as f64;
     }
 }
 

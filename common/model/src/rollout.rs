@@ -13,7 +13,7 @@
 //! rule and the buffer see it.
 
 use crate::error::RolloutError;
-use crate::model::ProbabilisticEnsemble;
+use crate::model::{ProbabilisticEnsemble, RolloutBuffers};
 use mbpo_core::{BatchPolicy, ReplayBuffer, Rng, StateBox};
 use serde::{Deserialize, Serialize};
 
@@ -128,33 +128,8 @@ impl ProbabilisticEnsemble {
         out: &mut ReplayBuffer,
     ) -> Result<RolloutStats, RolloutError> {
         let (o, a) = (self.obs_dim, self.act_dim);
-        if matches!(termination, RolloutTermination::Learned) && self.termination.is_none() {
-            return Err(RolloutError::NoTerminationRule);
-        }
-        if start_obs.len() != n * o {
-            return Err(RolloutError::StartObs {
-                n,
-                obs_dim: o,
-                expected: n * o,
-                found: start_obs.len(),
-            });
-        }
-        if (out.obs_dim(), out.act_dim()) != (o, a) {
-            return Err(RolloutError::BufferDims {
-                obs_dim: o,
-                act_dim: a,
-                found_obs: out.obs_dim(),
-                found_act: out.act_dim(),
-            });
-        }
-        let mut stats = RolloutStats {
-            steps: 0,
-            transitions: 0,
-            terminated: 0,
-            alive_per_step: Vec::with_capacity(k),
-            mean_reward: 0.0,
-            clipped: 0,
-        };
+        self.check_rollout(start_obs, n, &termination, out)?;
+        let mut stats = RolloutStats::before(k);
         let mut buf = std::mem::take(&mut self.ws.rollout);
         buf.obs.clear();
         buf.obs.extend_from_slice(start_obs);
@@ -190,41 +165,19 @@ impl ProbabilisticEnsemble {
                     stats.clipped += usize::from(state_box.clip(next));
                 }
             }
-            let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
-            match (&mut termination, self.termination.as_mut()) {
-                (RolloutTermination::Learned, Some(learned)) => {
-                    learned.predict(s, act, next, alive, &mut buf.done[..alive])
-                }
-                (RolloutTermination::Batch(rule), _) => {
-                    if let Err(e) = rule(s, act, next, alive, &mut buf.done[..alive]) {
-                        self.ws.rollout = buf;
-                        self.ws.members = members;
-                        return Err(RolloutError::Termination(e));
-                    }
-                }
-                _ => {}
+            if let Err(e) = self.mark_batch_terminations(&mut termination, &mut buf, alive) {
+                self.ws.rollout = buf;
+                self.ws.members = members;
+                return Err(e);
             }
-            // Push every transition; keep the non-terminated next states, compacted in place.
-            let mut kept = 0;
-            for i in 0..alive {
-                let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
-                let s_next = &buf.next_obs[i * o..(i + 1) * o];
-                let done = match &termination {
-                    RolloutTermination::Rule(rule) => rule(s, act, s_next),
-                    _ => buf.done[i],
-                };
-                out.push(s, act, buf.reward[i], s_next, done);
-                reward_sum += buf.reward[i] as f64;
-                if done {
-                    stats.terminated += 1;
-                } else {
-                    // Row `kept` ≤ i of obs has been pushed already, so it may be overwritten.
-                    let (dst, src) = (kept * o, i * o);
-                    let next = &buf.next_obs[src..src + o];
-                    buf.obs[dst..dst + o].copy_from_slice(next);
-                    kept += 1;
-                }
-            }
+            let kept = push_live(
+                &mut buf,
+                &termination,
+                alive,
+                out,
+                &mut stats,
+                &mut reward_sum,
+            );
             stats.transitions += alive;
             alive = kept;
         }
@@ -237,6 +190,108 @@ impl ProbabilisticEnsemble {
         self.ws.members = members;
         Ok(stats)
     }
+
+    /// The rollout's inputs fit this model: a learned rule exists if asked for, `n` start
+    /// states, a buffer of this model's widths.
+    fn check_rollout(
+        &self,
+        start_obs: &[f32],
+        n: usize,
+        termination: &RolloutTermination,
+        out: &ReplayBuffer,
+    ) -> Result<(), RolloutError> {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        if matches!(termination, RolloutTermination::Learned) && self.termination.is_none() {
+            return Err(RolloutError::NoTerminationRule);
+        }
+        if start_obs.len() != n * o {
+            return Err(RolloutError::StartObs {
+                n,
+                obs_dim: o,
+                expected: n * o,
+                found: start_obs.len(),
+            });
+        }
+        if (out.obs_dim(), out.act_dim()) != (o, a) {
+            return Err(RolloutError::BufferDims {
+                obs_dim: o,
+                act_dim: a,
+                found_obs: out.obs_dim(),
+                found_act: out.act_dim(),
+            });
+        }
+        Ok(())
+    }
+
+    /// `buf.done` of the `alive` rows for the rules that judge a step's batch at once (the
+    /// learned one, a batch rule); a per-transition rule is asked in [`push_live`].
+    fn mark_batch_terminations(
+        &mut self,
+        termination: &mut RolloutTermination,
+        buf: &mut RolloutBuffers,
+        alive: usize,
+    ) -> Result<(), RolloutError> {
+        let (s, act, next) = (&buf.obs, &buf.act, &buf.next_obs);
+        match (termination, self.termination.as_mut()) {
+            (RolloutTermination::Learned, Some(learned)) => {
+                learned.predict(s, act, next, alive, &mut buf.done[..alive])
+            }
+            (RolloutTermination::Batch(rule), _) => {
+                rule(s, act, next, alive, &mut buf.done[..alive])
+                    .map_err(RolloutError::Termination)?
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}
+
+impl RolloutStats {
+    /// Nothing rolled out yet, room for `k` steps.
+    fn before(k: usize) -> Self {
+        Self {
+            steps: 0,
+            transitions: 0,
+            terminated: 0,
+            alive_per_step: Vec::with_capacity(k),
+            mean_reward: 0.0,
+            clipped: 0,
+        }
+    }
+}
+
+/// Push the `alive` transitions of a step into `out` and keep the non-terminated next states
+/// as the next step's states, compacted in place; returns how many live on.
+fn push_live(
+    buf: &mut RolloutBuffers,
+    termination: &RolloutTermination,
+    alive: usize,
+    out: &mut ReplayBuffer,
+    stats: &mut RolloutStats,
+    reward_sum: &mut f64,
+) -> usize {
+    let (o, a) = (out.obs_dim(), out.act_dim());
+    let mut kept = 0;
+    for i in 0..alive {
+        let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
+        let s_next = &buf.next_obs[i * o..(i + 1) * o];
+        let done = match termination {
+            RolloutTermination::Rule(rule) => rule(s, act, s_next),
+            _ => buf.done[i],
+        };
+        out.push(s, act, buf.reward[i], s_next, done);
+        *reward_sum += buf.reward[i] as f64;
+        if done {
+            stats.terminated += 1;
+        } else {
+            // Row `kept` ≤ i of obs has been pushed already, so it may be overwritten.
+            let (dst, src) = (kept * o, i * o);
+            let next = &buf.next_obs[src..src + o];
+            buf.obs[dst..dst + o].copy_from_slice(next);
+            kept += 1;
+        }
+    }
+    kept
 }
 
 /// MBPO's rollout-length schedule `[e_min, e_max, k_min, k_max]` (`_set_rollout_length`):

@@ -175,24 +175,19 @@ impl Mlp {
         cache: &mut MlpCache,
         d_out: &[f32],
         mut grads: Option<&mut [f32]>,
-        d_input: Option<&mut [f32]>,
+        mut d_input: Option<&mut [f32]>,
     ) {
         let batch = cache.batch;
         let n_layers = self.num_layers();
         assert!(d_out.len() >= batch * self.out_dim());
-        if let Some(g) = grads.as_deref() {
-            assert_eq!(
-                g.len(),
-                self.num_params(),
-                "grads must match the parameter layout"
-            );
-        }
-        let mut gbuf = [
-            std::mem::take(&mut cache.grad[0]),
-            std::mem::take(&mut cache.grad[1]),
-        ];
+        let params_len = grads.as_deref().map_or(self.num_params(), <[f32]>::len);
+        assert_eq!(
+            params_len,
+            self.num_params(),
+            "grads must match the parameter layout"
+        );
+        let mut gbuf = std::mem::take(&mut cache.grad);
         let mut dz_buf = std::mem::take(&mut cache.dz);
-        let mut d_input = d_input;
         for l in (0..n_layers).rev() {
             let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
             let act = self.activation(l);
@@ -222,10 +217,7 @@ impl Mlp {
             });
             let dz: &[f32] = if act == Activation::Identity {
                 if let Some((_, gb)) = grads_l.as_mut() {
-                    gb.fill(0.0);
-                    for row in g.chunks_exact(n_out) {
-                        gb.iter_mut().zip(row).for_each(|(s, &v)| *s += v);
-                    }
+                    sum_rows(g, gb);
                 }
                 g
             } else {
@@ -240,22 +232,15 @@ impl Mlp {
             if let Some((gw, _)) = grads_l {
                 gemm(gw, input, Op::T, dz, Op::N, n_in, batch, n_out, false);
             }
+            // ∂L/∂a_{l−1} = ∂L/∂z_l W_lᵀ: for the layer below, or the caller's ∂L/∂x.
             let w = &params[self.weights[l].clone()];
-            if l > 0 {
-                let out = &mut write[..batch * n_in];
+            let below = match l {
+                0 => d_input.as_deref_mut(),
+                _ => Some(&mut write[..]),
+            };
+            if let Some(out) = below {
+                let out = &mut out[..batch * n_in];
                 gemm(out, dz, Op::N, w, Op::T, batch, n_out, n_in, false);
-            } else if let Some(dx) = d_input.as_deref_mut() {
-                gemm(
-                    &mut dx[..batch * n_in],
-                    dz,
-                    Op::N,
-                    w,
-                    Op::T,
-                    batch,
-                    n_out,
-                    n_in,
-                    false,
-                );
             }
         }
         cache.grad = gbuf;
@@ -425,5 +410,14 @@ impl MlpCache {
         self.grad = [vec![0.0; cap * widest], vec![0.0; cap * widest]];
         self.dz = vec![0.0; cap * widest];
         self.capacity = cap;
+    }
+}
+
+/// `sums[j] = Σ_rows g[row, j]` (`g` row-major with `sums.len()` columns): the bias gradient of
+/// a layer without activation.
+fn sum_rows(g: &[f32], sums: &mut [f32]) {
+    sums.fill(0.0);
+    for row in g.chunks_exact(sums.len()) {
+        sums.iter_mut().zip(row).for_each(|(s, &v)| *s += v);
     }
 }

@@ -315,56 +315,17 @@ impl PlanningModel for EnsembleModel {
             return Ok(());
         };
         // Known reward r(obs, a_env(a), next_obs): its gradient joins ∂L/∂next_obs before the
-        // model's backward pass, and ∂L/∂obs, ∂L/∂a after it (∂a_env/∂a = (high − low)/2).
-        let (o, a) = (self.ensemble.obs_dim(), self.ensemble.act_dim());
-        let n = d_reward.len();
+        // model's backward pass, and ∂L/∂obs, ∂L/∂a after it.
+        known_reward_grads(self, f, t, d_reward, d_next_obs)?;
         let Self {
             ensemble,
             tape,
-            recorded,
-            low,
-            high,
-            env_act,
-            d_env_act,
             r_obs,
             r_act,
             d_next,
             zeros,
             ..
         } = self;
-        let [obs, act, next] = recorded.get(t).ok_or_else(|| {
-            PlanError::Dims(format!(
-                "backward of planning step {t}, which was not recorded"
-            ))
-        })?;
-        d_next.clear();
-        d_next.extend_from_slice(d_next_obs);
-        zeros.clear();
-        zeros.resize(n, 0.0);
-        r_obs.clear();
-        r_obs.resize(n * o, 0.0);
-        r_act.clear();
-        r_act.resize(n * a, 0.0);
-        for i in 0..n {
-            Self::to_env(env_act, low, high, &act[i * a..(i + 1) * a]);
-            d_env_act.fill(0.0);
-            (f.grad)(
-                &obs[i * o..(i + 1) * o],
-                env_act,
-                &next[i * o..(i + 1) * o],
-                d_reward[i],
-                &mut r_obs[i * o..(i + 1) * o],
-                d_env_act,
-                &mut d_next[i * o..(i + 1) * o],
-            );
-            for (j, (g, &de)) in r_act[i * a..(i + 1) * a]
-                .iter_mut()
-                .zip(d_env_act.iter())
-                .enumerate()
-            {
-                *g = de * 0.5 * (high[j] - low[j]);
-            }
-        }
         ensemble.mean_step_backward(tape, t, zeros, d_next, d_obs, d_act)?;
         d_obs
             .iter_mut()
@@ -376,4 +337,65 @@ impl PlanningModel for EnsembleModel {
             .for_each(|(g, &r)| *g += r);
         Ok(())
     }
+}
+
+/// The known reward's part of a backward pass of slot `t` with `∂L/∂reward` = `d_reward`:
+/// `model.d_next` = `d_next_obs` + ∂L/∂next_obs through r, `model.r_obs` and `model.r_act` its
+/// ∂L/∂obs and ∂L/∂a (∂a_env/∂a = (high − low)/2), `model.zeros` the model reward head's
+/// gradient (none: r is not the model's).
+fn known_reward_grads(
+    model: &mut EnsembleModel,
+    f: RewardFn,
+    t: usize,
+    d_reward: &[f32],
+    d_next_obs: &[f32],
+) -> Result<(), PlanError> {
+    let (o, a) = (model.ensemble.obs_dim(), model.ensemble.act_dim());
+    let n = d_reward.len();
+    let EnsembleModel {
+        recorded,
+        low,
+        high,
+        env_act,
+        d_env_act,
+        r_obs,
+        r_act,
+        d_next,
+        zeros,
+        ..
+    } = model;
+    let [obs, act, next] = recorded.get(t).ok_or_else(|| {
+        PlanError::Dims(format!(
+            "backward of planning step {t}, which was not recorded"
+        ))
+    })?;
+    d_next.clear();
+    d_next.extend_from_slice(d_next_obs);
+    zeros.clear();
+    zeros.resize(n, 0.0);
+    r_obs.clear();
+    r_obs.resize(n * o, 0.0);
+    r_act.clear();
+    r_act.resize(n * a, 0.0);
+    for i in 0..n {
+        EnsembleModel::to_env(env_act, low, high, &act[i * a..(i + 1) * a]);
+        d_env_act.fill(0.0);
+        (f.grad)(
+            &obs[i * o..(i + 1) * o],
+            env_act,
+            &next[i * o..(i + 1) * o],
+            d_reward[i],
+            &mut r_obs[i * o..(i + 1) * o],
+            d_env_act,
+            &mut d_next[i * o..(i + 1) * o],
+        );
+        for (j, (g, &de)) in r_act[i * a..(i + 1) * a]
+            .iter_mut()
+            .zip(d_env_act.iter())
+            .enumerate()
+        {
+            *g = de * 0.5 * (high[j] - low[j]);
+        }
+    }
+    Ok(())
 }
