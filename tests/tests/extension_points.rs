@@ -281,7 +281,10 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
     let err = run_in_process(&cfg, &run).unwrap_err().to_string();
     // (The test below may have registered one more by now.)
     assert!(err.contains("the pipeline runs mbpo or mpc"), "{err}");
-    assert!(err.contains("not random-policy (run it with `mbpo train`)"), "{err}");
+    assert!(
+        err.contains("not random-policy (run it with `mbpo train`)"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
