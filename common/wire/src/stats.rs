@@ -152,6 +152,20 @@ pub struct Done {
     pub real_spilled: u64,
 }
 
+impl Done {
+    /// A `Done` with the lag or slack `tracked` over the run; the rest default (set them with
+    /// `Done { .., ..Done::with_slack(&t) }`).
+    pub fn with_slack(tracked: &SlackTracker) -> Self {
+        let (slack_min, slack_max, slack_mean) = tracked.get();
+        Self {
+            slack_min,
+            slack_max,
+            slack_mean,
+            ..Default::default()
+        }
+    }
+}
+
 /// A step of a checkpoint barrier (protocol: `mbpo_runtime::barrier`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BarrierReport {

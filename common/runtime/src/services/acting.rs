@@ -189,12 +189,9 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             episodes_cut: a.episodes_cut,
             episodes_lost: a.episodes_lost,
             median_step_seconds: finish.median_step_seconds,
-            slack_min: lo,
-            slack_max: hi,
-            slack_mean: mean,
             ipc_seconds: self.ipc.as_secs_f32(),
             wall_seconds: self.started.elapsed().as_secs_f32(),
-            ..Default::default()
+            ..Done::with_slack(&self.lag)
         })?;
         tracing::info!(
             "done: {} steps, {}{} lag {lo}..{hi} (mean {mean:.2})",

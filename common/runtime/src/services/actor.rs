@@ -19,6 +19,7 @@ use mbpo_train::TrainError;
 use mbpo_wire::*;
 
 use super::acting::{ActingRole, Finish};
+use super::eval_points::EvalPoints;
 use crate::barrier::{self, ActorCheckpoint, EvaluatorCheckpoint};
 use crate::error::ensure_protocol;
 use crate::serving::{AtCut, Cx, Step, Worker};
@@ -107,9 +108,8 @@ pub struct Evaluator {
     rng: Rng,
     policy: ActorPolicy,
     version: u64,
-    evals: u64,
-    /// The next eval point (`None`: all evaluated).
-    next: Option<u64>,
+    /// Evaluations done and the next eval point.
+    points: EvalPoints,
 }
 
 impl<S: Transport> Worker<S> for Evaluator {
@@ -142,17 +142,16 @@ impl<S: Transport> Worker<S> for Evaluator {
             rng: stream(cfg.seed, "eval.env", 0),
             policy: ActorPolicy::new(cx.s.actor_net(), vec![0.0; d.policy_len], true),
             version: 0,
-            evals: 0,
-            next: cx.s.schedule.next_eval_point(0),
+            points: EvalPoints::after(&cx.s.schedule, 0, 0),
         })
     }
     fn restore(&mut self, state: EvaluatorCheckpoint, cx: &EvalCx<'_, S>) -> Result<()> {
-        (self.rng, self.version, self.evals) = (state.rng, state.version, state.evals);
-        self.next = cx.s.schedule.next_eval_point(state.env_steps);
+        (self.rng, self.version) = (state.rng, state.version);
+        self.points = EvalPoints::after(&cx.s.schedule, state.evals, state.env_steps);
         Ok(())
     }
     fn step(&mut self, cx: &EvalCx<'_, S>) -> Result<Step> {
-        let Some(t) = self.next else {
+        let Some(t) = self.points.next else {
             return Ok(Step::Finished);
         };
         if let Some(h) = cx
@@ -184,12 +183,11 @@ impl<S: Transport> Worker<S> for Evaluator {
             episodes: cfg.eval.episodes as u32,
         })?;
         tracing::info!("eval after step {t} (policy version {version}): {ret:.2}");
-        self.evals += 1;
-        self.next = cx.s.schedule.next_eval_point(t);
+        self.points.evaluated(&cx.s.schedule, t);
         Ok(Step::Worked)
     }
     fn done_so_far(&self) -> u64 {
-        self.evals
+        self.points.evals
     }
     /// At the cut every eval point ≤ T is evaluated.
     fn at_cut(
@@ -197,25 +195,21 @@ impl<S: Transport> Worker<S> for Evaluator {
         cut: barrier::Cut,
         _: &EvalCx<'_, S>,
     ) -> Result<AtCut<EvaluatorCheckpoint>> {
-        if self.next.is_some_and(|t| t <= cut.env_steps) {
+        if self.points.behind(cut) {
             return Ok(AtCut::Work);
         }
         Ok(AtCut::Write(EvaluatorCheckpoint {
             rng: self.rng.clone(),
             version: self.version,
-            evals: self.evals,
+            evals: self.points.evals,
             env_steps: cut.env_steps,
         }))
     }
     fn finish(&mut self, cx: &EvalCx<'_, S>) -> Result<()> {
-        cx.stats.report(Done {
-            work: self.evals,
-            ..Default::default()
-        })?;
-        Ok(())
+        self.points.report_done(cx.stats)
     }
     fn waiting_for(&self) -> String {
-        let t = self.next.unwrap_or_default();
+        let t = self.points.next.unwrap_or_default();
         format!("policy version {t} to evaluate")
     }
 }

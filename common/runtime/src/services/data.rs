@@ -11,7 +11,8 @@ use mbpo_wire::{TransitionSubscriber, Transport};
 
 use crate::barrier::Cut;
 use crate::error::ensure_protocol;
-use crate::{Mode, RealInbox, Result};
+use crate::serving::Step;
+use crate::{Mode, Process, RealInbox, Result};
 
 /// Receive what arrived into `inbox`, the role taking what it may see; true once the first
 /// `need` transitions of the run have been received.
@@ -28,6 +29,18 @@ pub fn pull<S: Transport>(
     };
     inbox.pull(real, upto, role)?;
     Ok(inbox.received() >= need)
+}
+
+/// After its last train point, the worker of process `s` takes the rest of the run's real
+/// transitions, so that no actor blocks and its counts are complete: finished once all arrived.
+pub fn the_rest<S: Transport>(
+    s: &Process<S>,
+    real: &TransitionSubscriber<S>,
+    inbox: &mut RealInbox<S>,
+    role: &mut dyn TransitionSink,
+) -> Result<Step> {
+    let all = pull(s.mode, real, inbox, role, s.cfg.steps)?;
+    Ok(if all { Step::Finished } else { Step::Waiting })
 }
 
 /// Before the work of train point `t`: lockstep takes exactly the first t − 1 transitions,

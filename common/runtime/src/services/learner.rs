@@ -182,7 +182,6 @@ impl<S: Transport> Worker<S> for Learner<S> {
     }
     fn finish(&mut self, cx: &LearnerCx<'_, S>) -> Result<()> {
         let median = mbpo_core::stats::median(&mut self.step_seconds).unwrap_or(0.0);
-        let (lo, hi, mean) = self.owed.get();
         let lost = cx.ports.real.stats().missing;
         cx.stats.report(Done {
             real: self.inbox.received(),
@@ -190,12 +189,9 @@ impl<S: Transport> Worker<S> for Learner<S> {
             real_spilled: self.inbox.spilled(),
             work: self.updates,
             median_step_seconds: median as f32,
-            slack_min: lo,
-            slack_max: hi,
-            slack_mean: mean,
             ipc_seconds: self.ipc.as_secs_f32(),
             wall_seconds: self.started.elapsed().as_secs_f32(),
-            ..Default::default()
+            ..Done::with_slack(&self.owed)
         })?;
         tracing::info!(
             "done: {} steps, {} updates, {lost} real lost, median {median:.4} s per step, {:.3} s of {:.1} s in IPC calls",

@@ -5,6 +5,7 @@
 mod acting;
 pub mod actor;
 mod data;
+mod eval_points;
 pub mod learner;
 pub mod model_trainer;
 pub mod planning;

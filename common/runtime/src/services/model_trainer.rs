@@ -89,17 +89,8 @@ impl<S: Transport> Worker<S> for ModelTrainer<S> {
     fn step(&mut self, cx: &TrainerCx<'_, S>) -> Result<Step> {
         let s = cx.s;
         let version = self.role.version();
-        // After the last train point, take the rest so that no actor blocks and the counts
-        // are complete.
         let Some(t) = s.schedule.nth_train_point(version + 1) else {
-            let all = data::pull(
-                s.mode,
-                &cx.ports.real,
-                &mut self.inbox,
-                &mut self.role,
-                s.cfg.steps,
-            )?;
-            return Ok(if all { Step::Finished } else { Step::Waiting });
+            return data::the_rest(s, &cx.ports.real, &mut self.inbox, &mut self.role);
         };
         if !data::pull(
             s.mode,

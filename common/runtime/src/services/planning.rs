@@ -30,6 +30,7 @@ use mbpo_wire::*;
 
 use super::acting::{ActingRole, Finish};
 use super::actor::wait_for_control_subscribers;
+use super::eval_points::EvalPoints;
 use crate::barrier::{self, PlanningActorCheckpoint, PlanningEvaluatorCheckpoint};
 use crate::error::ensure_protocol;
 use crate::serving::{AtCut, Cx, Step, Worker};
@@ -157,9 +158,8 @@ type EvalCx<'a, S> = Cx<'a, S, EvaluatorPorts<S>>;
 /// evaluations are done again on resume, with the same streams).
 pub struct ModelEvaluator {
     evaluator: PlanningEvaluator,
-    evals: u64,
-    /// The next eval point (`None`: all evaluated).
-    next: Option<u64>,
+    /// Evaluations done and the next eval point.
+    points: EvalPoints,
     /// Lockstep: the next eval point was acknowledged (once, also when an abandoned
     /// evaluation of it is done again).
     acknowledged: bool,
@@ -192,20 +192,18 @@ impl<S: Transport> Worker<S> for ModelEvaluator {
     fn new(cx: &EvalCx<'_, S>) -> Result<Self> {
         Ok(Self {
             evaluator: PlanningEvaluator::new(&cx.s.cfg)?,
-            evals: 0,
-            next: cx.s.schedule.next_eval_point(0),
+            points: EvalPoints::after(&cx.s.schedule, 0, 0),
             acknowledged: false,
             before_eval: Vec::new(),
         })
     }
     fn restore(&mut self, state: PlanningEvaluatorCheckpoint, cx: &EvalCx<'_, S>) -> Result<()> {
         self.evaluator.restore(state.role);
-        self.evals = state.evals;
-        self.next = cx.s.schedule.next_eval_point(state.env_steps);
+        self.points = EvalPoints::after(&cx.s.schedule, state.evals, state.env_steps);
         Ok(())
     }
     fn step(&mut self, cx: &EvalCx<'_, S>) -> Result<Step> {
-        let Some(t) = self.next else {
+        let Some(t) = self.points.next else {
             return Ok(Step::Finished);
         };
         // Lockstep keeps a model once copied: the trainer may publish need + 1 as soon as t is
@@ -238,14 +236,14 @@ impl<S: Transport> Worker<S> for ModelEvaluator {
         Ok(Step::Worked)
     }
     fn done_so_far(&self) -> u64 {
-        self.evals
+        self.points.evals
     }
     fn at_cut(
         &mut self,
         cut: barrier::Cut,
         _: &EvalCx<'_, S>,
     ) -> Result<AtCut<PlanningEvaluatorCheckpoint>> {
-        if self.next.is_some_and(|t| t <= cut.env_steps) {
+        if self.points.behind(cut) {
             return Ok(AtCut::Work);
         }
         let mut state = self
@@ -258,16 +256,12 @@ impl<S: Transport> Worker<S> for ModelEvaluator {
         Ok(AtCut::Write(state))
     }
     fn finish(&mut self, cx: &EvalCx<'_, S>) -> Result<()> {
-        cx.stats.report(Done {
-            work: self.evals,
-            ..Default::default()
-        })?;
-        Ok(())
+        self.points.report_done(cx.stats)
     }
     fn waiting_for(&self) -> String {
         format!(
             "the model to evaluate step {}",
-            self.next.unwrap_or_default()
+            self.points.next.unwrap_or_default()
         )
     }
 }
@@ -277,7 +271,7 @@ impl ModelEvaluator {
     fn state_now(&self) -> PlanningEvaluatorCheckpoint {
         PlanningEvaluatorCheckpoint {
             role: self.evaluator.checkpoint(),
-            evals: self.evals,
+            evals: self.points.evals,
             env_steps: 0,
         }
     }
@@ -319,9 +313,8 @@ impl ModelEvaluator {
         tracing::info!(
             "eval after step {t} (model version {model_version}): {ret:.2} in {seconds:.1} s"
         );
-        self.evals += 1;
+        self.points.evaluated(&cx.s.schedule, t);
         self.acknowledged = false;
-        self.next = cx.s.schedule.next_eval_point(t);
         Ok(())
     }
 }

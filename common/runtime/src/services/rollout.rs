@@ -97,14 +97,7 @@ impl<S: Transport> Worker<S> for RolloutGenerator<S> {
     fn step(&mut self, cx: &RolloutCx<'_, S>) -> Result<Step> {
         let s = cx.s;
         let Some(t) = s.schedule.nth_train_point(self.branches + 1) else {
-            let all = data::pull(
-                s.mode,
-                &cx.ports.real,
-                &mut self.inbox,
-                &mut self.role,
-                s.cfg.steps,
-            )?;
-            return Ok(if all { Step::Finished } else { Step::Waiting });
+            return data::the_rest(s, &cx.ports.real, &mut self.inbox, &mut self.role);
         };
         if !self.ready(cx, t)? {
             return Ok(Step::Waiting);
@@ -146,17 +139,13 @@ impl<S: Transport> Worker<S> for RolloutGenerator<S> {
         }))
     }
     fn finish(&mut self, cx: &RolloutCx<'_, S>) -> Result<()> {
-        let (lo, hi, mean) = self.staleness.get();
         let lost = cx.ports.real.stats().missing;
         cx.stats.report(Done {
             real: self.inbox.received(),
             lost,
             real_spilled: self.inbox.spilled(),
             work: self.branches,
-            slack_min: lo,
-            slack_max: hi,
-            slack_mean: mean,
-            ..Default::default()
+            ..Done::with_slack(&self.staleness)
         })?;
         tracing::info!(
             "done: {} real transitions received, {lost} lost, {} branches",
