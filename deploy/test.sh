@@ -31,4 +31,5 @@ elif [ "$status" != 0 ]; then
     exit "$status"
 fi
 cargo test --locked -p mbpo-envs --features mujoco "$@"
-cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume --test diagnose "$@"
+cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume "$@"
+cargo test --locked -p mbpo-bench --features mujoco --test diagnose "$@"

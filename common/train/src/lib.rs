@@ -1,12 +1,10 @@
 //! Experiments: validated configs, run directories, and the single-process trainers.
+//! Benchmarks and diagnoses of runs are `mbpo-bench`'s, above this crate.
 //!
 //! * [`config`]: the TOML experiment file, checked key by key before anything runs.
 //! * [`env_config`]: the config's environment (built-in or Python Gymnasium) and the
 //!   termination rule of model rollouts.
 //! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
-//! * [`breakdown`]: where an MBPO run's time goes, from a kept checkpoint (`mbpo bench breakdown`).
-//! * [`diagnose`]: a run's critic and model held against the real environment, from a kept
-//!   checkpoint (`mbpo bench diagnose`).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * `driver`: the one loop of a single-process run that the SAC, MBPO and MPC trainers share.
@@ -14,7 +12,6 @@
 //! * [`d_model_branches`]: the model buffer in a checkpoint as the rollout branches that filled
 //!   it, done again on restore.
 //! * [`checkpoint_writer`]: a checkpoint written on its own thread while the training goes on.
-//! * [`checkpoint_bench`]: what checkpointing a run costs its training loop (`mbpo bench checkpoint`).
 //! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
 //! * [`error`]: the error of a training run, shared by every trainer and role.
 //! * [`sac_checkpoint`]: the checkpoint file of a SAC run.
@@ -22,7 +19,6 @@
 //! * [`eval`]: deterministic evaluation episodes.
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
 //! * [`tensorboard`]: TensorBoard event files (scalars) without dependencies.
-//! * [`termination_bench`]: the learned termination rule against a task's exact one.
 //! * [`phase_times`]: seconds per phase of an MBPO run (model training, rollouts, SAC, acting).
 //! * [`progress`]: the live progress bar (terminal) or periodic progress lines (logs).
 //! * [`mpc_roles`]: the planning actor and evaluator of model predictive control.
@@ -32,19 +28,15 @@
 
 pub mod actor;
 pub mod algorithm;
-pub mod breakdown;
 pub mod checkpoint;
-pub mod checkpoint_bench;
 pub mod checkpoint_writer;
 pub mod config;
 pub mod cpu;
 pub mod d_model_branches;
-pub mod diagnose;
 mod driver;
 pub mod env_config;
 pub mod error;
 pub mod eval;
-pub mod learning_bench;
 pub mod mbpo_trainer;
 pub mod mpc;
 pub mod mpc_roles;
@@ -59,7 +51,6 @@ pub mod sac_checkpoint;
 pub mod sac_trainer;
 pub mod schedule;
 pub mod tensorboard;
-pub mod termination_bench;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
 pub use error::TrainError;

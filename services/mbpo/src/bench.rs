@@ -18,7 +18,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::PlanLatency(args) => plan_latency(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
-            let report = mbpo_train::termination_bench::termination_benchmark(
+            let report = mbpo_bench::termination_bench::termination_benchmark(
                 env,
                 args.train_steps,
                 args.test_steps,
@@ -190,7 +190,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         );
     }
     if !args.only_seeds.is_empty() {
-        let done = mbpo_train::learning_bench::run_seeds(
+        let done = mbpo_bench::learning_bench::run_seeds(
             &cfg,
             &args.only_seeds,
             args.threads,
@@ -208,7 +208,7 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         )?;
         return Ok(());
     }
-    let r = mbpo_train::learning_bench::learning_benchmark_at(
+    let r = mbpo_bench::learning_bench::learning_benchmark_at(
         &cfg,
         &name,
         &seeds,
@@ -251,7 +251,7 @@ fn mbpo_run_config(
 }
 
 fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
-    use mbpo_train::breakdown::{breakdown_at, Projection};
+    use mbpo_bench::breakdown::{breakdown_at, Projection};
     let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
     let mut pipelines = Vec::new();
@@ -305,7 +305,7 @@ fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
         "{}: the scratch directory exists; remove it or pass another --scratch",
         scratch.display()
     );
-    let cost = mbpo_train::checkpoint_bench::checkpoint_cost(
+    let cost = mbpo_bench::checkpoint_bench::checkpoint_cost(
         &cfg,
         &args.run,
         args.at,
@@ -323,7 +323,7 @@ fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
 /// `mbpo bench diagnose`: one JSON line per checkpoint, a summary line each on stderr, and
 /// all of them in `<out>/diagnose-<run>.json`.
 fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
-    use mbpo_train::diagnose::diagnose_at;
+    use mbpo_bench::diagnose::diagnose_at;
     let cfg = mbpo_run_config(&args.run, &args.overrides, "diagnosis")?;
     let at = match args.at.is_empty() {
         true => mbpo_train::checkpoint::complete_steps(&args.run),

@@ -12,7 +12,7 @@ use mbpo_model::termination::Confusion;
 use mbpo_model::TerminationClassifier;
 use serde::Serialize;
 
-use crate::error::TrainError;
+use mbpo_train::error::TrainError;
 
 /// The report of [`termination_benchmark`].
 #[derive(Debug, Clone, Serialize)]

@@ -1,10 +1,12 @@
 //! `mbpo bench diagnose` on small runs: it reads a kept checkpoint without touching the run,
 //! is reproducible, and its figures agree with what the run itself recorded.
 
-use mbpo_train::diagnose::{diagnose_at, known_tail, BUFFER_ROWS, OPEN_LOOP_HORIZON};
+use mbpo_bench::diagnose::{diagnose_at, known_tail, BUFFER_ROWS, OPEN_LOOP_HORIZON};
 use mbpo_train::{train_mbpo, ExperimentConfig};
 use std::path::{Path, PathBuf};
 
+// The train crate's test helpers (a small MBPO config, temporary directories).
+#[path = "../../train/tests/support/mod.rs"]
 mod support;
 use support::{small_mbpo, temp_dir};
 

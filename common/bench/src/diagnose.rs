@@ -16,12 +16,12 @@
 //! swing can be put next to what changed. Nothing is written to the run, and the run's random
 //! streams are not touched (the episodes draw from their own `diagnose` stream).
 
-use crate::config::ExperimentConfig;
-use crate::error::TrainError;
-use crate::Mbpo;
 use mbpo_core::rng::stream;
 use mbpo_core::{Batch, ReplayBuffer, Rng, StateBox};
 use mbpo_sac::{ActionScale, Sac};
+use mbpo_train::config::ExperimentConfig;
+use mbpo_train::error::TrainError;
+use mbpo_train::Mbpo;
 use serde::Serialize;
 use std::path::Path;
 

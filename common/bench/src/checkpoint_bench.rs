@@ -2,14 +2,14 @@
 //!
 //! The run's kept checkpoint is restored and written again into a scratch directory on the
 //! same file system, timed in its two parts: encoding, which holds the training loop, and
-//! checksum + write + `fsync`, which [`crate::checkpoint_writer`] runs on its own thread (before
+//! checksum + write + `fsync`, which [`mbpo_train::checkpoint_writer`] runs on its own thread (before
 //! it, the loop waited for both).
 
-use crate::checkpoint;
-use crate::config::ExperimentConfig;
-use crate::error::TrainError;
-use crate::eval::Evaluator;
-use crate::Mbpo;
+use mbpo_train::checkpoint;
+use mbpo_train::config::ExperimentConfig;
+use mbpo_train::error::TrainError;
+use mbpo_train::eval::Evaluator;
+use mbpo_train::Mbpo;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;

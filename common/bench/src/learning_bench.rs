@@ -12,10 +12,10 @@
 //! the curves: at each budget, the last evaluation at or before it and the wall-clock seconds
 //! the run had spent by then ([`BudgetPoint`], [`BudgetSummary`]).
 
-use crate::config::{Algo, ExperimentConfig};
-use crate::error::TrainError;
-use crate::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
 use mbpo_core::stats::{median, RECENT_EVALUATIONS};
+use mbpo_train::config::{Algo, ExperimentConfig};
+use mbpo_train::error::TrainError;
+use mbpo_train::run_dir::{env_steps_to_target, read_eval_curve, read_metric_curve, Summary};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -425,9 +425,9 @@ mod tests {
 
     /// A stand-in for a training run: seed s evaluates −1000 + 300·s·k at 100·k env steps.
     fn fake_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainError> {
-        let mut run = crate::run_dir::RunDir::create(dir, cfg)?;
+        let mut run = mbpo_train::run_dir::RunDir::create(dir, cfg)?;
         for k in 1..=4u64 {
-            run.write_metrics(&crate::run_dir::MetricsRow {
+            run.write_metrics(&mbpo_train::run_dir::MetricsRow {
                 env_steps: 100 * k,
                 eval_return: -1000.0 + 300.0 * (cfg.seed * k) as f64,
                 wall_seconds: k as f64,

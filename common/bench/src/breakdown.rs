@@ -14,12 +14,12 @@
 //! window's trainings would have saved in epochs and lost in elite holdout MSE, replayed
 //! exactly from the epochs they ran ([`mbpo_model::elite_holdout_mse_if_capped`]).
 
-use crate::config::ExperimentConfig;
-use crate::error::TrainError;
-use crate::phase_times::{MsPerStep, PhaseTimes};
-use crate::schedule::Schedule;
-use crate::Mbpo;
 use mbpo_model::TrainReport;
+use mbpo_train::config::ExperimentConfig;
+use mbpo_train::error::TrainError;
+use mbpo_train::phase_times::{MsPerStep, PhaseTimes};
+use mbpo_train::schedule::Schedule;
+use mbpo_train::Mbpo;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;

@@ -1,0 +1,19 @@
+//! Benchmarks and diagnoses of runs (`mbpo bench ...`): what a user measures a run or a build
+//! with, on top of the experiments of `mbpo-train`.
+//!
+//! Holds: [`learning_bench`] (seeds of a config to a budget, against the paper's curves),
+//! [`breakdown`] (where an MBPO run's time goes, from a kept checkpoint), [`diagnose`] (a run's
+//! critic and model held against the real environment, from a kept checkpoint),
+//! [`checkpoint_bench`] (what checkpointing costs the training loop) and [`termination_bench`]
+//! (the learned termination rule against a task's exact one).
+//!
+//! Must not hold what a run needs to train, resume or be read: nothing below depends on this
+//! crate, so a trainer never links a benchmark.
+#![warn(missing_docs)]
+#![allow(clippy::needless_range_loop)]
+
+pub mod breakdown;
+pub mod checkpoint_bench;
+pub mod diagnose;
+pub mod learning_bench;
+pub mod termination_bench;
