@@ -5,7 +5,7 @@
 # venv with Gymnasium, which deploy/setup_python.sh makes first (idempotent). The MuJoCo tasks (cargo feature `mujoco`) need libmujoco 3.17.0:
 # deploy/setup_mujoco.sh installs it from PyPI into the project venv (idempotent, about a
 # second when already done), then their replays against Gymnasium and the config checks run
-# (mbpo-envs, mbpo-train's unit tests and a tiny MBPO run per MuJoCo config family, to keep CI
+# (mbpo-envs, mbpo-config's and mbpo-train's unit tests and a tiny MBPO run per MuJoCo config family, to keep CI
 # short).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,5 +31,6 @@ elif [ "$status" != 0 ]; then
     exit "$status"
 fi
 cargo test --locked -p mbpo-envs --features mujoco "$@"
+cargo test --locked -p mbpo-config --features mujoco --lib "$@"
 cargo test --locked -p mbpo-train --features mujoco --lib --test mujoco_tasks --test resume "$@"
 cargo test --locked -p mbpo-bench --features mujoco --test diagnose "$@"

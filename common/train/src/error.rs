@@ -50,3 +50,13 @@ pub enum TrainError {
         at: String,
     },
 }
+
+impl From<mbpo_config::RolloutTerminationError> for TrainError {
+    /// The same variants as before the config had a crate of its own.
+    fn from(e: mbpo_config::RolloutTerminationError) -> Self {
+        match e {
+            mbpo_config::RolloutTerminationError::Config(m) => TrainError::Config(m),
+            mbpo_config::RolloutTerminationError::Env(e) => TrainError::Env(e),
+        }
+    }
+}

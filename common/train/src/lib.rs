@@ -1,9 +1,9 @@
-//! Experiments: validated configs, run directories, and the single-process trainers.
-//! Benchmarks and diagnoses of runs are `mbpo-bench`'s, above this crate.
+//! Experiments: the algorithm table, the roles, run directories and checkpoints, and the
+//! single-process trainers. The configuration is `mbpo-config`'s, below this crate (its
+//! modules [`config`], [`env_config`] and [`schedule`] are re-exported here); benchmarks and
+//! diagnoses of runs are `mbpo-bench`'s, above it. Must not hold a benchmark or anything of
+//! the multi-process pipeline (`mbpo-runtime`).
 //!
-//! * [`config`]: the TOML experiment file, checked key by key before anything runs.
-//! * [`env_config`]: the config's environment (built-in or Python Gymnasium) and the
-//!   termination rule of model rollouts.
 //! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
 //! * [`run_dir`]: `metrics.csv`, `summary.json` and the resolved config of one run.
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
@@ -12,7 +12,6 @@
 //! * [`d_model_branches`]: the model buffer in a checkpoint as the rollout branches that filled
 //!   it, done again on restore.
 //! * [`checkpoint_writer`]: a checkpoint written on its own thread while the training goes on.
-//! * [`schedule`]: when trainings, rollouts, evaluations and updates happen (one rule each).
 //! * [`error`]: the error of a training run, shared by every trainer and role.
 //! * [`sac_checkpoint`]: the checkpoint file of a SAC run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
@@ -30,11 +29,9 @@ pub mod actor;
 pub mod algorithm;
 pub mod checkpoint;
 pub mod checkpoint_writer;
-pub mod config;
 pub mod cpu;
 pub mod d_model_branches;
 mod driver;
-pub mod env_config;
 pub mod error;
 pub mod eval;
 pub mod mbpo_trainer;
@@ -49,11 +46,14 @@ pub mod run_dir;
 pub mod run_files;
 pub mod sac_checkpoint;
 pub mod sac_trainer;
-pub mod schedule;
 pub mod tensorboard;
 
-pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
 pub use error::TrainError;
+/// The configuration (`mbpo-config`), re-exported: paths such as `mbpo_train::config::...` hold.
+pub use mbpo_config::{config, env_config, schedule};
+pub use mbpo_config::{
+    Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
+};
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};
 pub use mpc::{train_mpc, train_mpc_with};
 pub use run_control::RunOptions;

@@ -9,8 +9,8 @@ use std::path::{Path, PathBuf};
 use std::sync::RwLock;
 
 /// Which training algorithm a config runs: a name of the algorithm registry
-/// ([`crate::algorithm`]: `sac`, `mbpo` and `mpc` built in, more with
-/// [`crate::algorithm::register`]). In a config file it is the name, e.g. `algo = "mbpo"`.
+/// (`mbpo_train::algorithm`: `sac`, `mbpo` and `mpc` built in, more with
+/// `mbpo_train::algorithm::register`). In a config file it is the name, e.g. `algo = "mbpo"`.
 ///
 /// The names are kept here, the runs they name in the registry: a config is checked against
 /// the names without knowing how any algorithm runs.
@@ -57,9 +57,10 @@ impl Algo {
         }
     }
 
-    /// Add `name` to the names (the registry's half of [`crate::algorithm::register`]); a
+    /// Add `name` to the names (the registry's half of `mbpo_train::algorithm::register`, which is how a program adds one); a
     /// name already taken is refused.
-    pub(crate) fn register(name: &'static str) -> Result<Algo, String> {
+    #[doc(hidden)]
+    pub fn register(name: &'static str) -> Result<Algo, String> {
         let mut registered = REGISTERED_NAMES.write().unwrap_or_else(|e| e.into_inner());
         if Self::BUILT_IN
             .iter()
@@ -152,7 +153,7 @@ impl Default for SacLoopConfig {
     }
 }
 
-/// When runs write checkpoints (`<run>/checkpoints/`, see [`crate::checkpoint`]).
+/// When runs write checkpoints (`<run>/checkpoints/`, see `mbpo_train::checkpoint`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CheckpointConfig {

@@ -114,8 +114,8 @@ impl ExperimentConfig {
         &self,
         obs_dim: usize,
         act_dim: usize,
-    ) -> Result<RolloutRule, crate::TrainError> {
-        let config = crate::TrainError::Config;
+    ) -> Result<RolloutRule, RolloutTerminationError> {
+        let config = RolloutTerminationError::Config;
         Ok(match self.termination().map_err(config)? {
             Termination::Learned => RolloutRule::Learned,
             Termination::Python(target) => {
@@ -156,4 +156,15 @@ fn toml_to_json(v: &toml::Value) -> serde_json::Value {
                 .collect(),
         ),
     }
+}
+
+/// Why a run's rollout termination rule could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum RolloutTerminationError {
+    /// The config names no usable rule.
+    #[error("{0}")]
+    Config(String),
+    /// A Python rule's process did not start.
+    #[error(transparent)]
+    Env(#[from] mbpo_envs::EnvError),
 }
