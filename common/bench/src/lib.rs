@@ -4,8 +4,9 @@
 //! Holds: [`learning_bench`] (seeds of a config to a budget, against the paper's curves),
 //! [`breakdown`] (where an MBPO run's time goes, from a kept checkpoint), [`diagnose`] (a run's
 //! critic and model held against the real environment, from a kept checkpoint),
-//! [`checkpoint_bench`] (what checkpointing costs the training loop) and [`termination_bench`]
-//! (the learned termination rule against a task's exact one).
+//! [`checkpoint_bench`] (what checkpointing costs the training loop), [`termination_bench`]
+//! (the learned termination rule against a task's exact one) and [`chaos`] (`mbpo run` under
+//! random SIGKILLs: what a user must be able to trust after them).
 //!
 //! Must not hold what a run needs to train, resume or be read: nothing below depends on this
 //! crate, so a trainer never links a benchmark.
@@ -13,6 +14,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod breakdown;
+pub mod chaos;
 pub mod checkpoint_bench;
 pub mod diagnose;
 pub mod learning_bench;

@@ -11,6 +11,29 @@ pub struct Cli {
     pub command: Command,
 }
 
+impl ChaosArgs {
+    /// The plan of `mbpo chaos`: these arguments, run with this `mbpo` executable.
+    pub fn plan(&self) -> anyhow::Result<mbpo_bench::chaos::ChaosPlan> {
+        let mbpo = std::env::current_exe()
+            .map_err(|e| anyhow::anyhow!("finding the mbpo executable: {e}"))?;
+        Ok(mbpo_bench::chaos::ChaosPlan {
+            config: self.source.config.clone(),
+            overrides: self.source.overrides.clone(),
+            steps: self.steps,
+            runs: self.runs,
+            kills: self.kills,
+            mode: self.mode,
+            actors: self.actors,
+            max_delay_seconds: self.max_delay_seconds,
+            kill_seed: self.kill_seed,
+            kill_supervisor: self.kill_supervisor,
+            out: self.out.clone(),
+            ipc_root: self.ipc_root.clone(),
+            mbpo,
+        })
+    }
+}
+
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Train in a single process (SAC baseline; MBPO sequential reference).

@@ -11,7 +11,6 @@ macro_rules! out {
 }
 
 mod bench;
-mod chaos;
 mod cli;
 mod env_cmd;
 mod logging;
@@ -109,7 +108,9 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Bench(cmd) => bench::run(cmd),
-        cli::Command::Chaos(args) => chaos::run(&args),
+        cli::Command::Chaos(args) => {
+            mbpo_bench::chaos::run(&args.plan()?, &mut |line| out!("{line}"))
+        }
     }
 }
 

@@ -1,4 +1,4 @@
-//! `mbpo chaos`: runs the pipeline several times with `--restart on-failure` and SIGKILLs
+//! `mbpo chaos` ([`run`]): runs the pipeline several times with `--restart on-failure` and SIGKILLs
 //! randomly chosen processes (actor, evaluator, model trainer, rollout generator, learner) at
 //! random times, then reports per run what a user must be able to trust: it completed, how
 //! often it restarted, nothing was lost (every consumer received every real transition), no
@@ -9,7 +9,7 @@
 //! run's processes outlived it (goal: gone within 5 s) and the shared memory it left, and the
 //! run continues with `mbpo run --resume`, which must complete and remove those leftovers.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -18,17 +18,46 @@ use mbpo_core::rng::{index, stream, uniform_range_f64};
 use mbpo_runtime::Mode;
 use serde_json::{json, Value};
 
-use crate::cli::ChaosArgs;
+/// What `mbpo chaos` is asked to do (its command line, with the `mbpo` binary that runs).
+#[derive(Debug, Clone)]
+pub struct ChaosPlan {
+    /// Experiment config file (defaults for keys it does not set).
+    pub config: Option<PathBuf>,
+    /// `--set key=value` overrides, in order.
+    pub overrides: Vec<String>,
+    /// Total real env steps of each run (overrides the config's `steps`).
+    pub steps: Option<u64>,
+    /// Runs.
+    pub runs: u64,
+    /// SIGKILLs per run (each once the previous restart is up).
+    pub kills: u32,
+    /// Hand-off mode.
+    pub mode: Mode,
+    /// Training actors.
+    pub actors: u16,
+    /// A kill comes a uniform random 0..this many seconds after its kill point.
+    pub max_delay_seconds: f64,
+    /// Seed of the kill schedule (which process, when).
+    pub kill_seed: u64,
+    /// Kill `mbpo run` itself, then continue the run with `mbpo run --resume`.
+    pub kill_supervisor: bool,
+    /// Output directory: the runs and `chaos.json`.
+    pub out: PathBuf,
+    /// Base directory of the runs' iceoryx2 files.
+    pub ipc_root: PathBuf,
+    /// The `mbpo` executable whose `mbpo run` is tested.
+    pub mbpo: PathBuf,
+}
 
 /// A kill waits at most this long for the pipeline's previous restart to be up.
 const START_TIMEOUT: Duration = Duration::from_secs(300);
 
-/// Run the chaos command.
-pub fn run(args: &ChaosArgs) -> anyhow::Result<()> {
-    let mut cfg = mbpo_train::ExperimentConfig::resolve(
-        args.source.config.as_deref(),
-        &args.source.overrides,
-    )?;
+/// Run the chaos of `args`, handing each JSON line (one per run, one for all) to `print`.
+pub fn run(
+    args: &ChaosPlan,
+    print: &mut dyn FnMut(&str) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let mut cfg = mbpo_train::ExperimentConfig::resolve(args.config.as_deref(), &args.overrides)?;
     if let Some(steps) = args.steps {
         cfg.steps = steps;
     }
@@ -49,11 +78,11 @@ pub fn run(args: &ChaosArgs) -> anyhow::Result<()> {
     let mut reports = Vec::new();
     for r in 0..args.runs {
         let report = one_run(args, &config, &cfg, r, reference.as_deref())?;
-        out!("{report}")?;
+        print(&report.to_string())?;
         reports.push(report);
     }
     let all = totals(&reports, args);
-    out!("{all}")?;
+    print(&all.to_string())?;
     let file = args.out.join("chaos.json");
     let text = serde_json::to_string_pretty(&json!({"runs": reports, "totals": all}))?;
     std::fs::write(&file, text).with_context(|| format!("writing {}", file.display()))?;
@@ -77,7 +106,7 @@ fn kinds(actors: u16) -> Vec<String> {
 /// Run `r`: start it, kill `args.kills` processes at random points of the run, wait for its
 /// end, report.
 fn one_run(
-    args: &ChaosArgs,
+    args: &ChaosPlan,
     config: &Path,
     cfg: &mbpo_train::ExperimentConfig,
     r: u64,
@@ -144,7 +173,7 @@ const ORPHAN_WAIT: Duration = Duration::from_secs(15);
 
 /// `mbpo run` of the config into `run`, restarting on failure, quiet, its stderr in
 /// `<run>.stderr.log`.
-fn start(args: &ChaosArgs, config: &Path, run: &Path, root: &Path) -> anyhow::Result<Child> {
+fn start(args: &ChaosPlan, config: &Path, run: &Path, root: &Path) -> anyhow::Result<Child> {
     std::fs::create_dir_all(root)?;
     let log = std::fs::File::create(run.with_extension("stderr.log"))?;
     let mut cmd = mbpo_run(args, root, log)?;
@@ -157,7 +186,7 @@ fn start(args: &ChaosArgs, config: &Path, run: &Path, root: &Path) -> anyhow::Re
 
 /// `mbpo run --resume` of `run` (its mode and actors are the run's), its stderr appended to
 /// the log.
-fn resume(args: &ChaosArgs, run: &Path, root: &Path) -> anyhow::Result<Child> {
+fn resume(args: &ChaosPlan, run: &Path, root: &Path) -> anyhow::Result<Child> {
     let log = std::fs::OpenOptions::new()
         .append(true)
         .create(true)
@@ -167,11 +196,10 @@ fn resume(args: &ChaosArgs, run: &Path, root: &Path) -> anyhow::Result<Child> {
     cmd.spawn().context("starting mbpo run --resume")
 }
 
-/// The `mbpo run` command line every run of the chaos shares: this executable, the IPC root,
+/// The `mbpo run` command line every run of the chaos shares: the plan's executable, the IPC root,
 /// restarts on failure (one per kill), quiet, stderr into `log`.
-fn mbpo_run(args: &ChaosArgs, root: &Path, log: std::fs::File) -> anyhow::Result<Command> {
-    let exe = std::env::current_exe().context("finding the mbpo executable")?;
-    let mut cmd = Command::new(exe);
+fn mbpo_run(args: &ChaosPlan, root: &Path, log: std::fs::File) -> anyhow::Result<Command> {
+    let mut cmd = Command::new(&args.mbpo);
     cmd.arg("run")
         .args(["--ipc-root".as_ref(), root.as_os_str()])
         .args(["--restart", "on-failure"])
@@ -399,7 +427,7 @@ fn held(r: &Value) -> bool {
 }
 
 /// The line over all runs.
-fn totals(reports: &[Value], args: &ChaosArgs) -> Value {
+fn totals(reports: &[Value], args: &ChaosPlan) -> Value {
     let count = |f: &dyn Fn(&Value) -> bool| reports.iter().filter(|r| f(r)).count();
     let sum = |key: &str| {
         reports
