@@ -153,6 +153,17 @@ impl Default for SacLoopConfig {
     }
 }
 
+/// How the run's environments act in time.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ActorConfig {
+    /// Wall milliseconds every env step takes at least (0: as fast as it computes). A stand-in
+    /// for a robot or a simulator that runs in real time, applied to every environment the run
+    /// makes (actors and evaluator, `mbpo train` and `mbpo run`); results are unchanged, only
+    /// the timing is.
+    pub env_step_ms: f64,
+}
+
 /// When runs write checkpoints (`<run>/checkpoints/`, see `mbpo_train::checkpoint`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -310,6 +321,8 @@ pub struct ExperimentConfig {
     pub checkpoint: CheckpointConfig,
     /// Model predictive control settings (algo = "mpc").
     pub mpc: MpcConfig,
+    /// How the environments act in time.
+    pub actor: ActorConfig,
 }
 
 impl Default for ExperimentConfig {
@@ -328,6 +341,7 @@ impl Default for ExperimentConfig {
             model: mbpo_model::ModelConfig::default(),
             checkpoint: CheckpointConfig::default(),
             mpc: MpcConfig::default(),
+            actor: ActorConfig::default(),
         }
     }
 }
@@ -782,6 +796,14 @@ impl ExperimentConfig {
                 "gym.path",
                 "folders that exist (relative ones are relative to the config file)",
                 p.display().to_string(),
+            ));
+        }
+        let ms = self.actor.env_step_ms;
+        if !(ms >= 0.0 && ms.is_finite()) {
+            return Err(bad(
+                "actor.env_step_ms",
+                "0 or a positive number",
+                ms.to_string(),
             ));
         }
         if self.gym.max_episode_steps == Some(0) {

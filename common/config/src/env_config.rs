@@ -60,12 +60,20 @@ impl ExperimentConfig {
         self.env.replace([':', '/'], "-")
     }
 
-    /// A fresh environment of this config (a Python one starts its process here).
+    /// A fresh environment of this config (a Python one starts its process here), slowed to
+    /// `actor.env_step_ms` per step when that is set.
     pub fn make_env(&self) -> Result<Box<dyn Env>, EnvError> {
-        match self.gym_spec() {
-            Some(spec) => Ok(Box::new(mbpo_envs::PythonEnv::start(spec)?)),
-            None => mbpo_envs::make(&self.env),
-        }
+        let env: Box<dyn Env> = match self.gym_spec() {
+            Some(spec) => Box::new(mbpo_envs::PythonEnv::start(spec)?),
+            None => mbpo_envs::make(&self.env)?,
+        };
+        Ok(match self.actor.env_step_ms {
+            ms if ms > 0.0 => {
+                let step_time = std::time::Duration::from_secs_f64(ms / 1e3);
+                Box::new(mbpo_envs::SlowEnv::new(env, step_time))
+            }
+            _ => env,
+        })
     }
 
     /// The termination rule of model rollouts: `termination` if set, else the task's own, and

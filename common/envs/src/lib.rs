@@ -29,6 +29,7 @@ mod pendulum;
 pub mod python;
 pub mod registry;
 pub mod reward;
+mod slow;
 mod space;
 pub mod termination;
 
@@ -40,6 +41,7 @@ pub use registry::{
     MUJOCO_ENV_IDS, REWARD_ENV_IDS, TERMINATION_ENV_IDS,
 };
 pub use reward::{RewardFn, RewardGradFn, RewardValueFn};
+pub use slow::SlowEnv;
 pub use space::{BoxSpace, ObsPart};
 pub use termination::TerminationFn;
 

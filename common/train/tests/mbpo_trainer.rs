@@ -169,3 +169,26 @@ fn mbpo_learns_pendulum_faster_than_the_warmup_policy() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `actor.env_step_ms` slows every env step (a stand-in for a robot or a real-time simulator)
+/// and changes nothing else: the run ends with the same policy, and takes at least its steps'
+/// time (a lower bound: a busy machine only adds to it). Out-of-range values are refused.
+#[test]
+fn a_slowed_environment_only_changes_the_timing() {
+    let dir = temp_dir("slow-env");
+    let cfg = support::small_mbpo(250);
+    let plain = train_mbpo(&cfg, &dir.join("plain")).unwrap();
+    let mut slow = cfg.clone();
+    slow.actor.env_step_ms = 2.0;
+    let started = std::time::Instant::now();
+    let slowed = train_mbpo(&slow, &dir.join("slow")).unwrap();
+    let min_seconds = 250.0 * 2.0 / 1e3;
+    assert!(started.elapsed().as_secs_f64() >= min_seconds);
+    assert_eq!(slowed.policy_sha256, plain.policy_sha256);
+    for bad in [-1.0, f64::NAN, f64::INFINITY] {
+        slow.actor.env_step_ms = bad;
+        let err = slow.validate("test").unwrap_err().to_string();
+        assert!(err.contains("actor.env_step_ms"), "{err}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
