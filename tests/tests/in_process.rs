@@ -154,3 +154,33 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
     assert_last_step_checkpointed(&run.out, Algo::MBPO, 2, 400);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `actor.control_hz`: the actors of a pipelined run step on a clock (at most `hz` steps a
+/// second each: a lower bound on the run's wall time, robust on a busy machine), and the run
+/// still loses nothing. Lockstep refuses it, naming the fix.
+#[test]
+fn paced_actors_step_on_the_clock_and_lose_nothing() {
+    let mut cfg = tiny_config(400);
+    cfg.actor.control_hz = 200.0;
+    let dir = scratch("in-process-paced");
+    let run = how(&dir, "paced", Mode::Pipelined, 2);
+    let started = std::time::Instant::now();
+    let s = run_in_process(&cfg, &run).unwrap();
+    // 200 steps per actor at 200 Hz: at least 199 periods of 5 ms.
+    assert!(started.elapsed().as_secs_f64() >= 199.0 * 0.005);
+    assert_eq!(
+        (s.summary.status.as_str(), s.summary.env_steps),
+        ("completed", 400)
+    );
+    assert_eq!(s.real_transitions.lost, 0);
+    for consumer in ["model-trainer", "rollout-generator", "learner"] {
+        assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
+    }
+    let lockstep = how(&dir, "paced-lockstep", Mode::Lockstep, 1);
+    let err = run_in_process(&cfg, &lockstep).unwrap_err().to_string();
+    assert!(
+        err.contains("actor.control_hz") && err.contains("--mode pipelined"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

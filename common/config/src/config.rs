@@ -162,6 +162,12 @@ pub struct ActorConfig {
     /// makes (actors and evaluator, `mbpo train` and `mbpo run`); results are unchanged, only
     /// the timing is.
     pub env_step_ms: f64,
+    /// Steps a second each actor of `mbpo run --mode pipelined` takes, on absolute deadlines of
+    /// the monotonic clock (0: as fast as it can, waiting for the weights it needs). A paced
+    /// actor never waits for the learner or the model trainer inside an episode: it acts with
+    /// the newest weights it holds, and waits for the ones its next step needs only between
+    /// episodes, where a robot rests. Missed deadlines are counted (`mbpo run` logs them).
+    pub control_hz: f64,
 }
 
 /// When runs write checkpoints (`<run>/checkpoints/`, see `mbpo_train::checkpoint`).

@@ -13,6 +13,7 @@
 //!   process reads and trusts.
 //! * [`serving`]: the one serving loop every role runs on, and the [`serving::Worker`]
 //!   interface a role implements ([`services`]: the seven roles).
+//! * [`pacer`]: stepping on a clock (a paced actor's absolute deadlines).
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
 //! * [`hosts`]: which hosts a multi-host run's actors are on (files the head's gateway writes).
@@ -29,6 +30,7 @@ pub mod error;
 pub mod hosts;
 pub mod in_process;
 pub mod inbox;
+pub mod pacer;
 pub mod pipeline;
 pub mod process;
 pub mod run_plan;

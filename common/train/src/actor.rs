@@ -182,6 +182,11 @@ impl EnvActor {
     pub fn obs_dim(&self) -> usize {
         self.env.obs_dim()
     }
+    /// Whether an episode is under way (its first step taken): a paced actor waits for
+    /// weights only between episodes.
+    pub fn mid_episode(&self) -> bool {
+        self.env.elapsed_steps() > 0
+    }
     /// Action width.
     pub fn act_dim(&self) -> usize {
         self.env.act_dim()

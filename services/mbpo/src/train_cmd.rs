@@ -35,6 +35,17 @@ pub fn resolve_config(
     Ok(cfg)
 }
 
+/// `mbpo train` runs acting and learning in one process, so it cannot act on a clock: a
+/// config's `actor.control_hz` (for `mbpo run --mode pipelined`) is said to be ignored here.
+fn warn_unpaced(cfg: &ExperimentConfig) {
+    if cfg.actor.control_hz > 0.0 {
+        tracing::warn!(
+            "actor.control_hz = {} is for `mbpo run --mode pipelined`; `mbpo train` steps as fast as it computes (one process cannot act on a clock while it trains)",
+            cfg.actor.control_hz
+        );
+    }
+}
+
 /// The directory of a fresh run. The default, `runs/<algo>-<env>-s<seed>`, moves on to the
 /// first free `…-2`, `…-3`, … when it holds an earlier run, so running the same command
 /// twice keeps both runs (a new directory is claimed with `create_dir`, so two runs started
@@ -163,6 +174,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
         Some(dir) => (resumed_config(dir, args.common.steps)?, dir.clone(), true),
         None => {
             let cfg = resolve_config(&args.common, args.algo.as_deref(), args.env.as_deref())?;
+            warn_unpaced(&cfg);
             let out = fresh_run_dir(&args.common, &cfg)?;
             overwrite_earlier_run(&args.common, &cfg, &out)?;
             (cfg, out, false)

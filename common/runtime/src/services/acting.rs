@@ -21,6 +21,7 @@ use mbpo_wire::*;
 
 use crate::barrier;
 use crate::error::ensure_protocol;
+use crate::pacer::Pacer;
 use crate::serving::{AtCut, Cx, Step, Worker};
 use crate::{Result, *};
 
@@ -115,6 +116,14 @@ pub struct Acting<S: Transport, R: ActingRole> {
     last_progress: Instant,
     started: Instant,
     ipc: Duration,
+    /// `actor.control_hz`: its steps' deadlines (pipelined runs only).
+    pacer: Option<Pacer>,
+    /// It has acted with received weights (a paced actor then keeps acting inside an episode).
+    acted_with_policy: bool,
+    /// A paced actor waiting for weights between episodes (its next step starts a new grid).
+    resting: bool,
+    /// Such waits.
+    rests: u64,
     transport: PhantomData<fn() -> S>,
 }
 
@@ -146,6 +155,11 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
     }
     fn new(cx: &ActingCx<'_, S>) -> Result<Self> {
         let (s, args) = (cx.s, &cx.s.args);
+        let hz = s.cfg.actor.control_hz;
+        crate::error::ensure_protocol!(
+            hz == 0.0 || s.mode == Mode::Pipelined,
+            "actor.control_hz = {hz} paces the actors of a pipelined run; lockstep takes each step with the sequential run's weights: use --mode pipelined, or actor.control_hz = 0"
+        );
         Ok(Self {
             role: R::new(s)?,
             t: 1,
@@ -155,6 +169,10 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             last_progress: Instant::now(),
             started: Instant::now(),
             ipc: Duration::ZERO,
+            pacer: Pacer::new(hz),
+            acted_with_policy: false,
+            resting: false,
+            rests: 0,
             transport: PhantomData,
         })
     }
@@ -199,6 +217,17 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             finish.log,
             weights_name::<R>()
         );
+        if let Some(p) = &self.pacer {
+            let hz = 1.0 / p.period().as_secs_f64();
+            let late_ms = p.worst_late_ns as f64 / 1e6;
+            tracing::info!(
+                "paced at {hz:.1} Hz: {} steps, {} deadlines missed (latest start {late_ms:.2} ms late), {} rests between episodes waiting for {}",
+                p.steps,
+                p.missed,
+                self.rests,
+                weights_name::<R>()
+            );
+        }
         Ok(())
     }
     fn waiting_for(&self) -> String {
@@ -216,7 +245,12 @@ impl<S: Transport, R: ActingRole> Acting<S, R> {
         let role = &mut self.role;
         self.need = role.oldest_allowed(g);
         role.take_newest(&cx.ports.weights, &cx.s.dims)?;
-        if !role.holds(self.need) {
+        // A paced actor does not wait inside an episode: it acts with the newest weights it
+        // holds, and waits for those its step needs only between episodes.
+        let paced = self.pacer.is_some();
+        let keeps_pace = paced && self.acted_with_policy && role.env_actor().mid_episode();
+        if !role.holds(self.need) && !keeps_pace {
+            self.resting = paced;
             return Ok(None);
         }
         let exact = role.sequential_version(g);
@@ -237,6 +271,14 @@ impl<S: Transport, R: ActingRole> Acting<S, R> {
     /// is sent in. An environment failure is reported and ends the acting (nothing of step g
     /// was sent, so the checkpoint that stops the run holds every transition accepted).
     fn act(&mut self, cx: &ActingCx<'_, S>, g: u64, behaviour: Behaviour) -> Result<Step> {
+        if let Some(pacer) = &mut self.pacer {
+            if std::mem::take(&mut self.resting) {
+                pacer.restart();
+                self.rests += 1;
+            }
+            pacer.wait();
+        }
+        self.acted_with_policy |= behaviour == Behaviour::Policy;
         let episodes = self.role.env_actor().episodes;
         let t0 = Instant::now();
         let mut loan = cx.ports.real.loan_rows(1)?;

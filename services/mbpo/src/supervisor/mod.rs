@@ -807,6 +807,9 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
             cfg.algo.name()
         );
     }
+    if args.mode == Mode::Lockstep && cfg.actor.control_hz > 0.0 {
+        bail!("actor.control_hz = {} paces the actors of a pipelined run; lockstep takes each step with the sequential run's weights: use --mode pipelined, or actor.control_hz = 0", cfg.actor.control_hz);
+    }
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
     }
