@@ -616,3 +616,40 @@ fn a_missing_service_binary_is_named_with_the_command_that_builds_it() {
     assert!(err.contains("deploy/worker.sh"), "{err}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `mbpo run --control-hz` is `actor.control_hz`: refused in lockstep and when negative, each
+/// time naming the key and the fix, before a run directory is made.
+#[test]
+fn control_hz_is_refused_where_it_cannot_hold() {
+    let dir = scratch("cli-control-hz");
+    for (args, want) in [
+        (
+            ["--mode", "lockstep", "--control-hz", "50"],
+            "--mode pipelined",
+        ),
+        (
+            ["--mode", "pipelined", "--control-hz", "-5"],
+            "0 or a positive number",
+        ),
+    ] {
+        let out = mbpo()
+            .args(["run", "--config"])
+            .arg(config_file())
+            .args(args)
+            .arg("--out")
+            .arg(dir.join("run"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert!(
+            err.contains("actor.control_hz") && err.contains(want),
+            "{err}"
+        );
+        assert!(
+            !dir.join("run").exists(),
+            "no run directory for a refused run"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

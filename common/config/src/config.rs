@@ -804,13 +804,13 @@ impl ExperimentConfig {
                 p.display().to_string(),
             ));
         }
-        let ms = self.actor.env_step_ms;
-        if !(ms >= 0.0 && ms.is_finite()) {
-            return Err(bad(
-                "actor.env_step_ms",
-                "0 or a positive number",
-                ms.to_string(),
-            ));
+        for (key, v) in [
+            ("actor.env_step_ms", self.actor.env_step_ms),
+            ("actor.control_hz", self.actor.control_hz),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(bad(key, "0 or a positive number", v.to_string()));
+            }
         }
         if self.gym.max_episode_steps == Some(0) {
             return Err(bad(

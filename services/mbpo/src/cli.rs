@@ -486,6 +486,16 @@ pub struct RunArgs {
     /// No live progress bar: log a plain progress line every 10 s instead.
     #[arg(long)]
     pub quiet: bool,
+    /// Steps a second each actor takes, on a clock (`actor.control_hz`; pipelined runs): inside
+    /// an episode an actor acts with the newest weights it holds, between episodes it waits for
+    /// those its next step needs. Its log ends with its missed deadlines.
+    #[arg(
+        long,
+        value_name = "HZ",
+        conflicts_with = "resume",
+        allow_negative_numbers = true
+    )]
+    pub control_hz: Option<f64>,
     #[command(flatten)]
     pub remote: RemoteArgs,
 }

@@ -310,7 +310,11 @@ fn plan_run(
             (cfg, dir, Some(point))
         }
         None => {
-            let cfg = resolve_config(&args.common, None, None)?;
+            // `--control-hz H` is `--set actor.control_hz=H`, after the other overrides.
+            let mut common = args.common.clone();
+            let pace = args.control_hz.map(|hz| format!("actor.control_hz={hz}"));
+            common.source.overrides.extend(pace);
+            let cfg = resolve_config(&common, None, None)?;
             check_run_args(&args, &cfg)?; // before a run directory is claimed
             let out = fresh_run_dir(&args.common, &cfg)?;
             (cfg, out, None)
