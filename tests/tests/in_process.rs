@@ -59,6 +59,7 @@ fn in_process_lockstep_mbpo_equals_sequential() {
         assert_eq!(s.real_transitions.received[consumer], 500, "{consumer}");
     }
     assert_eq!(s.real_transitions.lost, 0);
+    assert!(s.pacing.is_none(), "unpaced");
     assert_eq!(
         s.real_transitions.spilled.values().sum::<u64>(),
         0,
@@ -138,6 +139,7 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }
     assert_eq!(s.real_transitions.lost, 0);
+    assert!(s.pacing.is_none(), "unpaced");
     assert_eq!(
         s.real_transitions.spilled.values().sum::<u64>(),
         0,
@@ -173,6 +175,10 @@ fn paced_actors_step_on_the_clock_and_lose_nothing() {
         ("completed", 400)
     );
     assert_eq!(s.real_transitions.lost, 0);
+    // The summary says it was paced (its counts, which depend on timing, cross the wire as the
+    // round trip of `mbpo_wire::stats` checks).
+    let pacing = s.pacing.expect("a paced run's summary has its pacing");
+    assert_eq!(pacing.control_hz, 200.0);
     for consumer in ["model-trainer", "rollout-generator", "learner"] {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }

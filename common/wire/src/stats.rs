@@ -150,6 +150,10 @@ pub struct Done {
     /// Real transitions this consumer copied out of shared memory before taking them (more
     /// waited than it may hold): each was copied three times instead of twice.
     pub real_spilled: u64,
+    /// Deadlines a paced actor (`actor.control_hz`) started a step after.
+    pub missed_deadlines: u64,
+    /// Waits of a paced actor between episodes for the weights its next step needs.
+    pub rests: u64,
 }
 
 impl Done {
@@ -244,6 +248,7 @@ fn done_record(d: &Done) -> StatsRecord {
         model_trainings: d.episodes_lost,
         policy_version: d.real_spilled,
         value: d.lost as f64,
+        episode_len: d.missed_deadlines.min(u32::MAX as u64) as u32,
         metrics: metrics(&[
             HEARTBEAT_DONE,
             d.median_step_seconds,
@@ -252,8 +257,9 @@ fn done_record(d: &Done) -> StatsRecord {
             d.slack_mean,
             d.ipc_seconds,
             d.wall_seconds,
+            // Exact up to 2^24 rests.
+            d.rests as f32,
         ]),
-        ..Default::default()
     }
 }
 
@@ -385,6 +391,8 @@ impl Stats {
                 episodes_cut: r.model_version,
                 episodes_lost: r.model_trainings,
                 real_spilled: r.policy_version,
+                missed_deadlines: r.episode_len as u64,
+                rests: m[7] as u64,
             }),
             StatsKind::Heartbeat => Stats::Progress(Progress {
                 env_steps: r.env_steps,
@@ -522,6 +530,8 @@ mod tests {
                 episodes_cut: 3,
                 episodes_lost: 2,
                 real_spilled: 6,
+                missed_deadlines: 11,
+                rests: 5,
             }),
             Stats::Barrier(BarrierReport::Paused(0)),
             Stats::Barrier(BarrierReport::Paused(7)),

@@ -126,6 +126,20 @@ pub struct PipelineSummary {
     /// worker its actors, transitions, attempts and restarts.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub hosts: Option<serde_json::Value>,
+    /// Paced actors (`actor.control_hz`): their deadlines missed and rests, summed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pacing: Option<Pacing>,
+}
+
+/// What the paced actors of a run report.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Pacing {
+    /// Steps a second each actor was asked for.
+    pub control_hz: f64,
+    /// Steps started after their deadline, all actors.
+    pub missed_deadlines: u64,
+    /// Waits between episodes for the weights the next step needs, all actors.
+    pub rests_between_episodes: u64,
 }
 
 /// The collector's bookkeeping, what a checkpoint keeps of it: every row ≤ T is written by
@@ -410,6 +424,11 @@ impl Collector {
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
             hosts: None,
+            pacing: (self.cfg.actor.control_hz > 0.0).then_some(Pacing {
+                control_hz: self.cfg.actor.control_hz,
+                missed_deadlines: tally.missed_deadlines,
+                rests_between_episodes: tally.rests,
+            }),
         }
     }
 
@@ -451,6 +470,8 @@ impl Collector {
                     t.real.produced += d.real;
                     t.episodes_cut += d.episodes_cut;
                     t.episodes_lost += d.episodes_lost;
+                    t.missed_deadlines += d.missed_deadlines;
+                    t.rests += d.rests;
                     if *finished {
                         self.add_actor_timing(&mut t, d, finished_actors);
                     }
@@ -522,6 +543,8 @@ struct Tally {
     sac_updates: u64,
     episodes_cut: u64,
     episodes_lost: u64,
+    missed_deadlines: u64,
+    rests: u64,
     median: Option<f64>,
     actor_lag: Range,
     ipc: BTreeMap<String, IpcShare>,
@@ -538,6 +561,8 @@ impl Tally {
             sac_updates: 0,
             episodes_cut: 0,
             episodes_lost: 0,
+            missed_deadlines: 0,
+            rests: 0,
             median: None,
             actor_lag: Range {
                 min: f32::INFINITY,

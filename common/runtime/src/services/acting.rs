@@ -207,6 +207,8 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             episodes_cut: a.episodes_cut,
             episodes_lost: a.episodes_lost,
             median_step_seconds: finish.median_step_seconds,
+            missed_deadlines: self.pacer.as_ref().map_or(0, |p| p.missed),
+            rests: self.rests,
             ipc_seconds: self.ipc.as_secs_f32(),
             wall_seconds: self.started.elapsed().as_secs_f32(),
             ..Done::with_slack(&self.lag)
