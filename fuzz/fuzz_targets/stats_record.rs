@@ -80,6 +80,8 @@ fn seeds() -> Vec<Vec<u8>> {
             episodes_cut: 0,
             episodes_lost: 1,
             real_spilled: 3,
+            missed_deadlines: 2,
+            rests: 1,
         }
         .into(),
         BarrierReport::Paused(300).into(),
