@@ -18,6 +18,8 @@ pub struct Pacer {
     pub steps: u64,
     /// The latest start after a deadline, ns.
     pub worst_late_ns: u64,
+    /// Rests outside the grid ([`Pacer::rest`]).
+    pub rests: u64,
 }
 
 impl Pacer {
@@ -29,16 +31,18 @@ impl Pacer {
             missed: 0,
             steps: 0,
             worst_late_ns: 0,
+            rests: 0,
         })
     }
     /// The time between deadlines.
     pub fn period(&self) -> Duration {
         Duration::from_nanos(self.period_ns)
     }
-    /// Start a new grid at the next step (after a rest the pacer did not ask for, e.g. waiting
-    /// for weights between episodes: that wait is not a missed deadline).
-    pub fn restart(&mut self) {
+    /// A rest the pacer did not ask for ended (e.g. waiting for weights between episodes):
+    /// counted, and the next step starts a new grid, so the wait is not a missed deadline.
+    pub fn rest(&mut self) {
         self.next = None;
+        self.rests += 1;
     }
     /// Sleep until the next deadline (the first step starts at once and sets the grid).
     pub fn wait(&mut self) {
@@ -120,6 +124,12 @@ mod tests {
             "{waited}"
         );
         assert_eq!(p.steps, 12);
+        // A rest (waiting for weights) is counted as one, not as a missed deadline.
+        let missed = p.missed;
+        std::thread::sleep(Duration::from_millis(12));
+        p.rest();
+        p.wait();
+        assert_eq!((p.missed, p.rests), (missed, 1));
         assert!(Pacer::new(0.0).is_none());
     }
 }

@@ -122,8 +122,6 @@ pub struct Acting<S: Transport, R: ActingRole> {
     acted_with_policy: bool,
     /// A paced actor waiting for weights between episodes (its next step starts a new grid).
     resting: bool,
-    /// Such waits.
-    rests: u64,
     transport: PhantomData<fn() -> S>,
 }
 
@@ -172,7 +170,6 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             pacer: Pacer::new(hz),
             acted_with_policy: false,
             resting: false,
-            rests: 0,
             transport: PhantomData,
         })
     }
@@ -208,7 +205,7 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
             episodes_lost: a.episodes_lost,
             median_step_seconds: finish.median_step_seconds,
             missed_deadlines: self.pacer.as_ref().map_or(0, |p| p.missed),
-            rests: self.rests,
+            rests: self.pacer.as_ref().map_or(0, |p| p.rests),
             ipc_seconds: self.ipc.as_secs_f32(),
             wall_seconds: self.started.elapsed().as_secs_f32(),
             ..Done::with_slack(&self.lag)
@@ -226,7 +223,7 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
                 "paced at {hz:.1} Hz: {} steps, {} deadlines missed (latest start {late_ms:.2} ms late), {} rests between episodes waiting for {}",
                 p.steps,
                 p.missed,
-                self.rests,
+                p.rests,
                 weights_name::<R>()
             );
         }
@@ -275,8 +272,7 @@ impl<S: Transport, R: ActingRole> Acting<S, R> {
     fn act(&mut self, cx: &ActingCx<'_, S>, g: u64, behaviour: Behaviour) -> Result<Step> {
         if let Some(pacer) = &mut self.pacer {
             if std::mem::take(&mut self.resting) {
-                pacer.restart();
-                self.rests += 1;
+                pacer.rest();
             }
             pacer.wait();
         }
