@@ -76,7 +76,8 @@ if [ "$steps" -gt 20000 ]; then budgets="20000,$steps"; fi
 # the kernel's autogroup scheduling (sched_autogroup_enabled = 1, as on these VMs) the CPU is
 # shared between sessions first, and `setsid`, as the header's command uses, makes the lanes a
 # session of their own, so niced lanes still took half the CPU from a build started elsewhere
-# (results/measurements.md, session 34). An autogroup's weight is the nice value written to it;
+# (results/measurements.md, "A new machine (AMD EPYC with AVX-512)", 2026-11-29, commit
+# dfb7710). An autogroup's weight is the nice value written to it;
 # it is written only when this script leads its session (started by `setsid`), so that a run
 # from a terminal never lowers the terminal's own session.
 renice -n 19 -p $$ >/dev/null 2>&1 || true

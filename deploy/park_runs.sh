@@ -2,8 +2,9 @@
 # Keep long benchmark runs across fresh checkouts (issue 23's learning lanes run for days).
 #
 # results/runs/ is not in git: a run directory holds checkpoints of tens of MB, rewritten every
-# 1000 env steps. A new checkout of the repository therefore starts without it (session 19 found
-# it gone: 5 seeds, about 30 core-hours, and every curve behind the README's per-seed figures).
+# 1000 env steps. A new checkout of the repository therefore starts without it (a fresh checkout
+# on 2026-11-26 found it gone: 5 seeds, about 30 core-hours, and every curve behind the README's
+# per-seed figures; results/measurements.md, "Runs lost to a fresh checkout", commit 2685774).
 #
 #   bash deploy/park_runs.sh [--with-checkpoints]
 #       pack results/runs/<run>/ into results/parked/runs/<run>/ (and results/<variant>/runs/<run>/,

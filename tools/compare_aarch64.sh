@@ -13,7 +13,8 @@
 #      the no-allocation tests print SKIPPED there: mbpo_nn::gemm::allocation_free).
 # Installs what it needs when root (gcc-aarch64-linux-gnu, qemu-user, the rustup target; MuJoCo
 # through deploy/setup_mujoco.sh). Most of the time is the two builds: 13 min with them partly
-# cached (results/measurements.md, session 37); from nothing, longer.
+# cached (results/measurements.md, "AArch64 under QEMU", 2026-11-29, commit 4cb2acf); from
+# nothing, longer.
 # Usage: bash tools/compare_aarch64.sh
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -9,7 +9,8 @@
 # warm-up" is the first sample at or past capacity + 10 % of the steps, and any later growth is
 # not data but a leak. With the default capacity (1M) the processes that hold D_env (model
 # trainer, rollout generator, learner) grow with the data they hold, about 120 B a Pendulum
-# transition (session 13): memory bounded by the capacity, not a leak in time.
+# transition (the first 100k soak, 2026-11-25, commit 2f68d76): memory bounded by the capacity,
+# not a leak in time.
 # Not part of CI (minutes). Usage: bash tools/soak.sh [STEPS (default 100000)] [CONFIG]
 set -euo pipefail
 repo="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

@@ -4,6 +4,7 @@
 //! the file, the key, what was expected and what was found.
 
 use mbpo_sac::SacConfig;
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::RwLock;
@@ -77,6 +78,18 @@ impl Algo {
     }
 }
 
+impl JsonSchema for Algo {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        "Algo".into()
+    }
+
+    /// A string: the built-in names (a program's registered ones are added at run time).
+    fn json_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        let names: Vec<&str> = Algo::BUILT_IN.iter().map(|a| a.name()).collect();
+        schemars::json_schema!({ "type": "string", "enum": names })
+    }
+}
+
 impl Serialize for Algo {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         s.serialize_str(self.0)
@@ -91,7 +104,7 @@ impl<'de> Deserialize<'de> for Algo {
 }
 
 /// The `[gym]` table: how to start a Python Gymnasium environment (`env = "gym:..."`).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct GymConfig {
     /// The Python interpreter (default: `$MBPO_PYTHON`, else the project venv made by
@@ -103,11 +116,12 @@ pub struct GymConfig {
     /// relative to the config file's folder (the run directory's copy holds them absolute).
     pub path: Vec<PathBuf>,
     /// Keyword arguments of `gymnasium.make` or of the entry point.
+    #[schemars(with = "std::collections::BTreeMap<String, serde_json::Value>")]
     pub kwargs: toml::Table,
 }
 
 /// Evaluation schedule.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EvalConfig {
     /// Evaluate every this many real env steps.
@@ -132,7 +146,7 @@ impl Default for EvalConfig {
 }
 
 /// Settings of the model-free SAC loop.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SacLoopConfig {
     /// Uniform-random env steps before the policy acts and updates start.
@@ -154,7 +168,7 @@ impl Default for SacLoopConfig {
 }
 
 /// How the run's environments act in time.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ActorConfig {
     /// Wall milliseconds every env step takes at least (0: as fast as it computes). A stand-in
@@ -171,7 +185,7 @@ pub struct ActorConfig {
 }
 
 /// When runs write checkpoints (`<run>/checkpoints/`, see `mbpo_train::checkpoint`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CheckpointConfig {
     /// Checkpoint every this many real env steps (0: only at the end and on a clean stop).
@@ -194,7 +208,7 @@ impl Default for CheckpointConfig {
 }
 
 /// MBPO's loop settings (Janner et al. 2019, Alg. 2; names as in the paper and the MBPO code).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MbpoConfig {
     /// Uniform-random real env steps before the model-based loop starts ("n_initial_exploration_steps").
@@ -225,7 +239,7 @@ pub struct MbpoConfig {
 /// (`mbpo.clip_imagined_states`). The paper's code keeps it; on Walker2d-v5, 45-55 % of one-step
 /// imagined states leave the real box, mostly in joint velocities the environment clips to
 /// [−10, 10] in its observation (`mbpo bench diagnose`, results/diagnose-mbpo-Walker2d-v5-s2.json).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ImaginedStateClip {
     /// Keep the model's prediction (the paper).
@@ -254,7 +268,7 @@ impl Default for MbpoConfig {
 }
 
 /// Where the planner's rewards come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum PlanReward {
     /// The task's known reward function (`mbpo_envs::reward_fn`), as PETS does.
@@ -266,7 +280,7 @@ pub enum PlanReward {
 /// Settings of model predictive control (algo = "mpc"): random warm-up, then every env step a
 /// plan on the newest model; the model is retrained on all real data every `model_train_freq`
 /// steps (data aggregation: the planner's own transitions teach the model where it goes).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MpcConfig {
     /// Uniform-random env steps before the first model is trained.
@@ -296,7 +310,7 @@ impl Default for MpcConfig {
 }
 
 /// One experiment.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ExperimentConfig {
     /// Training algorithm.
@@ -304,8 +318,11 @@ pub struct ExperimentConfig {
     /// Environment id: a built-in task (see `mbpo env list`) or a Python Gymnasium env,
     /// `gym:<registered id>` or `gym:<module>:<class or function>` (settings in `[gym]`).
     pub env: String,
-    /// How model rollouts end (see [`crate::env_config`]): unset = the task's own rule;
-    /// `"never"`; or a built-in task's id. A `gym:` env must set it.
+    /// How model rollouts decide that a predicted state ends its episode (see
+    /// [`crate::env_config`]). Unset: the task's own rule, and `"learned"` for a `gym:` env.
+    /// `"never"`; `"learned"` (a classifier trained with the model on the real transitions'
+    /// flags); a built-in task's id (its rule); or `"python:<module>:<function>"` (a function
+    /// of `obs, act, next_obs`, NumPy arrays of n rows, returning n booleans).
     pub termination: Option<String>,
     /// Python Gymnasium environment settings (`env = "gym:..."`).
     pub gym: GymConfig,

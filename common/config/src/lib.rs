@@ -4,7 +4,8 @@
 //! Holds: [`config`] (the TOML experiment file, checked key by key: `ExperimentConfig`, its
 //! sections, `--set` overrides, the algorithm's name `Algo`), [`env_config`] (the config's
 //! environment, built-in or Python Gymnasium, and the termination rule of model rollouts) and
-//! [`schedule`] (when trainings, rollouts, evaluations and updates happen: one rule each).
+//! [`schedule`] (when trainings, rollouts, evaluations and updates happen: one rule each);
+//! [`reference`] writes the configuration reference page from these types' doc comments.
 //!
 //! Must not hold anything that trains, writes a run or knows an algorithm's code: the
 //! algorithm table, the trainers, the run's files and the roles are `mbpo-train`'s, above.
@@ -12,6 +13,7 @@
 
 pub mod config;
 pub mod env_config;
+pub mod reference;
 pub mod schedule;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};

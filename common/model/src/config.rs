@@ -1,5 +1,6 @@
 //! [`ModelConfig`]: every hyper-parameter of the dynamics model, with MBPO's values as defaults.
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 /// Most threads a training call may use ([`ModelConfig::threads`]).
@@ -10,7 +11,7 @@ pub const MAX_THREADS: usize = 64;
 /// Defaults are those of the MBPO code (`mbpo/models/constructor.py`, `bnn.py`), identical to
 /// the PETS HalfCheetah model. Deserialises from a partial table: missing fields keep their
 /// defaults, unknown fields are an error (a typo must not silently fall back to a default).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelConfig {
     /// Ensemble size B ("num_networks", 7).

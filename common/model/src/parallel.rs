@@ -155,8 +155,8 @@ impl MemberThreads {
 /// so that no thread idles for a member's work (7 members on 2 threads: 14 halves, 7 each,
 /// instead of members 4 : 3). A member whose halves land on one thread runs whole all the
 /// same: a 128-row GEMM runs about 3 % below a 256-row one and the halves' sum is one more
-/// pass (one thread is about 6 % slower on halves, `mbpo bench model-train`,
-/// results/measurements.md session 18).
+/// pass (one thread is about 6 % slower on halves, `mbpo bench model-train`;
+/// results/measurements.md, "Halves of minibatches on two threads", 2026-11-26, commit 9101bce).
 fn parts_per_member(members: usize, threads: usize) -> usize {
     if members.is_multiple_of(threads) {
         1

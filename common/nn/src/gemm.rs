@@ -155,7 +155,8 @@ mod tests {
     /// halved for a member cut across two threads, can have a single row, and for one row faer
     /// sums a product with `Bᵀ` in another order than with `B` as stored (Hopper's 2-thread run
     /// changed at 26k for that when 8383275 stopped splitting `Bᵀ` products between faer and
-    /// this kernel; results/measurements.md, session 36).
+    /// this kernel; results/measurements.md, "The 2-thread parting at 26k is 8383275",
+    /// 2026-11-29, commit f7834bc).
     #[test]
     fn ragged_widths_give_faers_bits_in_every_orientation() {
         for (m, k, n) in [

@@ -21,7 +21,8 @@ use std::time::{Duration, Instant};
 /// How long a waiting thread polls an atomic before sleeping on its condvar: longer than the
 /// gap between two SAC updates (drawing the next minibatch), so a worker is awake when the
 /// next update starts. 100 µs instead of 30 made Hopper's SAC updates on two threads 2.64 ->
-/// 2.50 ms (`mbpo bench breakdown`, results/measurements.md, session 16).
+/// 2.50 ms (`mbpo bench breakdown`; results/measurements.md, "Where an MBPO run's time goes",
+/// 2026-11-26, commit cab65f9).
 pub const SPIN: Duration = Duration::from_micros(100);
 
 /// A job with its lifetime erased; [`WorkerPool::run`] does not return before every worker has

@@ -91,9 +91,9 @@ pub fn simd_level() -> SimdLevel {
 /// since), AArch64 and every other architecture -- faer falls back to the `gemm` crate's
 /// kernels, which sum in another order, pick their depth blocking from the L1 cache's size and
 /// allocate their packing buffers on every product but the smallest: other bits than x86-64
-/// with FMA (a Nehalem and AArch64 under QEMU, results/measurements.md sessions 36-37; AArch64
-/// again by `tools/compare_aarch64.sh`), and possibly other bits between such CPUs whose L1
-/// caches differ.
+/// with FMA (a Nehalem and AArch64 under QEMU, results/measurements.md, 2026-11-29, commits
+/// f7834bc and 4cb2acf; AArch64 again by `tools/compare_aarch64.sh`), and possibly other bits
+/// between such CPUs whose L1 caches differ.
 pub fn faer_x86_gemm_kernels() -> bool {
     #[cfg(target_arch = "x86_64")]
     {

@@ -3,8 +3,8 @@
 //! Why: x86 handles a subnormal operand or result (|x| < 1.2e-38 for f32) in microcode, about
 //! a hundred times slower than a normal one. A SAC agent makes them as it trains: gradients of
 //! saturated units square to subnormal second moments in Adam. On Hopper-v5 after 20k updates
-//! one update took 6.8 ms with them and 4.9 ms with them flushed (`mbpo bench breakdown`,
-//! results/measurements.md, session 16).
+//! one update took 6.8 ms with them and 4.9 ms with them flushed (`mbpo bench breakdown`;
+//! results/measurements.md, "Where an MBPO run's time goes", 2026-11-26, commit cab65f9).
 //! TensorFlow, in which the MBPO paper's code runs, sets the same two flags for its kernels.
 //!
 //! The rule, in one place: every job of a [`crate::WorkerPool`] runs flushed (workers from

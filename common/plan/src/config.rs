@@ -4,10 +4,11 @@
 //! error), like the model's and SAC's configs.
 
 use crate::error::PlanError;
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 /// The planning algorithm.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum PlannerKind {
     /// Random shooting: the best of N uniform action sequences.
@@ -33,7 +34,7 @@ impl PlannerKind {
 }
 
 /// Random shooting settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RandomConfig {
     /// Sequences drawn uniformly from the action box per plan.
@@ -47,7 +48,7 @@ impl Default for RandomConfig {
 }
 
 /// CEM settings (Chua et al. 2018, PETS `dmbrl/controllers/MPC.py` and `optimizers/cem.py`).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct CemConfig {
     /// Population per iteration (PETS: 500).
@@ -75,7 +76,7 @@ impl Default for CemConfig {
 }
 
 /// MPPI settings (Nagabandi et al. 2019, PDDM §4: reward-weighted mean with filtered noise).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct MppiConfig {
     /// Sampled sequences per iteration (PDDM: 700).
@@ -103,7 +104,7 @@ impl Default for MppiConfig {
 }
 
 /// Gradient-planner settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct GradConfig {
     /// Sequences optimised in parallel: the warm-started one plus uniform random restarts.
@@ -125,7 +126,7 @@ impl Default for GradConfig {
 }
 
 /// One planner's configuration (`[mpc.planner]` of an experiment file).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct PlannerConfig {
     /// Which planner runs.

@@ -89,3 +89,43 @@ pub struct ServiceArgs {
     #[arg(long)]
     pub behind_gateway: bool,
 }
+
+/// `mbpo join`'s arguments (a worker host's gateway, `mbpo-gateway join`): here rather than in
+/// the gateway's binary so that `mbpo docs` can write them into the command reference without
+/// `mbpo` linking the network stack.
+#[derive(Debug, clap::Args)]
+pub struct JoinArgs {
+    /// The head's endpoint, e.g. tcp/10.0.0.1:7447 (tls/... with credentials).
+    pub head: String,
+    /// Actors to offer.
+    #[arg(long, default_value_t = 1)]
+    pub actors: u16,
+    /// Actors per core of this host (instead of --actors).
+    #[arg(long)]
+    pub actors_per_core: Option<u16>,
+    /// Credentials directory (`mbpo certs`, the worker's part).
+    #[arg(long)]
+    pub credentials: Option<PathBuf>,
+    /// This worker's name in the head's logs and summary (default: host name).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Directory for the actors' local files.
+    #[arg(long)]
+    pub dir: Option<PathBuf>,
+    /// Base directory of this host's iceoryx2 root.
+    #[arg(long, default_value = "/tmp/mbpo-ipc")]
+    pub ipc_root: PathBuf,
+    /// Seconds the head may be silent before this worker stops its actors and joins again
+    /// (keep it above the head's --worker-timeout, 30 s, so the head gives up first).
+    #[arg(long, default_value_t = 60.0)]
+    pub head_timeout: f64,
+}
+
+/// `mbpo certs`'s arguments (`mbpo-gateway certs`).
+#[derive(Debug, clap::Args)]
+pub struct CertsArgs {
+    /// Directory to create them in: DIR/head and DIR/worker (a CA, a certificate each, a
+    /// password).
+    #[arg(long)]
+    pub out: PathBuf,
+}

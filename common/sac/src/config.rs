@@ -1,10 +1,11 @@
 //! SAC hyper-parameters. Defaults are softlearning's SAC v2 as used by MBPO
 //! (../shared/notes/mbpo-reference.md section 3).
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 /// Hyper-parameters of the SAC update.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SacConfig {
     /// Discount γ.
@@ -25,7 +26,7 @@ pub struct SacConfig {
     pub init_alpha: f32,
     /// Learn α to hold the entropy at `target_entropy` (else α stays fixed).
     pub autotune_alpha: bool,
-    /// Target entropy H̄; `None` means −dim(A).
+    /// Target entropy H̄; unset means −dim(A) (the action's dimension, negated).
     pub target_entropy: Option<f32>,
     /// Lower clamp of the actor's log σ.
     pub log_std_min: f32,

@@ -6,7 +6,8 @@
 //! ([`CheckpointFiles`]) and a [`BackgroundWriter`] writes them on its own thread while the next
 //! steps run. The write and the kernel's write-back still take CPU beside the training (with a
 //! checkpoint every 100 steps, an SAC update took 2.8 ms instead of 2.45), so the net gain is about
-//! 1.2 s per checkpoint at 100k, not the whole 2 s (results/measurements.md, session 26).
+//! 1.2 s per checkpoint at 100k, not the whole 2 s (results/measurements.md, "Checkpoints
+//! written beside the training", 2026-11-27, commit ae824eb).
 //!
 //! What a crash can see does not change: a checkpoint directory is resumable only once every
 //! file is on disk and `COMPLETE` is written after them, and older checkpoints are pruned only

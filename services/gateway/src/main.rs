@@ -10,6 +10,7 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use mbpo_net::{NetOptions, DEFAULT_PORT};
+use mbpo_runtime::args::{CertsArgs, JoinArgs};
 use mbpo_runtime::ServiceArgs;
 
 #[derive(Debug, Parser)]
@@ -44,40 +45,7 @@ enum Cmd {
     /// A worker host's gateway (`mbpo join`).
     Join(JoinArgs),
     /// Make a run's credentials (`mbpo certs`): DIR/head and DIR/worker.
-    Certs {
-        /// Directory to create them in.
-        #[arg(long)]
-        out: PathBuf,
-    },
-}
-
-/// `mbpo join`'s arguments.
-#[derive(Debug, clap::Args)]
-struct JoinArgs {
-    /// The head's endpoint, e.g. tcp/10.0.0.1:7447 (tls/... with credentials).
-    head: String,
-    /// Actors to offer.
-    #[arg(long, default_value_t = 1)]
-    actors: u16,
-    /// Actors per core of this host (instead of --actors).
-    #[arg(long)]
-    actors_per_core: Option<u16>,
-    /// Credentials directory (`mbpo certs`, the worker's part).
-    #[arg(long)]
-    credentials: Option<PathBuf>,
-    /// This worker's name in the head's logs and summary (default: host name).
-    #[arg(long)]
-    name: Option<String>,
-    /// Directory for the actors' local files.
-    #[arg(long)]
-    dir: Option<PathBuf>,
-    /// Base directory of this host's iceoryx2 root.
-    #[arg(long, default_value = "/tmp/mbpo-ipc")]
-    ipc_root: PathBuf,
-    /// Seconds the head may be silent before this worker stops its actors and joins again
-    /// (keep it above the head's --worker-timeout, 30 s, so the head gives up first).
-    #[arg(long, default_value_t = 60.0)]
-    head_timeout: f64,
+    Certs(CertsArgs),
 }
 
 fn host_name() -> String {
@@ -116,7 +84,7 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Cmd::Certs { out } => match mbpo_net::certs::make_credentials(&out) {
+        Cmd::Certs(CertsArgs { out }) => match mbpo_net::certs::make_credentials(&out) {
             Ok(()) => {
                 println!(
                     "made {0}/head and {0}/worker: on the head `mbpo run --listen tls/<address>:{1} --credentials {0}/head ...`, on each worker (a copy of {0}/worker) `mbpo join tls/<head address>:{1} --credentials <its copy>`",

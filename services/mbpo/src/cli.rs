@@ -78,6 +78,20 @@ pub enum Command {
     /// and nothing left behind (lockstep: on the sequential run's policy). One JSON line per
     /// run and one for all; `<out>/chaos.json`.
     Chaos(ChaosArgs),
+    /// Write the book's reference pages from the code: the configuration reference (every
+    /// key's doc comment, type and default) and this command reference (every command's
+    /// `--help`).
+    Docs(DocsArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct DocsArgs {
+    /// Directory of the pages.
+    #[arg(long, default_value = "docs/src/reference")]
+    pub out: std::path::PathBuf,
+    /// Write nothing; fail when a page there differs from what the code generates.
+    #[arg(long)]
+    pub check: bool,
 }
 
 #[derive(Debug, Args)]

@@ -12,6 +12,7 @@ macro_rules! out {
 
 mod bench;
 mod cli;
+mod docs_cmd;
 mod env_cmd;
 mod logging;
 mod supervisor;
@@ -108,6 +109,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Bench(cmd) => bench::run(cmd),
+        cli::Command::Docs(args) => docs_cmd::run(&args),
         cli::Command::Chaos(args) => {
             mbpo_bench::chaos::run(&args.plan()?, &mut |line| out!("{line}"))
         }
