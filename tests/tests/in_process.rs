@@ -157,6 +157,41 @@ fn in_process_pipelined_run_with_two_actors_loses_nothing() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `eval.stop_when_solved`: a pipelined run whose evaluations reach the target often enough in
+/// a row stops at its next checkpoint cut, as `solved`, with nothing lost; the sequential
+/// reference stops at the solving evaluation itself.
+#[test]
+fn a_solved_run_stops_with_a_checkpoint_in_the_pipeline_and_in_one_process() {
+    let mut cfg = tiny_config(1000);
+    // Every evaluation reaches this target: the run is solved at its second eval point.
+    cfg.eval.target_return = Some(-1e9);
+    cfg.eval.stop_when_solved = 2;
+    cfg.checkpoint.every = 0;
+    let dir = scratch("in-process-solved");
+    let run = how(&dir, "solved", Mode::Pipelined, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(s.summary.status, "solved");
+    let (_, manifest) = mbpo_train::checkpoint::latest(&run.out).unwrap().unwrap();
+    assert!(
+        (400..1000).contains(&manifest.env_steps),
+        "solved at 400, stopped at the cut after it: {}",
+        manifest.env_steps
+    );
+    assert_eq!(s.real_transitions.lost, 0);
+    let reference = dir.join("sequential");
+    let opts = mbpo_train::RunOptions::default();
+    let sequential = mbpo_train::train_mbpo_with(&cfg, &reference, opts).unwrap();
+    assert_eq!((sequential.status.as_str(), sequential.env_steps), ("solved", 400));
+    // Extended, a solved run takes every step it is given.
+    let resume = mbpo_train::RunOptions {
+        resume: true,
+        ..Default::default()
+    };
+    let extended = mbpo_train::train_mbpo_with(&cfg, &reference, resume).unwrap();
+    assert_eq!((extended.status.as_str(), extended.env_steps), ("completed", 1000));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `actor.control_hz`: the actors of a pipelined run step on a clock (at most `hz` steps a
 /// second each: a lower bound on the run's wall time, robust on a busy machine), and the run
 /// still loses nothing. Lockstep refuses it, naming the fix.

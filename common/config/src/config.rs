@@ -133,6 +133,11 @@ pub struct EvalConfig {
     /// Gymnasium's `reward_threshold`, −200 for Pendulum). It changes no bit of training.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_return: Option<f64>,
+    /// End the run once this many evaluations in a row reach `target_return`: it stops with a
+    /// checkpoint and the status `solved` (0: run every step). Counted from the
+    /// start of a run; extending a solved run (`--resume RUN --steps N`) runs every step.
+    /// `mbpo run` stops at its next checkpoint cut after the evaluation that solved it.
+    pub stop_when_solved: u32,
 }
 
 impl Default for EvalConfig {
@@ -141,6 +146,7 @@ impl Default for EvalConfig {
             every: 1000,
             episodes: 1,
             target_return: None,
+            stop_when_solved: 0,
         }
     }
 }
@@ -600,6 +606,13 @@ impl ExperimentConfig {
         }
         if let Some(t) = self.eval.target_return.filter(|t| !t.is_finite()) {
             return Err(bad("eval.target_return", "a finite number", t.to_string()));
+        }
+        if self.eval.stop_when_solved > 0 && self.target_return().is_none() {
+            return Err(bad(
+                "eval.stop_when_solved",
+                &format!("0 while the task has no target return (or set eval.target_return for {})", self.env),
+                self.eval.stop_when_solved.to_string(),
+            ));
         }
         if c.keep_every > 0 && (c.every == 0 || !c.keep_every.is_multiple_of(c.every)) {
             return Err(bad(

@@ -5,6 +5,7 @@
 //! sections, `--set` overrides, the algorithm's name `Algo`), [`env_config`] (the config's
 //! environment, built-in or Python Gymnasium, and the termination rule of model rollouts) and
 //! [`schedule`] (when trainings, rollouts, evaluations and updates happen: one rule each);
+//! [`solved`] (when a run counts its task as solved and ends early);
 //! [`reference`] writes the configuration reference page from these types' doc comments.
 //!
 //! Must not hold anything that trains, writes a run or knows an algorithm's code: the
@@ -15,7 +16,9 @@ pub mod config;
 pub mod env_config;
 pub mod reference;
 pub mod schedule;
+pub mod solved;
 
 pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
 pub use env_config::RolloutTerminationError;
 pub use schedule::Schedule;
+pub use solved::SolvedRule;

@@ -69,6 +69,6 @@ pub use rollout::{
 };
 pub use termination::{TerminationClassifier, TerminationReport, TerminationWeights};
 pub use train::{
-    elite_holdout_mse_if_capped, select_elites, BootstrapIndices, EarlyStopping, StopReason,
-    TrainReport,
+    elite_holdout_mse_if_capped, select_elites, BootstrapIndices, EarlyStopping, EpochProgress,
+    StopReason, TrainReport,
 };

@@ -283,6 +283,17 @@ impl TrainReport {
     }
 }
 
+/// Where a training call stands after an epoch (what a progress line shows of it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EpochProgress {
+    /// Epochs done in this call.
+    pub epoch: usize,
+    /// The members' mean holdout MSE after this epoch.
+    pub holdout_mse: f32,
+    /// Seconds since the call began.
+    pub seconds: f64,
+}
+
 impl ProbabilisticEnsemble {
     /// Fit the ensemble to `data` (all transitions collected so far), continuing from the
     /// current weights; see the module docs for the procedure. Draws the holdout permutation,
@@ -300,6 +311,18 @@ impl ProbabilisticEnsemble {
         data: &Batch,
         rng: &mut Rng,
         mut stop_requested: impl FnMut() -> bool,
+    ) -> Result<Option<TrainReport>, TrainError> {
+        self.train_watched(data, rng, |_| stop_requested())
+    }
+
+    /// [`Self::train_unless`], showing `after_epoch` where the call stands after each epoch
+    /// that does not end it (for a progress line: a training can take minutes); it returns
+    /// whether to give up.
+    pub fn train_watched(
+        &mut self,
+        data: &Batch,
+        rng: &mut Rng,
+        mut after_epoch: impl FnMut(&EpochProgress) -> bool,
     ) -> Result<Option<TrainReport>, TrainError> {
         // Subnormals flushed, as every job of the pool (mbpo_nn::subnormal says why).
         let _flush = mbpo_nn::FlushSubnormals::new();
@@ -347,7 +370,12 @@ impl ProbabilisticEnsemble {
                 report.stop = reason;
                 break;
             }
-            if stop_requested() {
+            let progress = EpochProgress {
+                epoch: report.epochs,
+                holdout_mse: epochs.mse.iter().sum::<f32>() / members as f32,
+                seconds: start.elapsed().as_secs_f64(),
+            };
+            if after_epoch(&progress) {
                 return Ok(None);
             }
         }

@@ -127,12 +127,13 @@ fn coordinate<S: Transport>(
         .and_then(|()| drive(&mut coord, &ports, &mut threads, how, run_dir, started));
     coord.send_stop(&ports, threads.len(), StopReason::RunOver);
     let ended = join_roles(&mut threads, STOP_DEADLINE);
-    outcome?;
+    let status = outcome?;
     ended?;
-    coord.finish("completed", run_dir, started)
+    coord.finish(status, run_dir, started)
 }
 
-/// The coordinator's loop, until every role is done (or one ended early, or the timeout).
+/// The coordinator's loop, until every role is done (or one ended early, or the timeout);
+/// the run's status: `completed`, or `solved` when `eval.stop_when_solved` stopped it.
 fn drive<S: Transport>(
     coord: &mut Coordinator,
     ports: &CoordinatorPorts<S>,
@@ -140,7 +141,7 @@ fn drive<S: Transport>(
     how: &InProcessRun,
     run_dir: &mut RunDir,
     started: Instant,
-) -> Result<()> {
+) -> Result<&'static str> {
     let mut waiter = Waiter::new()?;
     ports.attach(&mut waiter);
     loop {
@@ -166,8 +167,9 @@ fn drive<S: Transport>(
             )));
         }
         match coord.advance(ports, run_dir, started)? {
-            Phase::Finished => return Ok(()),
+            Phase::Finished => return Ok("completed"),
             Phase::Running => {}
+            Phase::Stopped if coord.solved() => return Ok(mbpo_train::run_control::SOLVED),
             Phase::Stopped => {
                 let why = coord.env_failure();
                 return Err(RuntimeError::protocol(

@@ -1,6 +1,7 @@
 //! The one loop of a single-process run (`mbpo train`), which SAC, MBPO and MPC share: open
 //! the run directory (fresh or from its newest checkpoint), then per env step t take the step,
-//! write the metrics row of an eval point, show progress, checkpoint when due, stop when asked;
+//! write the metrics row of an eval point, show progress, checkpoint when due, stop when asked
+//! or when solved (`eval.stop_when_solved`);
 //! at the end, the summary. What differs between the algorithms -- the step, the row, the
 //! checkpoint files, the summary's fields -- is a [`SequentialRun`].
 //!
@@ -13,7 +14,10 @@ use std::path::Path;
 use crate::config::ExperimentConfig;
 use crate::error::TrainError;
 use crate::progress::{Display, Progress};
-use crate::run_control::{checkpoint_due, log_stopped, open_run, stop_before, RunOptions};
+use crate::run_control::{
+    checkpoint_due, log_solved, log_stopped, open_run, solved_rule, stop_before, RunOptions,
+    SOLVED,
+};
 use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::schedule::Schedule;
 
@@ -56,25 +60,34 @@ pub(crate) fn drive<R: SequentialRun>(
         progress = progress.counting(what);
     }
     let mut status = "completed";
+    let mut solved = solved_rule(cfg, out, opts.resume);
     for t in done + 1..=cfg.steps {
         if !algo.step(t, &mut || opts.stopping_at(t, cfg.steps))? {
             stop_before(t, |at| algo.save(at, true), out)?;
             status = "stopped";
             break;
         }
+        let mut solved_now = false;
         if schedule.is_eval_point(t) {
             let row = algo.evaluate(t)?;
             run.write_metrics(&row)?;
             progress.set_eval(row.eval_return);
+            solved_now = solved.as_mut().is_some_and(|s| s.see(row.eval_return));
         }
         let (counter, model_version) = algo.progress();
         if let Some(v) = model_version {
             progress.set_model_version(v);
         }
         progress.update(t, counter);
-        let stopping = opts.stopping_at(t, cfg.steps);
+        let solved_now = solved_now && t < cfg.steps;
+        let stopping = opts.stopping_at(t, cfg.steps) || solved_now;
         if checkpoint_due(cfg, t, stopping) {
             algo.save(t, stopping || t == cfg.steps)?;
+        }
+        if let (true, Some(rule)) = (solved_now, &solved) {
+            log_solved(rule, t, out);
+            status = SOLVED;
+            break;
         }
         if stopping {
             log_stopped(t, out);

@@ -50,7 +50,8 @@ pub mod tensorboard;
 
 pub use error::TrainError;
 /// The configuration (`mbpo-config`), re-exported: paths such as `mbpo_train::config::...` hold.
-pub use mbpo_config::{config, env_config, reference as config_reference, schedule};
+pub use mbpo_config::{config, env_config, reference as config_reference, schedule, solved};
+pub use mbpo_config::SolvedRule;
 pub use mbpo_config::{
     Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
 };

@@ -109,6 +109,8 @@ pub struct Progress {
     model_version: Option<u64>,
     /// Where the actors are, in a multi-host run (`hosts: head 1, gpu-box 2`).
     hosts: Option<String>,
+    /// What holds the run up now, e.g. a model training under way and who waits for it.
+    activity: Option<String>,
     /// What the second counter counts (`updates`: SAC updates; MPC runs count `plans`).
     units: &'static str,
     finished: bool,
@@ -155,6 +157,7 @@ impl Progress {
             eval: None,
             model_version: None,
             hosts: None,
+            activity: None,
             units: "updates",
             finished: false,
         };
@@ -231,6 +234,16 @@ impl Progress {
         self.hosts = Some(hosts);
     }
 
+    /// What holds the run up now (`None`: nothing worth saying), shown after the rates, e.g.
+    /// `training model v4: epoch 12, holdout mse 0.0123, 4 s; the learner waits for it`:
+    /// without it a training shows as `0.0 env steps/s`, which reads as a hang.
+    pub fn set_activity(&mut self, activity: Option<String>) {
+        if self.activity != activity {
+            self.activity = activity;
+            self.refresh_bar();
+        }
+    }
+
     /// Close the rate window ending at `now` (if it is long enough to mean something).
     fn roll_window(&mut self, now: Instant) {
         let Some((t0, s0, u0)) = self.window else {
@@ -273,6 +286,9 @@ impl Progress {
         });
         if let Some(v) = self.model_version {
             parts.push(format!("model v{v}"));
+        }
+        if let Some(activity) = &self.activity {
+            parts.push(activity.clone());
         }
         if let Some(hosts) = &self.hosts {
             parts.push(hosts.clone());

@@ -341,13 +341,22 @@ impl ModelTrainerRole {
     /// returned, so a checkpoint written next is the one of the previous step.
     pub fn train_unless(
         &mut self,
-        stop: impl FnMut() -> bool,
+        mut stop: impl FnMut() -> bool,
+    ) -> Result<Option<(ModelSnapshot, TrainReport)>, TrainError> {
+        self.train_watched(|_| stop())
+    }
+
+    /// [`Self::train_unless`], showing `after_epoch` where the training stands after each
+    /// epoch (it returns whether to give up).
+    pub fn train_watched(
+        &mut self,
+        after_epoch: impl FnMut(&mbpo_model::EpochProgress) -> bool,
     ) -> Result<Option<(ModelSnapshot, TrainReport)>, TrainError> {
         let data = self.d_env.to_batch();
         let before = (self.model.checkpoint(), self.rng.clone());
         let trained = self
             .model
-            .train_unless(&data, &mut self.rng, stop)
+            .train_watched(&data, &mut self.rng, after_epoch)
             .map_err(|e| TrainError::Config(e.to_string()))?;
         let Some(report) = trained else {
             let (model, rng) = before;

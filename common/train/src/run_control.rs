@@ -6,6 +6,7 @@ use crate::checkpoint;
 use crate::config::ExperimentConfig;
 use crate::error::TrainError;
 use crate::run_dir::RunDir;
+use mbpo_config::SolvedRule;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -69,6 +70,31 @@ pub(crate) fn open_run(
         out.display()
     );
     Ok((RunDir::reopen_with_config(out, cfg, done)?, done))
+}
+
+/// The solved rule (`eval.stop_when_solved`) of a run of `cfg` in `out`. Off when the run
+/// resumes after it was solved: extending a solved run (`--resume RUN --steps N`) asks for
+/// the steps, not for the same stop again.
+pub fn solved_rule(cfg: &ExperimentConfig, out: &Path, resume: bool) -> Option<SolvedRule> {
+    let summary = std::fs::read_to_string(out.join("summary.json")).unwrap_or_default();
+    let status = serde_json::from_str::<serde_json::Value>(&summary)
+        .ok()
+        .and_then(|s| s.get("status")?.as_str().map(str::to_string));
+    let was_solved = resume && status.as_deref() == Some(SOLVED);
+    SolvedRule::of(cfg).filter(|_| !was_solved)
+}
+
+/// A run's status when `eval.stop_when_solved` ended it: checkpointed, as after a stop, and as
+/// good as complete (rerunning its command does nothing).
+pub const SOLVED: &str = "solved";
+
+/// Log a run ended by its solved rule at eval point `t`, and how to run it on.
+pub(crate) fn log_solved(rule: &SolvedRule, t: u64, out: &Path) {
+    tracing::info!(
+        "solved at env step {t} ({}): stopped with a checkpoint; run on with --resume {} --steps N",
+        rule.describe(),
+        out.display()
+    );
 }
 
 /// Whether env step `t` ends with a checkpoint: every `checkpoint.every` steps, after the last

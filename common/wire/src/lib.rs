@@ -84,8 +84,8 @@ pub use schema::{
     TransitionHeader, WeightsCounters, WeightsHeader, WeightsKind, CONTROL_TARGET_ALL,
 };
 pub use stats::{
-    BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained, Progress,
-    RolloutBranch, SlackTracker, Stats,
+    BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained,
+    ModelTraining, Progress, RolloutBranch, SlackTracker, Stats,
 };
 pub use transitions::{
     DrainReport, RowLoan, TransitionBatch, TransitionMeta, TransitionPublisher,

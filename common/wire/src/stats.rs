@@ -83,6 +83,22 @@ pub struct ModelTrained {
     pub seconds: f32,
 }
 
+/// A model training under way, after one of its epochs (for the progress line: a training
+/// can take minutes, and other roles may wait for it meanwhile).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct ModelTraining {
+    /// The train point t it trains for.
+    pub env_steps: u64,
+    /// The model version it will become.
+    pub version: u64,
+    /// Epochs done.
+    pub epoch: u32,
+    /// The members' mean holdout MSE after that epoch.
+    pub holdout_mse: f32,
+    /// Wall seconds so far.
+    pub seconds: f32,
+}
+
 /// A rollout branch finished.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RolloutBranch {
@@ -191,6 +207,8 @@ pub enum Stats {
     Learner(LearnerRow),
     /// A model training finished.
     Model(ModelTrained),
+    /// A model training under way.
+    Training(ModelTraining),
     /// A rollout branch finished.
     Rollout(RolloutBranch),
     /// Progress counters.
@@ -206,6 +224,7 @@ pub enum Stats {
 // Heartbeat records: metrics[0] tells progress (0) from done (1).
 const HEARTBEAT_PROGRESS: f32 = 0.0;
 const HEARTBEAT_DONE: f32 = 1.0;
+const HEARTBEAT_TRAINING: f32 = 2.0;
 // Checkpoint records: metrics[0] tells paused (0) from written (1).
 const BARRIER_PAUSED: f32 = 0.0;
 const BARRIER_WRITTEN: f32 = 1.0;
@@ -311,6 +330,14 @@ impl Stats {
                 metrics: metrics(&[HEARTBEAT_PROGRESS]),
                 ..Default::default()
             },
+            Stats::Training(m) => StatsRecord {
+                kind: StatsKind::Heartbeat as u32,
+                env_steps: m.env_steps,
+                model_version: m.version,
+                episode_len: m.epoch,
+                metrics: metrics(&[HEARTBEAT_TRAINING, m.holdout_mse, m.seconds]),
+                ..Default::default()
+            },
             Stats::Done(d) => done_record(&d),
             Stats::EnvFailed(f) => StatsRecord {
                 kind: StatsKind::EnvFailed as u32,
@@ -394,6 +421,13 @@ impl Stats {
                 missed_deadlines: r.episode_len as u64,
                 rests: m[7] as u64,
             }),
+            StatsKind::Heartbeat if m[0] == HEARTBEAT_TRAINING => Stats::Training(ModelTraining {
+                env_steps: r.env_steps,
+                version: r.model_version,
+                epoch: r.episode_len,
+                holdout_mse: m[1],
+                seconds: m[2],
+            }),
             StatsKind::Heartbeat => Stats::Progress(Progress {
                 env_steps: r.env_steps,
                 sac_updates: r.sac_updates,
@@ -421,7 +455,7 @@ macro_rules! into_stats {
     )*};
 }
 into_stats!(EpisodeEnd => Episode, EvalResult => Eval, LearnerRow => Learner,
-    ModelTrained => Model, RolloutBranch => Rollout, Progress => Progress, Done => Done,
+    ModelTrained => Model, ModelTraining => Training, RolloutBranch => Rollout, Progress => Progress, Done => Done,
     BarrierReport => Barrier, EnvFailed => EnvFailed);
 
 /// Running min / max / mean of a slack value (for [`Done`]).
@@ -502,6 +536,13 @@ mod tests {
                 holdout_mse: 0.0125,
                 epochs: 87,
                 seconds: 2.5,
+            }),
+            Stats::Training(ModelTraining {
+                env_steps: 1000,
+                version: 5,
+                epoch: 12,
+                holdout_mse: 0.0375,
+                seconds: 4.25,
             }),
             Stats::Rollout(RolloutBranch {
                 env_steps: 250,

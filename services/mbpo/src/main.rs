@@ -15,6 +15,7 @@ mod cli;
 mod docs_cmd;
 mod env_cmd;
 mod logging;
+mod run_report;
 mod supervisor;
 mod train_cmd;
 
@@ -78,7 +79,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         }
         cli::Command::Plot(args) => {
             let reference = (args.column == "eval_return")
-                .then(|| mbpo_paper_curve_of(&args.runs))
+                .then(|| run_report::mbpo_paper_curve_of(&args.runs))
                 .flatten();
             let curves = mbpo_report::plot_runs(
                 &args.runs,
@@ -116,15 +117,3 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
     }
 }
 
-/// The MBPO paper's curve for `runs` when every one is an MBPO run of the same task that has
-/// one (read from each run's `config.toml`; a run without a readable config gets none).
-fn mbpo_paper_curve_of(runs: &[std::path::PathBuf]) -> Option<mbpo_report::PaperCurve> {
-    let mut envs = runs.iter().map(|run| {
-        let cfg = mbpo_train::ExperimentConfig::load(&run.join("config.toml")).ok()?;
-        (cfg.algo == mbpo_train::Algo::MBPO).then_some(cfg.env)
-    });
-    let first = envs.next()??;
-    envs.all(|env| env.as_deref() == Some(first.as_str()))
-        .then(|| mbpo_report::mbpo_paper_curve(&first))
-        .flatten()
-}

@@ -188,6 +188,7 @@ pub fn run(args: &TrainArgs) -> anyhow::Result<()> {
     };
     let summary =
         algorithm::train(&cfg, &out, opts).with_context(|| format!("run {}", out.display()))?;
+    crate::run_report::plot_and_point(&out);
     out!("{}", serde_json::to_string(&summary)?)?;
     Ok(())
 }
@@ -236,7 +237,8 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         }
         _log = Some(crate::logging::thread_also_to_file(&log_file)?);
         if let Some(done) = completed_summary(dir) {
-            if steps_before == cfg.steps && done.env_steps == cfg.steps {
+            let solved = done.status == mbpo_train::run_control::SOLVED;
+            if steps_before == cfg.steps && (done.env_steps == cfg.steps || solved) {
                 tracing::info!(run = %dir.display(), "already completed: reusing its results");
                 return Ok(done);
             }
@@ -253,7 +255,7 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         stop: Some(stop_on_signals()),
     };
     let summary = algorithm::train(cfg, dir, opts)?;
-    if summary.status != "completed" {
+    if summary.status != "completed" && summary.status != mbpo_train::run_control::SOLVED {
         return Err(TrainError::Config(format!(
             "{}: stopped at {} env steps (checkpointed); rerun the same command to continue",
             dir.display(),
@@ -266,7 +268,7 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
 fn completed_summary(dir: &Path) -> Option<Summary> {
     let text = std::fs::read_to_string(dir.join("summary.json")).ok()?;
     let s: Summary = serde_json::from_str(&text).ok()?;
-    (s.status == "completed").then_some(s)
+    (s.status == "completed" || s.status == mbpo_train::run_control::SOLVED).then_some(s)
 }
 
 static STOP: AtomicBool = AtomicBool::new(false);

@@ -12,7 +12,7 @@ use std::time::Instant;
 use mbpo_train::progress::Progress;
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
-use mbpo_wire::{Done, LearnerRow, ProducerId, Role, Stats};
+use mbpo_wire::{Done, LearnerRow, ModelTraining, ProducerId, Role, Stats};
 use serde::Serialize;
 
 use super::reached::Reached;
@@ -165,6 +165,13 @@ pub struct Collector {
     pub reached: Reached,
     /// Rows, returns, counters: what a checkpoint keeps.
     pub book: RunBook,
+    /// `eval.stop_when_solved`, fed each row's return in order (set by the coordinator).
+    pub solved_rule: Option<mbpo_train::SolvedRule>,
+    /// The eval point whose row solved the run, short of its last step.
+    pub solved_at: Option<u64>,
+    /// The model training under way as its last report showed it, the learner's SAC updates
+    /// then, and whether they had not moved since the report before (the learner waits).
+    training: Option<(ModelTraining, u64, bool)>,
 }
 
 impl Collector {
@@ -184,6 +191,9 @@ impl Collector {
             actor_steps: BTreeMap::new(),
             reached: Reached::new(mbpo_train::Schedule::of(cfg), plan.actors),
             book: RunBook::start(),
+            solved_rule: None,
+            solved_at: None,
+            training: None,
         }
     }
 
@@ -261,6 +271,16 @@ impl Collector {
             }
             Stats::Model(m) => {
                 self.book.models.insert(m.version, m.holdout_mse);
+                if self.training.is_some_and(|(t, ..)| t.version <= m.version) {
+                    self.training = None;
+                }
+            }
+            Stats::Training(m) => {
+                let updates = self.book.progress.1;
+                let stalled = self
+                    .training
+                    .is_some_and(|(before, u, _)| before.version == m.version && u == updates);
+                self.training = Some((m, updates, stalled));
             }
             Stats::Rollout(_) | Stats::Barrier(_) | Stats::EnvFailed(_) => {}
             Stats::Done(d) => {
@@ -364,6 +384,10 @@ impl Collector {
                 lr.alpha
             );
             self.book.wrote_row(t, ret, now, lr.sac_updates);
+            let solved = self.solved_rule.as_mut().is_some_and(|r| r.see(ret));
+            if solved && t < self.cfg.steps && self.solved_at.is_none() {
+                self.solved_at = Some(t);
+            }
         }
         Ok(())
     }
@@ -372,10 +396,26 @@ impl Collector {
     pub fn show_progress(&self, progress: &mut Progress) {
         let (steps, updates, model) = self.book.progress;
         progress.set_model_version(model);
+        progress.set_activity(self.training_note());
         if let Some(r) = self.book.last_eval {
             progress.set_eval(r);
         }
         progress.update(steps, updates);
+    }
+
+    /// The model training under way, in words, and whether the learner waits for it (its
+    /// SAC updates stood still between the training's last two reports: it needs the
+    /// rollouts of the new model, or the actors need a policy the learner cannot make yet).
+    fn training_note(&self) -> Option<String> {
+        let (m, _, stalled) = self.training?;
+        let mut note = format!(
+            "training model v{}: epoch {}, holdout mse {:.4}, {:.0} s",
+            m.version, m.epoch, m.holdout_mse, m.seconds
+        );
+        if stalled && !self.plans() {
+            note.push_str("; the learner waits for it");
+        }
+        Some(note)
     }
 
     /// The summary; `env_steps_to_target` is read off the run's metrics
@@ -606,6 +646,7 @@ fn planning_row(t: u64, model_version: u64) -> LearnerRow {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use mbpo_wire::ModelTrained;
 
     fn book(unwritten_evals: Vec<(u64, f64, u64)>) -> RunBook {
         RunBook {
@@ -642,6 +683,63 @@ mod tests {
         assert_eq!(collector.eval_points, [200, 400, 600, 700]);
         collector.restore(written);
         assert_eq!(collector.eval_points[collector.book.next_row], 600);
+    }
+
+    fn mbpo_collector(cfg: &mut ExperimentConfig) -> Collector {
+        cfg.algo = mbpo_train::Algo::MBPO;
+        let plan = RunPlan {
+            pipeline: crate::pipeline::spec(cfg.algo).unwrap(),
+            run_id: "test".into(),
+            mode: crate::Mode::Pipelined,
+            actors: 1,
+            slack: crate::Slack::ZERO,
+        };
+        Collector::new(cfg, &plan)
+    }
+
+    fn learner_at(env_steps: u64, sac_updates: u64) -> Stats {
+        Stats::Progress(mbpo_wire::Progress {
+            env_steps,
+            sac_updates,
+            ..Default::default()
+        })
+    }
+
+    #[test]
+    fn the_progress_line_shows_a_training_under_way_and_whether_the_learner_waits() {
+        let mut c = mbpo_collector(&mut ExperimentConfig::default());
+        let learner = ProducerId::new(Role::Learner, 0);
+        let trainer = ProducerId::new(Role::ModelTrainer, 0);
+        let training = |epoch, seconds| {
+            Stats::Training(ModelTraining {
+                env_steps: 651,
+                version: 2,
+                epoch,
+                holdout_mse: 0.0114,
+                seconds,
+            })
+        };
+        assert_eq!(c.training_note(), None);
+        c.on_stats(learner, learner_at(660, 5000));
+        c.on_stats(trainer, training(199, 4.0));
+        let note = c.training_note().unwrap();
+        assert_eq!(note, "training model v2: epoch 199, holdout mse 0.0114, 4 s");
+        // The learner's updates stood still between two reports of the training: it waits.
+        c.on_stats(trainer, training(797, 14.0));
+        assert!(c.training_note().unwrap().ends_with("14 s; the learner waits for it"));
+        // It moves again; once the model is trained, the note goes.
+        c.on_stats(learner, learner_at(670, 5200));
+        c.on_stats(trainer, training(900, 15.0));
+        assert!(!c.training_note().unwrap().contains("waits"));
+        let trained = ModelTrained {
+            rows: 650,
+            version: 2,
+            holdout_mse: 0.01,
+            epochs: 950,
+            seconds: 15.5,
+        };
+        c.on_stats(trainer, Stats::Model(trained));
+        assert_eq!(c.training_note(), None);
     }
 
     #[test]

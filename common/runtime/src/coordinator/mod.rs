@@ -115,6 +115,8 @@ pub struct Coordinator {
     /// An actor whose environment failed, and at which env step: the run stops after the
     /// checkpoint this started.
     env_failure: Option<(ProducerId, u64)>,
+    /// The run was solved and is stopping (`eval.stop_when_solved`).
+    solved: bool,
 }
 
 impl Coordinator {
@@ -134,6 +136,7 @@ impl Coordinator {
         let every = cfg.checkpoint.every;
         let mut next_checkpoint = every;
         let mut last_checkpoint = 0;
+        let resume_given = resume.is_some();
         if let Some((env_steps, book)) = resume {
             let trainings = book.models.keys().max().copied().unwrap_or(0);
             let learner = (book.progress.0, book.progress.1);
@@ -143,6 +146,7 @@ impl Coordinator {
             last_checkpoint = env_steps;
         }
         collector.book.restarts = restarts;
+        collector.solved_rule = mbpo_train::run_control::solved_rule(cfg, out, resume_given);
         let final_wire = match plan.pipeline.result() {
             WeightsKind::Model => schedule.train_points_upto(cfg.steps),
             WeightsKind::Policy => policy_wire_version(cfg.steps),
@@ -162,6 +166,7 @@ impl Coordinator {
             final_wire,
             finishing: false,
             env_failure: None,
+            solved: false,
         }
     }
 
@@ -230,6 +235,7 @@ impl Coordinator {
         if self.start_barrier_if_due(ports)? {
             return Ok(Phase::Finished);
         }
+        self.stop_if_solved(ports)?;
         let Some(cut) = self.barrier_cut_complete(ports)? else {
             return Ok(Phase::Running);
         };
@@ -261,6 +267,34 @@ impl Coordinator {
         )?;
         self.barrier = None;
         Ok(Phase::Running)
+    }
+
+    /// Once a row solved the run (`eval.stop_when_solved`), stop after a checkpoint: a new
+    /// barrier, or the one under way (as a first Ctrl-C does). Once only.
+    fn stop_if_solved<S: Transport>(&mut self, ports: &CoordinatorPorts<S>) -> Result<()> {
+        let (Some(t), Some(rule)) = (self.collector.solved_at, &self.collector.solved_rule) else {
+            return Ok(());
+        };
+        if self.solved || self.all_done() {
+            return Ok(());
+        }
+        self.solved = true;
+        tracing::info!(
+            "solved at env step {t} ({}): writing a checkpoint, then stopping",
+            rule.describe()
+        );
+        match self.barrier.as_mut() {
+            None => self.start_barrier(ports, true),
+            Some(b) => {
+                b.stop_after = true;
+                send_pause(ports, true)
+            }
+        }
+    }
+
+    /// Whether the run stopped because it was solved (its status is then `solved`).
+    pub fn solved(&self) -> bool {
+        self.solved
     }
 
     /// Start a barrier when one is due: the periodic one every `checkpoint.every` env steps,

@@ -7,7 +7,7 @@
 //! In an MPC run (algo = "mpc") the same worker feeds the planning actors; in lockstep it also
 //! waits for the planning evaluator's acknowledgements before replacing a model version.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use mbpo_model::TrainReport;
 use mbpo_train::roles::{ModelSnapshot, ModelTrainerRole};
@@ -109,7 +109,13 @@ impl<S: Transport> Worker<S> for ModelTrainer<S> {
         );
         let started = Instant::now();
         let abandon = s.pipeline.abandons_training_on_stop(s.mode);
-        let Some((snapshot, report)) = train(&mut self.role, abandon, cx.control, version)? else {
+        let watch = Watch {
+            stats: cx.stats,
+            t,
+            version: version + 1,
+        };
+        let trained = train(&mut self.role, abandon, cx.control, version, watch)?;
+        let Some((snapshot, report)) = trained else {
             // The loop serves the barrier next (a resumed run trains again) or stops.
             tracing::info!(
                 "model training for step {t} abandoned after {:.1} s: the run is stopping",
@@ -231,9 +237,15 @@ fn train<S: Transport>(
     abandon_at_stop_barrier: bool,
     control: &ControlInbox<S>,
     done: u64,
+    watch: Watch<'_, S>,
 ) -> Result<Option<(ModelSnapshot, TrainReport)>> {
     let mut poll_error = None;
-    let trained = role.train_unless(|| {
+    let mut last_shown = Instant::now();
+    let trained = role.train_watched(|epoch| {
+        if last_shown.elapsed() >= SHOW_TRAINING_EVERY {
+            last_shown = Instant::now();
+            watch.show(epoch);
+        }
         if let Err(e) = control.poll() {
             poll_error = Some(e);
             return true;
@@ -244,6 +256,34 @@ fn train<S: Transport>(
     match poll_error {
         Some(e) => Err(e),
         None => Ok(trained),
+    }
+}
+
+/// How often a training under way reports its epoch to the coordinator's progress line (a
+/// record a second at most: an epoch on a small D_env takes milliseconds).
+const SHOW_TRAINING_EVERY: Duration = Duration::from_secs(1);
+
+/// Where a training's epochs are shown: the run's stats, as training `version` for step `t`.
+struct Watch<'a, S: Transport> {
+    stats: &'a StatsPublisher<S>,
+    t: u64,
+    version: u64,
+}
+
+impl<S: Transport> Watch<'_, S> {
+    /// Report the training's epoch; a report that cannot be sent is only logged (the progress
+    /// line misses one update, the training goes on).
+    fn show(&self, epoch: &mbpo_model::EpochProgress) {
+        let record = ModelTraining {
+            env_steps: self.t,
+            version: self.version,
+            epoch: epoch.epoch as u32,
+            holdout_mse: epoch.holdout_mse,
+            seconds: epoch.seconds as f32,
+        };
+        if let Err(e) = self.stats.report(record) {
+            tracing::debug!("training progress not sent: {e}");
+        }
     }
 }
 

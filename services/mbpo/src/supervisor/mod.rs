@@ -263,6 +263,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         let tmp = out.join("summary.json.tmp");
         std::fs::write(&tmp, serde_json::to_string_pretty(&r)? + "\n")?;
         std::fs::rename(tmp, out.join("summary.json"))?;
+        crate::run_report::plot_and_point(&out);
         if outcome.is_ok() {
             println!("{}", serde_json::to_string(&r)?);
         }
@@ -640,6 +641,7 @@ fn supervise(
     let status = match (&failure, end.interrupted, end.stopped) {
         (Some(_), true, _) => "interrupted",
         (Some(_), false, _) => "failed",
+        (None, _, true) if coord.solved() => mbpo_train::run_control::SOLVED,
         (None, _, true) => "stopped",
         (None, _, false) => "completed",
     };
