@@ -181,14 +181,20 @@ fn a_solved_run_stops_with_a_checkpoint_in_the_pipeline_and_in_one_process() {
     let reference = dir.join("sequential");
     let opts = mbpo_train::RunOptions::default();
     let sequential = mbpo_train::train_mbpo_with(&cfg, &reference, opts).unwrap();
-    assert_eq!((sequential.status.as_str(), sequential.env_steps), ("solved", 400));
+    assert_eq!(
+        (sequential.status.as_str(), sequential.env_steps),
+        ("solved", 400)
+    );
     // Extended, a solved run takes every step it is given.
     let resume = mbpo_train::RunOptions {
         resume: true,
         ..Default::default()
     };
     let extended = mbpo_train::train_mbpo_with(&cfg, &reference, resume).unwrap();
-    assert_eq!((extended.status.as_str(), extended.env_steps), ("completed", 1000));
+    assert_eq!(
+        (extended.status.as_str(), extended.env_steps),
+        ("completed", 1000)
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

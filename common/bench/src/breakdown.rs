@@ -137,7 +137,7 @@ pub fn breakdown_at(
             )));
         }
         let trainings = mbpo.phases.model_trainings;
-        mbpo.step_unless(t, || false)?;
+        mbpo.step_unless(t, |_| false)?;
         if mbpo.phases.model_trainings > trainings {
             reports.extend(mbpo.last_model_report.clone());
         }

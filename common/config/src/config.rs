@@ -610,7 +610,10 @@ impl ExperimentConfig {
         if self.eval.stop_when_solved > 0 && self.target_return().is_none() {
             return Err(bad(
                 "eval.stop_when_solved",
-                &format!("0 while the task has no target return (or set eval.target_return for {})", self.env),
+                &format!(
+                    "0 while the task has no target return (or set eval.target_return for {})",
+                    self.env
+                ),
                 self.eval.stop_when_solved.to_string(),
             ));
         }

@@ -77,7 +77,8 @@ impl ExperimentConfig {
     }
 
     /// The termination rule of model rollouts: `termination` if set, else the task's own, and
-    /// learned for a Python env. Errors say what to set.
+    /// learned for a Python env. An error says what is expected (the caller names what it
+    /// found: validation reports both, once).
     pub fn termination(&self) -> Result<Termination, String> {
         match self.termination.as_deref() {
             Some("never") => Ok(Termination::Never),
@@ -88,17 +89,15 @@ impl ExperimentConfig {
                     Some((module, function)) if !module.is_empty() && !function.is_empty() => {
                         Ok(Termination::Python(target.to_string()))
                     }
-                    _ => Err(format!(
-                        "\"python:<module>:<function>\" for a Python rule, found {python:?}"
-                    )),
+                    _ => Err("\"python:<module>:<function>\" for a Python rule".into()),
                 }
             }
             Some(id) if mbpo_envs::termination_fn(id).is_some() => {
                 Ok(Termination::Task(id.to_string()))
             }
-            Some(other) => Err(format!(
+            Some(_) => Err(format!(
                 "\"learned\", \"never\", \"python:<module>:<function>\" or the id of a built-in \
-                 task whose rule applies ({}), found {other:?}",
+                 task whose rule applies ({})",
                 mbpo_envs::TERMINATION_ENV_IDS.join(", ")
             )),
             None if self.is_gym_env() => Ok(Termination::Learned),

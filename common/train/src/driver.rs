@@ -13,13 +13,13 @@ use std::path::Path;
 
 use crate::config::ExperimentConfig;
 use crate::error::TrainError;
-use crate::progress::{Display, Progress};
+use crate::progress::{training_note, Display, Progress};
 use crate::run_control::{
-    checkpoint_due, log_solved, log_stopped, open_run, solved_rule, stop_before, RunOptions,
-    SOLVED,
+    checkpoint_due, log_solved, log_stopped, open_run, solved_rule, stop_before, RunOptions, SOLVED,
 };
 use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::schedule::Schedule;
+use mbpo_model::EpochProgress;
 
 /// One algorithm's run in one process, as [`drive`] calls it.
 pub(crate) trait SequentialRun {
@@ -30,9 +30,14 @@ pub(crate) trait SequentialRun {
     fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError>;
     /// Once the run directory is open (fresh or resumed): start the clock.
     fn begin(&mut self) {}
-    /// Env step `t` and the learning that goes with it. `Ok(false)`: `stop` said stop inside
-    /// the step, which was undone (the state is that after step t − 1).
-    fn step(&mut self, t: u64, stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError>;
+    /// Env step `t` and the learning that goes with it. A model training shows `stop` where
+    /// it stands after each epoch; `Ok(false)`: `stop` said stop, and the step was undone (the
+    /// state is that after step t − 1).
+    fn step(
+        &mut self,
+        t: u64,
+        stop: &mut dyn FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError>;
     /// The metrics row of eval point `t` (evaluating the current policy or planner).
     fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError>;
     /// The progress line's counter (SAC updates, plans) and the model version it shows.
@@ -62,7 +67,15 @@ pub(crate) fn drive<R: SequentialRun>(
     let mut status = "completed";
     let mut solved = solved_rule(cfg, out, opts.resume);
     for t in done + 1..=cfg.steps {
-        if !algo.step(t, &mut || opts.stopping_at(t, cfg.steps))? {
+        let (_, model_version) = algo.progress();
+        let training = model_version.unwrap_or(0) + 1;
+        let mut watch = |e: &EpochProgress| {
+            progress.hold_up(training_note(training, e.epoch, e.holdout_mse, e.seconds));
+            opts.stopping_at(t, cfg.steps)
+        };
+        let stepped = algo.step(t, &mut watch)?;
+        progress.set_activity(None);
+        if !stepped {
             stop_before(t, |at| algo.save(at, true), out)?;
             status = "stopped";
             break;

@@ -49,9 +49,9 @@ pub mod sac_trainer;
 pub mod tensorboard;
 
 pub use error::TrainError;
+pub use mbpo_config::SolvedRule;
 /// The configuration (`mbpo-config`), re-exported: paths such as `mbpo_train::config::...` hold.
 pub use mbpo_config::{config, env_config, reference as config_reference, schedule, solved};
-pub use mbpo_config::SolvedRule;
 pub use mbpo_config::{
     Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
 };

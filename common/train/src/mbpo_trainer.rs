@@ -38,6 +38,7 @@ use crate::run_files::{
 };
 use mbpo_core::Rng;
 use mbpo_envs::EnvError;
+use mbpo_model::EpochProgress;
 use mbpo_model::TrainReport;
 use mbpo_sac::Sac;
 use std::path::Path;
@@ -130,12 +131,12 @@ impl Mbpo {
         self.use_model(snapshot, report)
     }
 
-    /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
+    /// [`Self::train_model`], abandoned (nothing changed) when `stop` says so after an epoch.
     fn train_model_unless(
         &mut self,
-        stop: impl FnMut() -> bool,
+        stop: impl FnMut(&EpochProgress) -> bool,
     ) -> Result<Option<&TrainReport>, TrainError> {
-        match self.model_trainer.train_unless(stop)? {
+        match self.model_trainer.train_watched(stop)? {
             Some((snapshot, report)) => self.use_model(snapshot, report).map(Some),
             None => Ok(None),
         }
@@ -195,7 +196,11 @@ impl Mbpo {
     /// `stop()` says so during its model training (checked after every epoch), the training is
     /// undone and `false` returned, so the run is exactly as after step t − 1: a stop need not
     /// wait for a training that can take minutes.
-    pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
+    pub fn step_unless(
+        &mut self,
+        t: u64,
+        stop: impl FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
         if self.schedule.is_warm_up(t) {
             self.warm_up_step()?;
             return Ok(true);
@@ -403,7 +408,11 @@ impl SequentialRun for MbpoRun<'_> {
         self.phases_at_last_row = self.mbpo.phases;
     }
 
-    fn step(&mut self, t: u64, stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
+    fn step(
+        &mut self,
+        t: u64,
+        stop: &mut dyn FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
         let started = Instant::now();
         let stepped = match self.mbpo.step_unless(t, stop) {
             // Step t failed at its env step before anything else of it happened (no model
@@ -444,7 +453,8 @@ impl SequentialRun for MbpoRun<'_> {
     }
 
     fn progress(&self) -> (u64, Option<u64>) {
-        (self.mbpo.sac().updates(), None)
+        let version = self.mbpo.model_trainer.version();
+        (self.mbpo.sac().updates(), (version > 0).then_some(version))
     }
 
     fn save(&mut self, t: u64, wait: bool) -> Result<(), TrainError> {

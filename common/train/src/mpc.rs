@@ -28,6 +28,7 @@ use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
     PlanningEvaluatorCheckpoint, RunBook,
 };
+use mbpo_model::EpochProgress;
 use mbpo_model::TrainReport;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -70,12 +71,12 @@ impl MpcRun {
         self.use_model(snapshot, report)
     }
 
-    /// [`Self::train_model`], abandoned (nothing changed) when `stop()` says so.
+    /// [`Self::train_model`], abandoned (nothing changed) when `stop` says so after an epoch.
     fn train_model_unless(
         &mut self,
-        stop: impl FnMut() -> bool,
+        stop: impl FnMut(&EpochProgress) -> bool,
     ) -> Result<Option<&TrainReport>, TrainError> {
-        match self.model_trainer.train_unless(stop)? {
+        match self.model_trainer.train_watched(stop)? {
             Some((snapshot, report)) => self.use_model(snapshot, report).map(Some),
             None => Ok(None),
         }
@@ -97,7 +98,11 @@ impl MpcRun {
     /// `true` when done. When `stop()` says so during its model training (checked after every
     /// epoch), the training is undone and `false` returned, so the run is exactly as after
     /// step t − 1.
-    pub fn step_unless(&mut self, t: u64, stop: impl FnMut() -> bool) -> Result<bool, TrainError> {
+    pub fn step_unless(
+        &mut self,
+        t: u64,
+        stop: impl FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
         let behaviour = if self.schedule.is_warm_up(t) {
             Behaviour::Uniform
         } else {
@@ -248,7 +253,11 @@ impl SequentialRun for MpcDriven<'_> {
             .unwrap_or_else(Instant::now);
     }
 
-    fn step(&mut self, t: u64, stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
+    fn step(
+        &mut self,
+        t: u64,
+        stop: &mut dyn FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
         let mpc = &mut self.mpc;
         let (version, episodes) = (mpc.model_trainer.version(), mpc.actor.env_actor().episodes);
         if !mpc.step_unless(t, stop)? {

@@ -116,6 +116,14 @@ pub struct Progress {
     finished: bool,
 }
 
+/// A model training under way, as the progress line shows it:
+/// `training model v4: epoch 318, holdout mse 0.0025, 10 s`.
+pub fn training_note(version: u64, epoch: usize, holdout_mse: f32, seconds: f64) -> String {
+    format!(
+        "training model v{version}: epoch {epoch}, holdout mse {holdout_mse:.4}, {seconds:.0} s"
+    )
+}
+
 impl Progress {
     /// Progress of the run `label` (e.g. `mbpo Pendulum-v1 s0`) towards `total` env steps.
     pub fn new(label: impl Into<String>, total: u64, display: Display) -> Self {
@@ -242,6 +250,14 @@ impl Progress {
             self.activity = activity;
             self.refresh_bar();
         }
+    }
+
+    /// Show `note` as what holds the run up (as [`Self::set_activity`]) and, without a
+    /// terminal, log the line when one is due: a training inside one env step can take
+    /// minutes, and without this the log would fall silent meanwhile.
+    pub fn hold_up(&mut self, note: String) {
+        self.set_activity(Some(note));
+        self.update(self.steps, self.updates);
     }
 
     /// Close the rate window ending at `now` (if it is long enough to mean something).

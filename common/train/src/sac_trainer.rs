@@ -91,7 +91,11 @@ impl SequentialRun for SacRun<'_> {
 
     /// Act (uniform over the action box during warm-up, then the stochastic policy), store,
     /// then `updates_per_step` SAC updates.
-    fn step(&mut self, t: u64, _stop: &mut dyn FnMut() -> bool) -> Result<bool, TrainError> {
+    fn step(
+        &mut self,
+        t: u64,
+        _stop: &mut dyn FnMut(&mbpo_model::EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
         let warm_up = self.cfg.sac_loop.random_steps;
         let behaviour = match t <= warm_up {
             true => Behaviour::Uniform,

@@ -300,7 +300,7 @@ fn d_model_round_trips(
     let evaluator = Evaluator::new(cfg).unwrap();
     let mut branch_rows = vec![];
     for t in 1..=cfg.steps {
-        assert!(mbpo.step_unless(t, || false).unwrap());
+        assert!(mbpo.step_unless(t, |_| false).unwrap());
         if t <= cfg.mbpo.init_random_steps || t % every != 0 {
             continue;
         }

@@ -351,7 +351,8 @@ pub struct LearningArgs {
     /// Total real env steps per run (overrides the config).
     #[arg(long)]
     pub steps: Option<u64>,
-    /// Seeds run in parallel (each run is single-threaded).
+    /// Seeds run at once. With more than one, each gets one core (the config's `sac.threads`
+    /// and `model.threads` become 1); with 1, a run keeps the config's threads.
     #[arg(long, default_value_t = 2)]
     pub threads: usize,
     /// Results directory.

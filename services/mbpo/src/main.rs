@@ -116,4 +116,3 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         }
     }
 }
-

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use mbpo_train::progress::Progress;
+use mbpo_train::progress::{training_note, Progress};
 use mbpo_train::run_dir::MetricsRow;
 use mbpo_train::{ExperimentConfig, RunDir, Summary};
 use mbpo_wire::{Done, LearnerRow, ModelTraining, ProducerId, Role, Stats};
@@ -408,10 +408,8 @@ impl Collector {
     /// rollouts of the new model, or the actors need a policy the learner cannot make yet).
     fn training_note(&self) -> Option<String> {
         let (m, _, stalled) = self.training?;
-        let mut note = format!(
-            "training model v{}: epoch {}, holdout mse {:.4}, {:.0} s",
-            m.version, m.epoch, m.holdout_mse, m.seconds
-        );
+        let seconds = m.seconds as f64;
+        let mut note = training_note(m.version, m.epoch as usize, m.holdout_mse, seconds);
         if stalled && !self.plans() {
             note.push_str("; the learner waits for it");
         }
@@ -723,10 +721,16 @@ mod tests {
         c.on_stats(learner, learner_at(660, 5000));
         c.on_stats(trainer, training(199, 4.0));
         let note = c.training_note().unwrap();
-        assert_eq!(note, "training model v2: epoch 199, holdout mse 0.0114, 4 s");
+        assert_eq!(
+            note,
+            "training model v2: epoch 199, holdout mse 0.0114, 4 s"
+        );
         // The learner's updates stood still between two reports of the training: it waits.
         c.on_stats(trainer, training(797, 14.0));
-        assert!(c.training_note().unwrap().ends_with("14 s; the learner waits for it"));
+        assert!(c
+            .training_note()
+            .unwrap()
+            .ends_with("14 s; the learner waits for it"));
         // It moves again; once the model is trained, the note goes.
         c.on_stats(learner, learner_at(670, 5200));
         c.on_stats(trainer, training(900, 15.0));
