@@ -68,8 +68,10 @@ mod tests {
 
     #[test]
     fn a_task_without_a_target_cannot_stop_when_solved() {
-        let mut cfg = ExperimentConfig::default();
-        cfg.env = "gym:MyEnv-v0".into();
+        let mut cfg = ExperimentConfig {
+            env: "gym:MyEnv-v0".into(),
+            ..Default::default()
+        };
         cfg.eval.stop_when_solved = 2;
         let err = cfg.validate("test.toml").unwrap_err().to_string();
         assert!(err.contains("eval.stop_when_solved"), "{err}");
