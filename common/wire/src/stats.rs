@@ -405,35 +405,7 @@ impl Stats {
                 length: m[1] as u32,
                 seconds: m[2],
             }),
-            StatsKind::Heartbeat if m[0] == HEARTBEAT_DONE => Stats::Done(Done {
-                real: r.env_steps,
-                lost: r.value as u64,
-                work: r.sac_updates,
-                median_step_seconds: m[1],
-                slack_min: m[2],
-                slack_max: m[3],
-                slack_mean: m[4],
-                ipc_seconds: m[5],
-                wall_seconds: m[6],
-                episodes_cut: r.model_version,
-                episodes_lost: r.model_trainings,
-                real_spilled: r.policy_version,
-                missed_deadlines: r.episode_len as u64,
-                rests: m[7] as u64,
-            }),
-            StatsKind::Heartbeat if m[0] == HEARTBEAT_TRAINING => Stats::Training(ModelTraining {
-                env_steps: r.env_steps,
-                version: r.model_version,
-                epoch: r.episode_len,
-                holdout_mse: m[1],
-                seconds: m[2],
-            }),
-            StatsKind::Heartbeat => Stats::Progress(Progress {
-                env_steps: r.env_steps,
-                sac_updates: r.sac_updates,
-                model_version: r.model_version,
-                policy_version: r.policy_version,
-            }),
+            StatsKind::Heartbeat => heartbeat(r),
             StatsKind::Checkpoint if m[0] == BARRIER_WRITTEN => {
                 Stats::Barrier(BarrierReport::Written(r.env_steps))
             }
@@ -442,6 +414,42 @@ impl Stats {
                 env_steps: r.env_steps,
             }),
         })
+    }
+}
+
+/// A heartbeat record's report: metrics[0] tells done, a training under way and progress apart.
+fn heartbeat(r: &StatsRecord) -> Stats {
+    let m = r.metrics;
+    match m[0] {
+        phase if phase == HEARTBEAT_DONE => Stats::Done(Done {
+            real: r.env_steps,
+            lost: r.value as u64,
+            work: r.sac_updates,
+            median_step_seconds: m[1],
+            slack_min: m[2],
+            slack_max: m[3],
+            slack_mean: m[4],
+            ipc_seconds: m[5],
+            wall_seconds: m[6],
+            episodes_cut: r.model_version,
+            episodes_lost: r.model_trainings,
+            real_spilled: r.policy_version,
+            missed_deadlines: r.episode_len as u64,
+            rests: m[7] as u64,
+        }),
+        phase if phase == HEARTBEAT_TRAINING => Stats::Training(ModelTraining {
+            env_steps: r.env_steps,
+            version: r.model_version,
+            epoch: r.episode_len,
+            holdout_mse: m[1],
+            seconds: m[2],
+        }),
+        _ => Stats::Progress(Progress {
+            env_steps: r.env_steps,
+            sac_updates: r.sac_updates,
+            model_version: r.model_version,
+            policy_version: r.policy_version,
+        }),
     }
 }
 
