@@ -685,10 +685,13 @@ fn coordinate(
     let mut progress = Progress::new(label, cx.cfg.steps, display);
     let mut end = LoopEnd::default();
     let mut hosts_read = Instant::now();
+    let mut last_signal: Option<Instant> = None;
     loop {
         if waiter.wait(Duration::from_millis(250))? == WaitOutcome::Terminate {
             mbpo_wire::take_termination_request();
-            if coord.on_signal(ports)? == OnSignal::StopNow {
+            if repeated_signal(&mut last_signal) {
+                tracing::info!("a second signal within {SAME_REQUEST:?}: the same stop request");
+            } else if coord.on_signal(ports)? == OnSignal::StopNow {
                 end.interrupted = true;
                 break;
             }
@@ -723,6 +726,22 @@ fn coordinate(
     }
     progress.finish();
     Ok(end)
+}
+
+/// Signals this close together are one request: GNU `timeout` (and some batch schedulers)
+/// send SIGTERM to the process and again to its process group, and a second request would
+/// stop the run at once, without the checkpoint the first one asked for. A person's second
+/// Ctrl-C comes later than this.
+const SAME_REQUEST: Duration = Duration::from_secs(1);
+
+/// Whether a signal arriving now repeats the one before it (within [`SAME_REQUEST`]); a new
+/// request restarts the window.
+fn repeated_signal(last: &mut Option<Instant>) -> bool {
+    if last.is_some_and(|t| t.elapsed() < SAME_REQUEST) {
+        return true;
+    }
+    *last = Some(Instant::now());
+    false
 }
 
 /// A process that exited before the run finished.
