@@ -665,24 +665,17 @@ mod tests {
         // Extended to 700 steps: eval points 200, 400, 600, 700; the next row is 600's.
         let mut cfg = ExperimentConfig {
             steps: 700,
-            algo: mbpo_train::Algo::MBPO,
             ..Default::default()
         };
         cfg.eval.every = 200;
         cfg.mbpo.init_random_steps = 100;
-        let plan = RunPlan {
-            pipeline: crate::pipeline::spec(cfg.algo).unwrap(),
-            run_id: "test".into(),
-            mode: crate::Mode::Pipelined,
-            actors: 1,
-            slack: crate::Slack::ZERO,
-        };
-        let mut collector = Collector::new(&cfg, &plan);
+        let mut collector = mbpo_collector(&mut cfg);
         assert_eq!(collector.eval_points, [200, 400, 600, 700]);
         collector.restore(written);
         assert_eq!(collector.eval_points[collector.book.next_row], 600);
     }
 
+    /// The collector of a pipelined MBPO run of `cfg` with one actor.
     fn mbpo_collector(cfg: &mut ExperimentConfig) -> Collector {
         cfg.algo = mbpo_train::Algo::MBPO;
         let plan = RunPlan {
