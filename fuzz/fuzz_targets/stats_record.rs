@@ -10,8 +10,8 @@ use libfuzzer_sys::fuzz_target;
 use mbpo_fuzz::{bytes_of, pod, write_seeds_if_asked};
 use mbpo_wire::error::DecodeError;
 use mbpo_wire::{
-    BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained, Progress,
-    RolloutBranch, Stats, StatsKind, StatsRecord,
+    BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained,
+    ModelTraining, Progress, RolloutBranch, Stats, StatsKind, StatsRecord,
 };
 
 fn seeds() -> Vec<Vec<u8>> {
@@ -49,6 +49,14 @@ fn seeds() -> Vec<Vec<u8>> {
             holdout_mse: 0.01,
             epochs: 40,
             seconds: 2.5,
+        }
+        .into(),
+        ModelTraining {
+            env_steps: 651,
+            version: 2,
+            epoch: 318,
+            holdout_mse: 0.0025,
+            seconds: 10.5,
         }
         .into(),
         RolloutBranch {
