@@ -228,7 +228,9 @@ pub struct MbpoConfig {
     pub rollouts_per_step: usize,
     /// [e_min, e_max, k_min, k_max]: k grows linearly from k_min at epoch e_min to k_max at e_max.
     pub rollout_schedule: [usize; 4],
-    /// Epochs of rollouts the model buffer keeps ("model_retain_epochs").
+    /// Epochs of rollouts the model buffer keeps ("model_retain_epochs"): D_model holds
+    /// `rollouts_per_step · epoch_length · k · retain_epochs` imagined transitions (k the
+    /// rollout length in force), the newest replacing the oldest.
     pub retain_epochs: usize,
     /// Fraction of each SAC batch drawn from real data.
     pub real_ratio: f64,

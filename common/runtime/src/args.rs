@@ -32,7 +32,9 @@ pub struct Slack {
     /// Pipelined: policy versions (env steps) an actor's policy may lag behind the step it takes.
     #[arg(long, default_value_t = 2)]
     pub policy_lag: u64,
-    /// Pipelined: SAC updates the learner may run ahead of or behind G per env step.
+    /// Pipelined: how many SAC updates the learner's count may be ahead of or behind G times
+    /// the real env steps it has taken in (so it can keep updating while the next transition
+    /// is on its way, and catch up after a model training).
     #[arg(long, default_value_t = 40)]
     pub update_buffer: u64,
     /// Pipelined: env steps the learner may consume past a train point before the rollouts
