@@ -299,25 +299,14 @@ impl ProbabilisticEnsemble {
     /// current weights; see the module docs for the procedure. Draws the holdout permutation,
     /// the bootstrap indices and the per-epoch shuffles from `rng`.
     pub fn train(&mut self, data: &Batch, rng: &mut Rng) -> Result<TrainReport, TrainError> {
-        let report = self.train_unless(data, rng, || false)?;
+        let report = self.train_watched(data, rng, |_| false)?;
         Ok(report.expect("a training that is never asked to stop completes"))
     }
 
-    /// [`Self::train`], giving up after an epoch when `stop_requested()` says so (a user's Ctrl-C; one
-    /// training can take minutes on a large D_env) and returning `None`. The ensemble and `rng`
-    /// are then part-way: restore a checkpoint taken before the call.
-    pub fn train_unless(
-        &mut self,
-        data: &Batch,
-        rng: &mut Rng,
-        mut stop_requested: impl FnMut() -> bool,
-    ) -> Result<Option<TrainReport>, TrainError> {
-        self.train_watched(data, rng, |_| stop_requested())
-    }
-
-    /// [`Self::train_unless`], showing `after_epoch` where the call stands after each epoch
-    /// that does not end it (for a progress line: a training can take minutes); it returns
-    /// whether to give up.
+    /// [`Self::train`], showing `after_epoch` where the call stands after each epoch that does
+    /// not end it (for a progress line: a training can take minutes on a large D_env); when it
+    /// returns true (a user's Ctrl-C), the call gives up and returns `None`. The ensemble and
+    /// `rng` are then part-way: restore a checkpoint taken before the call.
     pub fn train_watched(
         &mut self,
         data: &Batch,

@@ -336,18 +336,10 @@ impl ModelTrainerRole {
         Ok(self.trained(report))
     }
 
-    /// [`Self::train`], abandoned after an epoch when `stop()` says so: the role is then
-    /// exactly as before the call (model, optimiser and random stream restored) and `None` is
-    /// returned, so a checkpoint written next is the one of the previous step.
-    pub fn train_unless(
-        &mut self,
-        mut stop: impl FnMut() -> bool,
-    ) -> Result<Option<(ModelSnapshot, TrainReport)>, TrainError> {
-        self.train_watched(|_| stop())
-    }
-
-    /// [`Self::train_unless`], showing `after_epoch` where the training stands after each
-    /// epoch (it returns whether to give up).
+    /// [`Self::train`], showing `after_epoch` where the training stands after each epoch;
+    /// when it returns true the training is abandoned: the role is then exactly as before the
+    /// call (model, optimiser and random stream restored) and `None` is returned, so a
+    /// checkpoint written next is the one of the previous step.
     pub fn train_watched(
         &mut self,
         after_epoch: impl FnMut(&mbpo_model::EpochProgress) -> bool,
