@@ -653,3 +653,39 @@ fn control_hz_is_refused_where_it_cannot_hold() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `mbpo run` refuses remote roles the gateways cannot carry, unknown ones, and a `--listen`
+/// with nothing remote, each by name and before a run directory is made.
+#[test]
+fn remote_roles_are_refused_where_the_gateways_cannot_carry_them() {
+    let dir = scratch("cli-remote-roles");
+    for (args, want) in [
+        (
+            vec!["--remote-roles", "learner"],
+            "--remote-roles learner: the learner receives real, which the gateways do not carry",
+        ),
+        (
+            vec!["--remote-roles", "critic"],
+            "--remote-roles critic: the mbpo run has no role of that name; its roles are learner, model-trainer, rollout-generator, evaluator",
+        ),
+        (vec![], "none is remote: give --remote-actors M"),
+    ] {
+        let out = mbpo()
+            .args(["run", "--config"])
+            .arg(config_file())
+            .args(["--listen", "tcp/127.0.0.1:7447"])
+            .args(args)
+            .arg("--out")
+            .arg(dir.join("run"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert!(err.contains(want), "{err}");
+        assert!(
+            !dir.join("run").exists(),
+            "no run directory for a refused run"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

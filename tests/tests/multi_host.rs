@@ -39,6 +39,8 @@ struct Actors {
     remote: u16,
     /// `--restart on-failure`.
     restart: bool,
+    /// `--remote-roles` (empty: none).
+    remote_roles: &'static str,
 }
 
 const fn pipelined(local: u16, remote: u16) -> Actors {
@@ -47,6 +49,7 @@ const fn pipelined(local: u16, remote: u16) -> Actors {
         local,
         remote,
         restart: false,
+        remote_roles: "",
     }
 }
 
@@ -96,6 +99,9 @@ fn start_head_on(
     if run.restart {
         args.extend(["--restart", "on-failure"]);
     }
+    if !run.remote_roles.is_empty() {
+        args.extend(["--remote-roles", run.remote_roles]);
+    }
     let child = hosts
         .command(&hosts.head, &bin_dir().join("mbpo"), &args)
         .stdout(Stdio::piped())
@@ -125,22 +131,32 @@ fn start_worker_on(
     creds: Option<&Path>,
     actors: u16,
 ) -> Child {
+    let actors = actors.to_string();
+    start_worker_offering(hosts, proto, dir, name, creds, &["--actors", &actors])
+}
+
+/// `mbpo join` offering what `offer` says (`--actors N`, `--roles R`).
+fn start_worker_offering(
+    hosts: &TwoHosts,
+    proto: &str,
+    dir: &Path,
+    name: &str,
+    creds: Option<&Path>,
+    offer: &[&str],
+) -> Child {
     let head = format!("{proto}/{}:7447", hosts.head.addr);
     let root = short_root(dir, name);
     let work = dir.join(format!("work-{name}"));
-    let actors = actors.to_string();
-    let mut args = vec![
-        "join",
-        &head,
-        "--actors",
-        &actors,
+    let mut args = vec!["join", &head];
+    args.extend(offer);
+    args.extend([
         "--name",
         name,
         "--ipc-root",
         root.to_str().unwrap(),
         "--dir",
         work.to_str().unwrap(),
-    ];
+    ]);
     if let Some(c) = creds {
         args.extend(["--credentials", c.to_str().unwrap()]);
     }
@@ -219,7 +235,11 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
     let w = wait_output(worker, TIMEOUT);
     assert!(w.status.success(), "{}", text(&dir.join("w1.log")));
     let report: serde_json::Value = serde_json::from_slice(&w.stdout).unwrap();
-    assert_eq!(report["slots"], serde_json::json!([1, 2]), "{report}");
+    assert_eq!(
+        report["slots"],
+        serde_json::json!(["actor-1", "actor-2"]),
+        "{report}"
+    );
     // The summary counts the worker host.
     assert_eq!(s["hosts"]["w1"]["actors"], serde_json::json!([1, 2]), "{s}");
     assert_eq!(s["hosts"]["w1"]["restarts"], 0, "{s}");
@@ -259,6 +279,7 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
             local: 0,
             remote: 1,
             restart: false,
+            remote_roles: "",
         },
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
@@ -274,6 +295,78 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
     );
     assert_eq!(s["final_eval_return"], seq.final_eval_return);
     assert!(wait_output(worker, TIMEOUT).status.success());
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// Lockstep with its evaluator on the worker (`--remote-roles evaluator`, `mbpo join --actors 0
+/// --roles evaluator`) and its actor on the head equals `mbpo train --mode sequential`: the
+/// gateways carry the evaluator's channels -- the policy and control commands to it, its
+/// reports and its acknowledgements (which hold the learner back in lockstep) to the head --
+/// and its checkpoint files reach the head's run directory.
+#[test]
+fn lockstep_with_the_evaluator_on_a_worker_equals_sequential() {
+    let Some(hosts) = hosts("lockstep_with_the_evaluator_on_a_worker_equals_sequential") else {
+        return;
+    };
+    let dir = scratch("net-remote-eval");
+    let mut cfg = tiny_config(400);
+    cfg.checkpoint.every = 200;
+    let input = write_config(&cfg, &dir);
+    let creds = credentials(&dir, "right");
+    bin_dir();
+    let run = Actors {
+        mode: "lockstep",
+        local: 1,
+        remote: 0,
+        restart: false,
+        remote_roles: "evaluator",
+    };
+    let head = start_head(&hosts, &dir, &input, &creds, run);
+    let offer = ["--actors", "0", "--roles", "evaluator"];
+    let worker = start_worker_offering(&hosts, "tcp", &dir, "w1", Some(&creds), &offer);
+    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let o = wait_output(head.child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "lockstep with a remote evaluator != sequential"
+    );
+    assert_eq!(s["final_eval_return"], seq.final_eval_return);
+    assert_eq!(
+        s["hosts"]["w1"]["roles"],
+        serde_json::json!(["evaluator"]),
+        "{s}"
+    );
+    assert_eq!(s["hosts"]["w1"]["actors"], serde_json::json!([]), "{s}");
+    // No evaluator ran on the head; its files came over the link.
+    assert!(!head.out.join("logs").join("evaluator.log").exists());
+    let log = head.out.join("logs").join("w1").join("evaluator.log");
+    assert!(
+        text(&log).contains("eval after step 400"),
+        "{}",
+        log.display()
+    );
+    // Every checkpoint (the two newest are kept) holds the remote evaluator's file.
+    let kept: Vec<_> = std::fs::read_dir(head.out.join("checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(kept.len(), 2, "{kept:?}");
+    for dir in kept {
+        let file = dir.join("evaluator");
+        assert!(file.is_file(), "{}", file.display());
+    }
+    let w = wait_output(worker, TIMEOUT);
+    assert!(w.status.success(), "{}", text(&dir.join("w1.log")));
+    let report: serde_json::Value = serde_json::from_slice(&w.stdout).unwrap();
+    assert_eq!(
+        report["slots"],
+        serde_json::json!(["evaluator"]),
+        "{report}"
+    );
     let _ = std::fs::remove_dir_all(dir);
 }
 
@@ -294,7 +387,7 @@ fn a_link_down_for_5_s_stalls_the_run_and_loses_nothing() {
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     let gateway_log = head.out.join("logs").join("gateway.log");
     assert!(
-        wait_for_text(&gateway_log, "joined: actors", Duration::from_secs(120)),
+        wait_for_text(&gateway_log, "joined: actor-0", Duration::from_secs(120)),
         "the worker never joined: {}",
         text(&gateway_log)
     );
@@ -454,6 +547,7 @@ fn restartable_run_past_its_first_checkpoint(
             local: 1,
             remote: 1,
             restart: true,
+            remote_roles: "",
         },
     );
     let worker = start_worker(hosts, dir, "w1", Some(&creds), 1);

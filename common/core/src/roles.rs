@@ -142,8 +142,11 @@ impl fmt::Display for Channel {
 }
 
 /// What a role does: a process of `mbpo run`, a thread of the in-process pipeline, a set of
-/// calls of `mbpo train`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// calls of `mbpo train`. (Serialized in kebab case in run plans and the gateways' protocol.)
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum RoleKind {
     /// The SAC learner.
     Learner,
@@ -358,6 +361,37 @@ impl RoleKind {
     /// Pauses at a checkpoint barrier and reports a counter.
     pub const fn pauses(self) -> bool {
         self.row().pauses
+    }
+}
+
+/// One role process of a run: the `index`-th of its kind (0 for a role that is not
+/// numbered). A gateway stands in for such slots on the head and runs them on a worker.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+pub struct Slot {
+    /// What it does.
+    pub kind: RoleKind,
+    /// Its index within its kind.
+    pub index: u16,
+}
+
+impl Slot {
+    /// The `index`-th role of `kind`.
+    pub const fn new(kind: RoleKind, index: u16) -> Self {
+        Self { kind, index }
+    }
+    /// Its name: process, log and checkpoint file (`actor-3`, `evaluator`).
+    pub fn name(self) -> String {
+        self.kind.name(self.index)
+    }
+    /// Whether reports and control messages of producer (`role`, `index`) are its.
+    pub fn is(self, role: Role, index: u16) -> bool {
+        self.kind.wire_role() == role && self.index == index
+    }
+}
+
+impl fmt::Display for Slot {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.name())
     }
 }
 

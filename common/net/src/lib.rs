@@ -1,10 +1,12 @@
-//! Between hosts: actors on worker hosts join a run on the head host over Zenoh.
+//! Between hosts: roles on worker hosts (actors, the evaluator) join a run on the head host
+//! over Zenoh.
 //!
 //! Within a host everything stays on iceoryx2 shared memory. Between hosts, one gateway process
-//! per host carries the remote actors' channels over one Zenoh session: on the head it stands in
-//! for the remote actors ([`head`]), on a worker it stands in for the head's consumers and
-//! supervisor ([`worker`]). The actors themselves are the ordinary `mbpo-actor` processes, and
-//! the coordinator and the other roles cannot tell a remote actor from a local one.
+//! per host carries the remote roles' channels over one Zenoh session: on the head it stands in
+//! for the remote roles' ports ([`head`]), on a worker it stands in for the head's side
+//! ([`worker`]). Which channels cross, and so which roles can be remote, is
+//! `mbpo_runtime::remote`'s one rule. The roles themselves are the ordinary processes, and the
+//! coordinator and the other roles cannot tell a remote role from a local one.
 //!
 //! * [`protocol`]: the messages, their encoding and its limits;
 //! * [`link`]: sequence numbers, cumulative acknowledgements and resending (go-back-N), so
@@ -15,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod certs;
+mod files;
 pub mod head;
 pub mod link;
 pub mod peer;

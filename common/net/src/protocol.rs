@@ -15,12 +15,13 @@
 //! message (at most 16 times its size, 64 KiB for small ones): bincode allocates a claimed
 //! length before reading it, so a few bytes must not claim hundreds of megabytes.
 
+use mbpo_runtime::run_plan::Slot;
 use mbpo_runtime::{Mode, Slack};
 use mbpo_wire::{ControlMsg, StatsRecord, TransitionMeta, WeightsCounters, WeightsKind};
 use serde::{Deserialize, Serialize};
 
 /// Version of this protocol; a peer speaking another one is refused by name.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// Largest message accepted (a weight snapshot of a large model, or a checkpoint file).
 pub const MAX_MESSAGE_BYTES: usize = 512 << 20;
@@ -40,12 +41,15 @@ pub struct Envelope {
 /// The messages.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum Body {
-    /// Worker -> head, repeated until answered: "I can run `actors` actors".
+    /// Worker -> head, repeated until answered: "I can run `actors` actors and the roles
+    /// named `roles`".
     Hello {
         /// The worker's name (its host name unless given), for logs and the summary.
         worker: String,
         /// Actors it offers to run.
         actors: u16,
+        /// Roles besides actors it offers to run, by process name (`evaluator`).
+        roles: Vec<String>,
     },
     /// Head -> worker: the slots it runs and everything needed to run them.
     Welcome(Box<Assignment>),
@@ -93,15 +97,15 @@ pub struct WeightsMsg {
     pub sent_ns: u64,
 }
 
-/// What a worker runs: its slots of the run's actors, with the run's config and arguments.
+/// What a worker runs: its slots of the run's roles, with the run's config and arguments.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Assignment {
     /// The head's run id (names only; each host has its own iceoryx2 run).
     pub run_id: String,
     /// The head's attempt of the pipeline (a restart from a checkpoint is a new attempt).
     pub attempt: u64,
-    /// Actor indices (slots) this worker runs.
-    pub slots: Vec<u16>,
+    /// The role processes (slots) this worker runs.
+    pub slots: Vec<Slot>,
     /// The run's `config.toml`, verbatim.
     pub config_toml: String,
     /// The run's `env.json` (a Python env's widths), if it has one.
@@ -125,7 +129,7 @@ pub struct ResumeFiles {
     /// The checkpoint's step T.
     pub env_steps: u64,
     /// `(slot, file bytes)`.
-    pub files: Vec<(u16, Vec<u8>)>,
+    pub files: Vec<(Slot, Vec<u8>)>,
 }
 
 /// A message of the reliable stream.
@@ -134,7 +138,7 @@ pub enum Item {
     /// Worker -> head: one batch of real transitions of actor `slot`.
     Transitions {
         /// The actor.
-        slot: u16,
+        slot: Slot,
         /// The actor's own sequence number of the batch (checked end to end by the head).
         actor_seq: u64,
         /// Versions and counters of the batch.
@@ -142,45 +146,53 @@ pub enum Item {
         /// The rows, `[obs, act, reward, next_obs, terminated]` each.
         rows: Vec<f32>,
     },
-    /// Worker -> head: a report of actor `slot` for the coordinator.
+    /// Worker -> head: a report of `slot` for the coordinator.
     Stats {
-        /// The actor.
-        slot: u16,
+        /// The role.
+        slot: Slot,
         /// The report.
         record: StatsRecord,
     },
-    /// Worker -> head, before the report that it was written: actor `slot`'s file of
-    /// checkpoint `env_steps`, to be written into the head's run directory.
+    /// Worker -> head, before the report that it was written: `slot`'s file of checkpoint
+    /// `env_steps`, to be written into the head's run directory.
     CheckpointFile {
-        /// The actor.
-        slot: u16,
+        /// The role.
+        slot: Slot,
         /// The checkpoint's step T.
         env_steps: u64,
         /// The file, as the actor wrote it (kind, version and SHA-256 inside).
         bytes: Vec<u8>,
     },
-    /// Worker -> head: actor `slot`'s process ended without being told to.
+    /// Worker -> head: `slot`'s process ended without being told to.
     SlotFailed {
-        /// The actor.
-        slot: u16,
+        /// The role.
+        slot: Slot,
         /// Exit status and the tail of its log.
         reason: String,
     },
-    /// Worker -> head: lines of an actor's log, to be appended to the head's
-    /// `logs/<worker>/actor-<slot>.log`.
+    /// Worker -> head: lines of a role's log, to be appended to the head's
+    /// `logs/<worker>/<slot>.log`.
     Log {
-        /// The actor.
-        slot: u16,
+        /// The role.
+        slot: Slot,
         /// The text.
         text: String,
     },
-    /// Worker -> head, its last message: every actor of the worker has exited after the head's
+    /// Worker -> head: a control message `slot` published (the evaluator's acknowledgement
+    /// of an eval point in lockstep), to be published on the head as `slot`'s.
+    ControlFrom {
+        /// The role.
+        slot: Slot,
+        /// The message.
+        msg: ControlMsg,
+    },
+    /// Worker -> head, its last message: every role of the worker has exited after the head's
     /// [`Item::Finished`], and its logs are sent.
     Bye,
-    /// Head -> worker: a control command for actor `slot`.
+    /// Head -> worker: a control command for `slot`.
     Control {
-        /// The actor.
-        slot: u16,
+        /// The role.
+        slot: Slot,
         /// The command.
         msg: ControlMsg,
     },
@@ -261,7 +273,7 @@ mod tests {
             body: Body::Data {
                 seq: 3,
                 item: Item::Transitions {
-                    slot: 1,
+                    slot: Slot::new(mbpo_runtime::RoleKind::Actor, 1),
                     actor_seq: 9,
                     meta: TransitionMeta {
                         policy_version: 4,
@@ -305,7 +317,7 @@ mod tests {
             body: Body::Data {
                 seq: 0,
                 item: Item::Log {
-                    slot: 0,
+                    slot: Slot::new(mbpo_runtime::RoleKind::Evaluator, 0),
                     text: "x".repeat(len),
                 },
             },

@@ -105,6 +105,11 @@ pub struct JoinArgs {
     /// Actors per core of this host (instead of --actors).
     #[arg(long)]
     pub actors_per_core: Option<u16>,
+    /// Roles besides actors to offer, by process name, comma-separated: `evaluator`, for a
+    /// head started with `mbpo run --remote-roles evaluator` (`--actors 0 --roles evaluator`
+    /// offers the evaluator alone).
+    #[arg(long, value_delimiter = ',', value_name = "ROLE")]
+    pub roles: Vec<String>,
     /// Credentials directory (`mbpo certs`, the worker's part).
     #[arg(long)]
     pub credentials: Option<PathBuf>,

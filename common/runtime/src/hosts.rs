@@ -14,13 +14,13 @@ use serde::{Deserialize, Serialize};
 /// The head's gateway's account of the worker hosts, in the run directory.
 pub const HOSTS_FILE: &str = "hosts.json";
 
-/// Who holds the remote actor slots now, in the run directory.
+/// Who holds the remote slots now, in the run directory.
 pub const LIVE_HOSTS_FILE: &str = "hosts-live.json";
 
-/// The remote actor slots and the workers holding them.
+/// The remote slots and the workers holding them.
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct LiveHosts {
-    /// Remote actor slots of the run (held or not).
+    /// Remote slots of the run, actors and other roles (held or not).
     pub remote_slots: u16,
     /// Workers holding slots, by name.
     pub workers: Vec<LiveWorker>,
@@ -33,6 +33,9 @@ pub struct LiveWorker {
     pub name: String,
     /// The actor slots it runs.
     pub actors: Vec<u16>,
+    /// The other roles it runs, by process name (`evaluator`).
+    #[serde(default)]
+    pub roles: Vec<String>,
     /// Nothing heard from it for a while (the link may be down; the run waits for it).
     pub silent: bool,
 }
@@ -53,15 +56,16 @@ impl LiveHosts {
         serde_json::from_str(&text).ok()
     }
 
-    /// The progress line's part, e.g. `hosts: head 1, gpu-box 2, 1 slot free` (silent workers
-    /// marked `(silent)`).
+    /// The progress line's part, e.g. `hosts: head 1, gpu-box 2, robot-pc 0 + evaluator,
+    /// 1 slot free`: each host's actors and other roles (silent workers marked `(silent)`).
     pub fn progress_text(&self, local_actors: u16) -> String {
         let mut parts = vec![format!("head {local_actors}")];
         let mut held = 0;
         for w in &self.workers {
-            held += w.actors.len();
+            held += w.actors.len() + w.roles.len();
             let silent = if w.silent { " (silent)" } else { "" };
-            parts.push(format!("{} {}{silent}", w.name, w.actors.len()));
+            let roles: String = w.roles.iter().map(|r| format!(" + {r}")).collect();
+            parts.push(format!("{} {}{roles}{silent}", w.name, w.actors.len()));
         }
         let free = usize::from(self.remote_slots).saturating_sub(held);
         if free > 0 {
@@ -85,6 +89,7 @@ mod tests {
             workers: vec![LiveWorker {
                 name: "gpu-box".into(),
                 actors: vec![1, 2],
+                roles: vec![],
                 silent: false,
             }],
         };
@@ -92,6 +97,14 @@ mod tests {
             hosts.progress_text(1),
             "hosts: head 1, gpu-box 2, 1 slot free"
         );
+        hosts.workers[0].roles.push("evaluator".into());
+        hosts.remote_slots = 4;
+        assert_eq!(
+            hosts.progress_text(1),
+            "hosts: head 1, gpu-box 2 + evaluator, 1 slot free"
+        );
+        hosts.workers[0].roles.clear();
+        hosts.remote_slots = 3;
         hosts.workers[0].silent = true;
         hosts.workers[0].actors.push(3);
         assert_eq!(hosts.progress_text(0), "hosts: head 0, gpu-box 3 (silent)");
@@ -107,6 +120,7 @@ mod tests {
             workers: vec![LiveWorker {
                 name: "w".into(),
                 actors: vec![4, 5],
+                roles: vec!["evaluator".into()],
                 silent: true,
             }],
         };

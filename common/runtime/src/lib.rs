@@ -9,6 +9,7 @@
 //! * [`inbox`]: [`ControlInbox`] (stops, acknowledgements, barriers), [`RealInbox`] (real
 //!   transitions held back until a role may see them) and [`wait_for`], the one way to sleep.
 //! * [`pipeline`]: which roles a run has (the one list every launcher and count reads).
+//! * [`remote`]: which roles can run on another host behind the gateways, and why not.
 //! * [`run_plan`]: the run resolved once by its launcher ([`ResolvedRun`]), which every
 //!   process reads and trusts.
 //! * [`serving`]: the one serving loop every role runs on, and the [`serving::Worker`]
@@ -33,6 +34,7 @@ pub mod inbox;
 pub mod pacer;
 pub mod pipeline;
 pub mod process;
+pub mod remote;
 pub mod run_plan;
 pub mod services;
 pub mod serving;

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use mbpo_sac::TanhGaussianActor;
 use mbpo_train::{ExperimentConfig, Schedule};
-use mbpo_wire::{RunIpc, Transport, WireNode};
+use mbpo_wire::{Channel, RunIpc, Transport, WireNode};
 
 use crate::args::{Mode, ServiceArgs, Slack};
 use crate::error::ensure_protocol;
@@ -119,6 +119,17 @@ impl<S: Transport> Process<S> {
         match self.args.behind_gateway {
             true => 1,
             false => self.pipeline.real_consumers(),
+        }
+    }
+    /// How many subscribers of the control channel an evaluator's acknowledgements wait for:
+    /// every role of the run (its own included), or on a worker host itself and the gateway
+    /// (which forwards them to the head, where the gateway's stand-in waits for the run's).
+    pub fn control_subscribers(&self) -> usize {
+        match self.args.behind_gateway {
+            true => 2,
+            false => self
+                .pipeline
+                .subscribers(Channel::Control, self.args.actors),
         }
     }
     /// A fresh SAC actor network of the run (architecture only).

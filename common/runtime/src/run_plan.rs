@@ -14,7 +14,9 @@ use mbpo_train::ExperimentConfig;
 use mbpo_wire::{ModelWireLayout, RowLayout};
 use serde::{Deserialize, Serialize};
 
+use crate::pipeline::RoleKind;
 use crate::{Mode, Result, RuntimeError, Slack};
+pub use mbpo_core::roles::Slot;
 
 /// The file in a run directory.
 pub const RUN_PLAN_FILE: &str = "run-plan.json";
@@ -110,7 +112,7 @@ pub(crate) fn actor_net(cfg: &ExperimentConfig, obs: usize, act: usize) -> TanhG
 }
 
 /// What every process of a run is told, once.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ResolvedRun {
     /// [`RUN_PLAN_FORMAT`] of the build that wrote it.
     pub format: u32,
@@ -124,6 +126,10 @@ pub struct ResolvedRun {
     pub local_actors: u16,
     /// Slack of pipelined mode (as given; zero is used in lockstep).
     pub slack: Slack,
+    /// Roles besides the actors that run on workers (`mbpo run --remote-roles`), whose ports
+    /// the head's gateway stands in for (absent in plans of builds before them: none).
+    #[serde(default)]
+    pub remote_services: Vec<RoleKind>,
 }
 
 impl ResolvedRun {
@@ -136,7 +142,22 @@ impl ResolvedRun {
             actors,
             local_actors,
             slack,
+            remote_services: Vec::new(),
         }
+    }
+
+    /// The same plan with `services` run on workers.
+    pub fn with_remote_services(mut self, services: Vec<RoleKind>) -> Self {
+        self.remote_services = services;
+        self
+    }
+
+    /// The role processes workers run for this plan: actors `local_actors..actors` (of
+    /// `actor`), then the remote services.
+    pub fn remote_slots(&self, actor: RoleKind) -> Vec<Slot> {
+        let actors = (self.local_actors..self.actors).map(|i| Slot::new(actor, i));
+        let services = self.remote_services.iter().map(|&k| Slot::new(k, 0));
+        actors.chain(services).collect()
     }
 
     /// Write `<run_dir>/run-plan.json`.
@@ -176,6 +197,11 @@ impl ResolvedRun {
             return Err(format!(
                 "sizes out of range: obs {}, act {} (1..={MAX_WIDTH}), policy {}, model inputs {}",
                 d.obs, d.act, d.policy_len, d.model.in_dim
+            ));
+        }
+        if let Some(k) = plan.remote_services.iter().find(|k| k.is_actor()) {
+            return Err(format!(
+                "{k:?} among the remote services: actors are remote by slot (local_actors)"
             ));
         }
         if plan.local_actors > plan.actors {
@@ -220,6 +246,30 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
         let err = ResolvedRun::read(&dir).unwrap_err().to_string();
         assert!(err.contains("run-plan.json"), "{err}");
+    }
+
+    #[test]
+    fn the_remote_slots_are_the_actors_past_the_local_ones_then_the_remote_services() {
+        let p = plan().with_remote_services(vec![RoleKind::Evaluator]);
+        let names: Vec<String> = p
+            .remote_slots(RoleKind::Actor)
+            .iter()
+            .map(|s| s.name())
+            .collect();
+        assert_eq!(names, ["actor-1", "actor-2", "evaluator"]);
+        let text = serde_json::to_string(&p).unwrap();
+        assert!(
+            text.contains(r#""remote_services":["evaluator"]"#),
+            "{text}"
+        );
+        assert_eq!(ResolvedRun::parse(&text).unwrap(), p);
+        // A plan of a build before remote services reads as none.
+        let old = text.replace(r#","remote_services":["evaluator"]"#, "");
+        assert_eq!(ResolvedRun::parse(&old).unwrap(), plan());
+        let actor = text.replace(r#"["evaluator"]"#, r#"["actor"]"#);
+        assert!(ResolvedRun::parse(&actor)
+            .unwrap_err()
+            .contains("remote by slot"));
     }
 
     #[test]

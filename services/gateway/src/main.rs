@@ -1,8 +1,10 @@
 //! `mbpo-gateway`: a host's gateway of a multi-host run (`mbpo_net`).
 //!
 //! * `mbpo-gateway head <service args> --listen E --local-actors L`: started by `mbpo run
-//!   --listen E --remote-actors M`; stands in for actors L..L+M on the head.
-//! * `mbpo-gateway join E --actors N`: what `mbpo join` runs on a worker host.
+//!   --listen E --remote-actors M [--remote-roles evaluator]`; stands in for actors L..L+M and
+//!   the run plan's remote roles on the head.
+//! * `mbpo-gateway join E --actors N [--roles evaluator]`: what `mbpo join` runs on a worker
+//!   host.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -109,6 +111,7 @@ fn main() -> ExitCode {
                 actors: j
                     .actors_per_core
                     .map_or(j.actors, |k| k.saturating_mul(cores)),
+                roles: j.roles,
                 dir: j
                     .dir
                     .unwrap_or_else(|| std::env::temp_dir().join(format!("mbpo-worker-{name}"))),

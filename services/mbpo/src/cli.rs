@@ -523,16 +523,24 @@ impl RunArgs {
     }
 }
 
-/// Actors on other hosts: `mbpo run --listen E --remote-actors M` here, `mbpo join E` there.
+/// Roles on other hosts: `mbpo run --listen E --remote-actors M [--remote-roles evaluator]`
+/// here, `mbpo join E` there.
 #[derive(Debug, Clone, Args)]
 pub struct RemoteArgs {
-    /// Admit actors of worker hosts (`mbpo join ENDPOINT`) on this Zenoh endpoint, e.g.
-    /// tcp/127.0.0.1:7447; an address beyond this host needs --credentials.
-    #[arg(long, value_name = "ENDPOINT", requires = "remote_actors")]
+    /// Admit roles of worker hosts (`mbpo join ENDPOINT`) on this Zenoh endpoint, e.g.
+    /// tcp/127.0.0.1:7447; an address beyond this host needs --credentials. Give it with
+    /// --remote-actors, --remote-roles or both.
+    #[arg(long, value_name = "ENDPOINT")]
     pub listen: Option<String>,
     /// Actor slots for worker hosts, besides the --actors on this host (the run has both).
     #[arg(long, default_value_t = 0, requires = "listen")]
     pub remote_actors: u16,
+    /// Roles besides actors that run on a worker host, by process name, comma-separated:
+    /// `evaluator` (e.g. on the robot's own computer). The worker offers it with `mbpo join
+    /// --roles evaluator`; a role the gateways cannot carry (the learner, the model trainer)
+    /// is refused with the channel they do not carry.
+    #[arg(long, value_delimiter = ',', value_name = "ROLE", requires = "listen")]
+    pub remote_roles: Vec<String>,
     /// Credentials directory made by `mbpo certs` (its `head` part).
     #[arg(long, value_name = "DIR", requires = "listen")]
     pub credentials: Option<std::path::PathBuf>,

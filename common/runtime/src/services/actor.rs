@@ -215,15 +215,14 @@ impl<S: Transport> Worker<S> for Evaluator {
 }
 
 /// An evaluator sends acknowledgements on the control channel: wait until every role's
-/// control subscriber is there (the role table's count, this evaluator's own included, which
-/// confirms only when asked to: same thread).
+/// control subscriber is there ([`Process::control_subscribers`], this evaluator's own
+/// included, which confirms only when asked to: same thread).
 pub(crate) fn wait_for_control_subscribers<S: Transport>(
     s: &Process<S>,
     control: &ControlInbox<S>,
     acks: &ControlPublisher<S>,
 ) -> Result<()> {
     control.sub.update_connections();
-    let subscribers = s.pipeline.subscribers(Channel::Control, s.args.actors);
-    acks.wait_for_subscribers(subscribers, Duration::from_secs(120))?;
+    acks.wait_for_subscribers(s.control_subscribers(), Duration::from_secs(120))?;
     Ok(())
 }

@@ -23,7 +23,7 @@ use anyhow::{bail, Context};
 use mbpo_runtime::coordinator::checkpoints::{self, ResumePoint};
 use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
-use mbpo_runtime::{configure_run, pipeline, Mode, ResolvedRun};
+use mbpo_runtime::{configure_run, pipeline, remote, Mode, ResolvedRun};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::RunDir;
 use mbpo_wire::{ipc, RunIpc, StopReason, WaitOutcome, Waiter};
@@ -226,9 +226,12 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     let started = now
         .checked_sub(Duration::from_secs_f64(elapsed))
         .unwrap_or(now);
+    let pipeline = pipeline::spec(cfg.algo)?;
     let cx = AttemptCtx {
         args,
-        pipeline: pipeline::spec(cfg.algo)?,
+        pipeline,
+        remote_services: remote::remote_services(pipeline, &args.remote.remote_roles)
+            .map_err(anyhow::Error::msg)?,
         cfg: &cfg,
         ipc: &ipc,
         run_id: &run_id,
@@ -475,6 +478,8 @@ fn roll_back(
 struct AttemptCtx<'a> {
     args: &'a RunArgs,
     pipeline: &'static pipeline::PipelineSpec,
+    /// The roles besides actors that run on worker hosts (`--remote-roles`).
+    remote_services: Vec<pipeline::RoleKind>,
     cfg: &'a mbpo_train::ExperimentConfig,
     ipc: &'a RunIpc,
     run_id: &'a str,
@@ -513,6 +518,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
     let mut procs: Vec<Proc> = roles
         .into_iter()
         .filter(|role| !(role.kind.is_actor() && role.index >= local))
+        .filter(|role| !cx.remote_services.contains(&role.kind))
         .enumerate()
         .map(|(i, role)| {
             // A Python env's process inherits its actor's CPU: each env step's two wake-ups are
@@ -533,7 +539,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
         })
         .collect();
     if let Some(listen) = &args.remote.listen {
-        // The remote actors' stand-in on this host (`mbpo_net::head`).
+        // The remote roles' stand-in on this host (`mbpo_net::head`).
         let mut a = vec!["head".to_string()];
         a.extend(common);
         a.extend([
@@ -584,7 +590,8 @@ fn supervise(
     // model); every process and gateway reads them from the plan.
     let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
     let local = cx.args.local_actors();
-    let resolved = ResolvedRun::new(dims, cx.args.mode, cx.args.actors, local, cx.args.slack);
+    let resolved = ResolvedRun::new(dims, cx.args.mode, cx.args.actors, local, cx.args.slack)
+        .with_remote_services(cx.remote_services.clone());
     resolved.write(cx.out)?;
     let plan = RunPlan {
         pipeline: cx.pipeline,
@@ -848,5 +855,12 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
     if args.actors == 0 {
         bail!("--actors must be at least 1 (or give --listen E --remote-actors M for actors on other hosts)");
     }
+    if let Some(listen) = &args.remote.listen {
+        if args.remote.remote_actors == 0 && args.remote.remote_roles.is_empty() {
+            bail!("--listen {listen} admits roles of worker hosts, but none is remote: give --remote-actors M, --remote-roles evaluator, or both");
+        }
+    }
+    let pipeline = pipeline::spec(cfg.algo)?;
+    remote::remote_services(pipeline, &args.remote.remote_roles).map_err(anyhow::Error::msg)?;
     Ok(())
 }
