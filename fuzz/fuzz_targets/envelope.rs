@@ -12,7 +12,8 @@ use mbpo_net::protocol::{
     decode, encode, Assignment, Body, DecodeError, Envelope, Item, ResumeFiles, WeightsMsg,
     PROTOCOL_VERSION,
 };
-use mbpo_runtime::{Mode, Slack};
+use mbpo_runtime::run_plan::Slot;
+use mbpo_runtime::{Mode, RoleKind, Slack};
 use mbpo_wire::{
     ControlCommand, ControlMsg, Stats, StatsRecord, TransitionMeta, WeightsCounters, WeightsKind,
 };
@@ -30,15 +31,18 @@ fn seeds() -> Vec<Vec<u8>> {
         version: 199,
     })
     .record();
+    let actor = |i| Slot::new(RoleKind::Actor, i);
+    let evaluator = Slot::new(RoleKind::Evaluator, 0);
     let envelopes = vec![
         env(Body::Hello {
             worker: "worker-1".into(),
             actors: 2,
+            roles: vec!["evaluator".into()],
         }),
         env(Body::Welcome(Box::new(Assignment {
             run_id: "pendulum-s1".into(),
             attempt: 1,
-            slots: vec![1, 2],
+            slots: vec![actor(1), actor(2), evaluator],
             config_toml: "algo = \"mbpo\"\nenv = \"Pendulum-v1\"\n".into(),
             env_json: Some("{\"obs_dim\": 3, \"act_dim\": 1}".into()),
             run_plan: "{\"format\": 1}".into(),
@@ -51,7 +55,10 @@ fn seeds() -> Vec<Vec<u8>> {
             },
             resume: Some(ResumeFiles {
                 env_steps: 500,
-                files: vec![(1, b"MBPOCKPT".to_vec())],
+                files: vec![
+                    (actor(1), b"MBPOCKPT".to_vec()),
+                    (evaluator, b"MBPOCKPT".to_vec()),
+                ],
             }),
         }))),
         env(Body::Refused {
@@ -76,7 +83,7 @@ fn seeds() -> Vec<Vec<u8>> {
         data(
             0,
             Item::Transitions {
-                slot: 1,
+                slot: actor(1),
                 actor_seq: 0,
                 meta: TransitionMeta {
                     policy_version: 0,
@@ -86,11 +93,17 @@ fn seeds() -> Vec<Vec<u8>> {
                 rows: (0..9).map(|i| i as f32).collect(),
             },
         ),
-        data(1, Item::Stats { slot: 1, record }),
+        data(
+            1,
+            Item::Stats {
+                slot: actor(1),
+                record,
+            },
+        ),
         data(
             2,
             Item::CheckpointFile {
-                slot: 1,
+                slot: evaluator,
                 env_steps: 500,
                 bytes: b"MBPOCKPT\x04\0\0\0".to_vec(),
             },
@@ -98,14 +111,14 @@ fn seeds() -> Vec<Vec<u8>> {
         data(
             3,
             Item::SlotFailed {
-                slot: 2,
+                slot: actor(2),
                 reason: "exit status 1".into(),
             },
         ),
         data(
             4,
             Item::Log {
-                slot: 2,
+                slot: evaluator,
                 text: "step 10\n".into(),
             },
         ),
@@ -113,8 +126,15 @@ fn seeds() -> Vec<Vec<u8>> {
         data(
             6,
             Item::Control {
-                slot: 1,
+                slot: actor(1),
                 msg: ControlMsg::request(ControlCommand::Checkpoint, 2, 0x0001_0001, 500),
+            },
+        ),
+        data(
+            8,
+            Item::ControlFrom {
+                slot: evaluator,
+                msg: ControlMsg::request(ControlCommand::Ack, 400, 0x0004_0000, 400),
             },
         ),
         data(7, Item::Finished),
