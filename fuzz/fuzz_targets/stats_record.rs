@@ -11,7 +11,7 @@ use mbpo_fuzz::{bytes_of, pod, write_seeds_if_asked};
 use mbpo_wire::error::DecodeError;
 use mbpo_wire::{
     BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained,
-    ModelTraining, Progress, RolloutBranch, Stats, StatsKind, StatsRecord,
+    ModelTraining, PacingPart, Progress, RolloutBranch, Stats, StatsKind, StatsRecord,
 };
 
 fn seeds() -> Vec<Vec<u8>> {
@@ -95,6 +95,12 @@ fn seeds() -> Vec<Vec<u8>> {
         BarrierReport::Paused(300).into(),
         BarrierReport::Written(300).into(),
         EnvFailed { env_steps: 77 }.into(),
+        PacingPart {
+            first_bin: 6,
+            counts: [900, 80, 7, 1, 0, 2],
+            max_error_us: 11722.8,
+        }
+        .into(),
     ];
     reports.iter().map(|s| bytes_of(&s.record())).collect()
 }

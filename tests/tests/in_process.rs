@@ -220,6 +220,17 @@ fn paced_actors_step_on_the_clock_and_lose_nothing() {
     // round trip of `mbpo_wire::stats` checks).
     let pacing = s.pacing.expect("a paced run's summary has its pacing");
     assert_eq!(pacing.control_hz, 200.0);
+    // Every interval between two steps on one grid is in the histogram: each actor's 200
+    // steps less one per grid (the first, and one after each rest).
+    let grids = 2 + pacing.rests_between_episodes;
+    assert_eq!(pacing.intervals, 400 - grids, "{pacing:?}");
+    let binned: u64 = pacing.histogram.iter().map(|b| b.steps).sum();
+    assert_eq!(binned, pacing.intervals);
+    let e = pacing.interval_error_us;
+    assert!(
+        e.p50 <= e.p99 && e.p99 <= e.max.max(e.p99) && e.max > 0.0,
+        "{e:?}"
+    );
     for consumer in ["model-trainer", "rollout-generator", "learner"] {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }

@@ -174,7 +174,7 @@ impl Default for SacLoopConfig {
 }
 
 /// How the run's environments act in time.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ActorConfig {
     /// Wall milliseconds every env step takes at least (0: as fast as it computes). A stand-in
@@ -188,6 +188,23 @@ pub struct ActorConfig {
     /// the newest weights it holds, and waits for the ones its next step needs only between
     /// episodes, where a robot rests. Missed deadlines are counted (`mbpo run` logs them).
     pub control_hz: f64,
+    /// Real-time priority of a paced actor (`control_hz` above 0) and of its environment's
+    /// process: SCHED_FIFO at this priority (1 to 99), pinned to one core (actor i to the i-th
+    /// core from the last), above the learning roles and everything else on the default
+    /// scheduler; 0 leaves it on the default scheduler. Where the system refuses it (not root and no
+    /// CAP_SYS_NICE, or RLIMIT_RTPRIO below it) the actor says so in its log, with the fix, and
+    /// runs on the default scheduler. Unpaced runs ignore it.
+    pub realtime_priority: u32,
+}
+
+impl Default for ActorConfig {
+    fn default() -> Self {
+        Self {
+            env_step_ms: 0.0,
+            control_hz: 0.0,
+            realtime_priority: 10,
+        }
+    }
 }
 
 /// When runs write checkpoints (`<run>/checkpoints/`, see `mbpo_train::checkpoint`).
@@ -847,6 +864,13 @@ impl ExperimentConfig {
                 return Err(bad(key, "0 or a positive number", v.to_string()));
             }
         }
+        if self.actor.realtime_priority > 99 {
+            return Err(bad(
+                "actor.realtime_priority",
+                "0 (off) or a SCHED_FIFO priority 1..=99",
+                self.actor.realtime_priority.to_string(),
+            ));
+        }
         if self.gym.max_episode_steps == Some(0) {
             return Err(bad(
                 "gym.max_episode_steps",
@@ -1003,6 +1027,10 @@ mod tests {
             (
                 "[model]\nholdout_ratio = 0.05\n[mbpo]\ninit_random_steps = 19\n",
                 "`mbpo.init_random_steps` must be at least 20",
+            ),
+            (
+                "[actor]\nrealtime_priority = 100\n",
+                "`actor.realtime_priority` must be 0 (off) or a SCHED_FIFO priority 1..=99, found 100",
             ),
         ];
         for (text, want) in cases {

@@ -19,7 +19,7 @@
 use crate::config::{CemConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::{restore_sequence, shift_sequence, Planner};
+use crate::planner::{restore_sequence, shift_sequence, Budget, Planner};
 use crate::sampler::TrajectorySampler;
 use mbpo_core::rng::normal_f32;
 use mbpo_core::Rng;
@@ -39,6 +39,8 @@ pub struct Cem {
     /// Candidate indices; the first `elites` are the elites after selection.
     order: Vec<usize>,
     elite_return: f32,
+    budget: Option<std::time::Duration>,
+    iterations_done: usize,
 }
 
 impl Cem {
@@ -56,6 +58,8 @@ impl Cem {
             returns: vec![0.0; n],
             order: Vec::with_capacity(n),
             elite_return: f32::NEG_INFINITY,
+            budget: cfg.budget(),
+            iterations_done: 0,
         }
     }
 
@@ -162,11 +166,18 @@ impl Planner for Cem {
         obs: &[f32],
         rng: &mut Rng,
     ) -> Result<&[f32], PlanError> {
+        let budget = Budget::start(self.budget);
         self.begin(model, rng);
-        for _ in 0..self.cfg.iterations {
+        self.iterations_done = 0;
+        while self.iterations_done < self.cfg.iterations && budget.allows(self.iterations_done) {
             self.iteration(model, obs, rng)?;
+            self.iterations_done += 1;
         }
         Ok(&self.mean)
+    }
+
+    fn iterations_done(&self) -> usize {
+        self.iterations_done
     }
 
     fn predicted_return(&self) -> f32 {

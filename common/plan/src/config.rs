@@ -144,6 +144,13 @@ pub struct PlannerConfig {
     pub mppi: MppiConfig,
     /// Gradient planner.
     pub grad: GradConfig,
+    /// Wall milliseconds one plan may take (0: no budget). CEM, MPPI and the gradient planner
+    /// then stop before an iteration that would overrun it (the first always runs; at most
+    /// their `iterations`), so a planning actor on a clock (`actor.control_hz`) meets its
+    /// period with as many iterations as fit: set `iterations` high and let the budget decide.
+    /// Its log reports the iterations per plan. A budget makes plans depend on the machine's
+    /// speed: lockstep refuses it, and two runs differ.
+    pub budget_ms: f64,
 }
 
 impl Default for PlannerConfig {
@@ -156,11 +163,17 @@ impl Default for PlannerConfig {
             cem: CemConfig::default(),
             mppi: MppiConfig::default(),
             grad: GradConfig::default(),
+            budget_ms: 0.0,
         }
     }
 }
 
 impl PlannerConfig {
+    /// The time budget of one plan (`budget_ms`), if any.
+    pub fn budget(&self) -> Option<std::time::Duration> {
+        (self.budget_ms > 0.0).then(|| std::time::Duration::from_secs_f64(self.budget_ms / 1e3))
+    }
+
     /// Check every range (keys are reported relative to the planner table, e.g. `cem.elites`).
     pub fn validate(&self) -> Result<(), PlanError> {
         let bad = |key: &str, expected: &str, found: String| {
@@ -216,6 +229,13 @@ impl PlannerConfig {
             if !(v > 0.0 && v.is_finite()) {
                 return bad(key, "a positive number", v.to_string());
             }
+        }
+        if !(self.budget_ms >= 0.0 && self.budget_ms.is_finite()) {
+            return bad(
+                "budget_ms",
+                "0 (no budget) or a positive number of milliseconds",
+                self.budget_ms.to_string(),
+            );
         }
         Ok(())
     }

@@ -26,7 +26,7 @@
 use crate::config::{GradConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::{argmax, restore_sequence, shift_sequence, Planner};
+use crate::planner::{argmax, restore_sequence, shift_sequence, Budget, Planner};
 use crate::sampler::deal_members;
 use mbpo_core::rng::uniform_range_f32;
 use mbpo_core::Rng;
@@ -57,6 +57,8 @@ pub struct GradientPlanner {
     best: Vec<f32>,
     best_return: f32,
     tape: Tape,
+    budget: Option<std::time::Duration>,
+    iterations_done: usize,
 }
 
 /// Forward values and backward scratch of one objective evaluation.
@@ -100,6 +102,8 @@ impl GradientPlanner {
             best: vec![0.0; h * act_dim],
             best_return: f32::NEG_INFINITY,
             tape: Tape::default(),
+            budget: cfg.budget(),
+            iterations_done: 0,
         }
     }
 
@@ -311,14 +315,21 @@ impl Planner for GradientPlanner {
         // of the previous plan (which no checkpoint keeps).
         let len = self.horizon * self.act_dim;
         self.best.copy_from_slice(&self.seqs[..len]);
-        for k in 1..=self.cfg.iterations {
+        let budget = Budget::start(self.budget);
+        self.iterations_done = 0;
+        while self.iterations_done < self.cfg.iterations && budget.allows(self.iterations_done) {
             self.evaluate(model, obs)?;
             self.keep_best();
-            self.adam_ascent(k as i32);
+            self.iterations_done += 1;
+            self.adam_ascent(self.iterations_done as i32);
         }
         self.evaluate(model, obs)?;
         self.keep_best();
         Ok(&self.best)
+    }
+
+    fn iterations_done(&self) -> usize {
+        self.iterations_done
     }
 
     fn predicted_return(&self) -> f32 {

@@ -33,6 +33,17 @@ pub struct Mpc {
     plan: Vec<f32>,
     cursor: usize,
     plans: u64,
+    /// Iterations per plan since this controller was made.
+    iterations: IterationCount,
+}
+
+/// Iterations per plan: fewest, most, their sum and the plans counted.
+#[derive(Debug, Clone, Copy)]
+struct IterationCount {
+    fewest: usize,
+    most: usize,
+    sum: u64,
+    plans: u64,
 }
 
 impl Mpc {
@@ -46,7 +57,28 @@ impl Mpc {
             plan: vec![0.0; len],
             cursor: h,
             plans: 0,
+            iterations: IterationCount {
+                fewest: usize::MAX,
+                most: 0,
+                sum: 0,
+                plans: 0,
+            },
         }
+    }
+
+    /// Iterations per plan since this controller was made (a resumed one: since the resume):
+    /// fewest, mean, most; `None` before the first plan. Below the planner's `iterations` when
+    /// its time budget (`budget_ms`) cut plans short.
+    pub fn iterations_per_plan(&self) -> Option<(usize, f64, usize)> {
+        let c = &self.iterations;
+        (c.plans > 0).then(|| (c.fewest, c.sum as f64 / c.plans as f64, c.most))
+    }
+
+    fn count_iterations(&mut self) {
+        let k = self.planner.iterations_done();
+        let c = &mut self.iterations;
+        (c.fewest, c.most) = (c.fewest.min(k), c.most.max(k));
+        (c.sum, c.plans) = (c.sum + k as u64, c.plans + 1);
     }
 
     /// The planner.
@@ -83,6 +115,7 @@ impl Mpc {
             action.copy_from_slice(&plan[..a]);
             self.planner.shift(1);
             self.plans += 1;
+            self.count_iterations();
             return Ok(true);
         }
         let planned = self.cursor >= self.planner.horizon();
@@ -92,6 +125,7 @@ impl Mpc {
             self.plan.copy_from_slice(plan);
             self.cursor = 0;
             self.plans += 1;
+            self.count_iterations();
         }
         action.copy_from_slice(&self.plan[self.cursor * a..(self.cursor + 1) * a]);
         self.cursor += 1;

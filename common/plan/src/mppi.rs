@@ -21,7 +21,7 @@
 use crate::config::{MppiConfig, PlannerConfig};
 use crate::error::PlanError;
 use crate::model::PlanningModel;
-use crate::planner::{restore_sequence, Planner};
+use crate::planner::{restore_sequence, Budget, Planner};
 use crate::sampler::TrajectorySampler;
 use mbpo_core::rng::normal_f32;
 use mbpo_core::Rng;
@@ -41,6 +41,8 @@ pub struct Mppi {
     /// n_{t−1} of the candidate being sampled.
     prev: Vec<f32>,
     best_return: f32,
+    budget: Option<std::time::Duration>,
+    iterations_done: usize,
 }
 
 impl Mppi {
@@ -58,6 +60,8 @@ impl Mppi {
             weights: vec![0.0; n],
             prev: vec![0.0; act_dim],
             best_return: f32::NEG_INFINITY,
+            budget: cfg.budget(),
+            iterations_done: 0,
         }
     }
 
@@ -155,11 +159,18 @@ impl Planner for Mppi {
         obs: &[f32],
         rng: &mut Rng,
     ) -> Result<&[f32], PlanError> {
+        let budget = Budget::start(self.budget);
         self.sampler.bind_particles(model.members(), rng);
-        for _ in 0..self.cfg.iterations {
+        self.iterations_done = 0;
+        while self.iterations_done < self.cfg.iterations && budget.allows(self.iterations_done) {
             self.iteration(model, obs, rng)?;
+            self.iterations_done += 1;
         }
         Ok(&self.mean)
+    }
+
+    fn iterations_done(&self) -> usize {
+        self.iterations_done
     }
 
     fn predicted_return(&self) -> f32 {

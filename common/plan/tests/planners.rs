@@ -326,3 +326,46 @@ fn a_restored_controller_continues_exactly() {
     let err = mpc.restore(bad).unwrap_err().to_string();
     assert!(err.contains("warm start"), "{err}");
 }
+
+/// `budget_ms`: an iterative planner stops before an iteration would overrun the budget (the
+/// first always runs), and the controller reports the iterations its plans ran; without a
+/// budget every configured iteration runs.
+#[test]
+fn a_time_budget_cuts_the_iterations_and_the_controller_reports_them() {
+    let mut model = Tracker::new(1);
+    let obs = model.start(0.5);
+    for kind in [PlannerKind::Cem, PlannerKind::Mppi, PlannerKind::Grad] {
+        let mut cfg = PlannerConfig {
+            kind,
+            horizon: 10,
+            particles: 1,
+            ..PlannerConfig::default()
+        };
+        (cfg.cem.iterations, cfg.mppi.iterations, cfg.grad.iterations) = (50, 50, 50);
+        let mut rng = stream(3, "test.budget", 0);
+        let mut free = Mpc::new(build(&cfg, 1).unwrap(), false);
+        free.act(&mut model, &obs, &mut rng, &mut [0.0]).unwrap();
+        assert_eq!(free.iterations_per_plan(), Some((50, 50.0, 50)), "{kind:?}");
+        // A budget no iteration fits in: one iteration per plan, the plan still made.
+        cfg.budget_ms = 1e-6;
+        let mut tight = Mpc::new(build(&cfg, 1).unwrap(), false);
+        let mut action = [0.0f32];
+        for _ in 0..3 {
+            assert!(tight.act(&mut model, &obs, &mut rng, &mut action).unwrap());
+        }
+        assert_eq!(tight.iterations_per_plan(), Some((1, 1.0, 1)), "{kind:?}");
+        assert!(action[0].is_finite() && action[0].abs() <= 1.0);
+    }
+    let bad = PlannerConfig {
+        budget_ms: -1.0,
+        ..PlannerConfig::default()
+    };
+    assert!(bad
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("budget_ms"));
+    assert!(build(&bad, 1).is_err());
+    let fresh = Mpc::new(build(&PlannerConfig::default(), 1).unwrap(), false);
+    assert_eq!(fresh.iterations_per_plan(), None);
+}

@@ -8,13 +8,16 @@
 //! * [`plot_runs`]: one column (default `eval_return`) against env steps.
 //! * [`plot_losses`]: the training diagnostics ([`LOSS_PANELS`]: critic loss, actor loss, α,
 //!   model holdout MSE), one panel each, one shared legend.
+//! * [`plot_histogram`]: a histogram as bars (a paced run's step-interval errors).
 //! * [`learning_table`]: the eval returns as a markdown table, seed by seed, with the median and
 //!   the paper's curve ([`mbpo_paper_curve`]) at the same env steps.
 #![warn(missing_docs)]
 
+mod histogram;
 mod paper_curve;
 mod table;
 
+pub use histogram::{plot_histogram, Bar};
 pub use paper_curve::{mbpo_paper_curve, PaperCurve, PaperPoint};
 pub use table::learning_table;
 

@@ -14,7 +14,10 @@
 //!   process reads and trusts.
 //! * [`serving`]: the one serving loop every role runs on, and the [`serving::Worker`]
 //!   interface a role implements ([`services`]: the seven roles).
-//! * [`pacer`]: stepping on a clock (a paced actor's absolute deadlines).
+//! * [`pacer`]: stepping on a clock (a paced actor's absolute deadlines, its step-interval
+//!   errors).
+//! * [`realtime`]: a paced run's scheduling (SCHED_FIFO and a core for a paced actor,
+//!   SCHED_BATCH for the learning roles), or why the system refused it.
 //! * [`barrier`]: checkpoints of the running pipeline (the protocol and the files).
 //! * [`error`]: the one error type, [`RuntimeError`].
 //! * [`hosts`]: which hosts a multi-host run's actors are on (files the head's gateway writes).
@@ -34,6 +37,7 @@ pub mod inbox;
 pub mod pacer;
 pub mod pipeline;
 pub mod process;
+pub mod realtime;
 pub mod remote;
 pub mod run_plan;
 pub mod services;

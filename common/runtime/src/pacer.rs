@@ -1,10 +1,134 @@
 //! Stepping on a clock ([`Pacer`]): a paced actor's steps start on absolute deadlines of the
 //! monotonic clock, `start + k · period`, so waiting never accumulates drift. A step that starts
 //! after its deadline is counted as missed, and the next deadline is the first one of the grid
-//! after it (no burst of catch-up steps, as a robot would not want one). No allocation, lock or
-//! log on the way: the counts are read after the run.
+//! after it (no burst of catch-up steps, as a robot would not want one). Each step's start is
+//! read from the clock after the wait, and the error of the interval since the step before,
+//! `|interval − period|`, goes into a fixed histogram ([`IntervalErrors`]): what a robot's
+//! controller sees of the scheduler. No allocation, lock or log on the way: the counts are read
+//! after the run.
 
 use std::time::Duration;
+
+use mbpo_wire::{PacingPart, PACING_PART_BINS};
+
+/// Upper edges of the bins of [`IntervalErrors`], µs (the last bin is open).
+pub const INTERVAL_ERROR_EDGES_US: [f64; INTERVAL_ERROR_BINS] = [
+    2.0,
+    5.0,
+    10.0,
+    20.0,
+    50.0,
+    100.0,
+    200.0,
+    500.0,
+    1e3,
+    2e3,
+    5e3,
+    1e4,
+    2e4,
+    5e4,
+    1e5,
+    f64::INFINITY,
+];
+
+/// Bins of [`IntervalErrors`].
+pub const INTERVAL_ERROR_BINS: usize = 16;
+
+/// A histogram of step-interval errors `|interval − period|` (log-spaced bins, fixed size: adding
+/// allocates nothing), with the largest error.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct IntervalErrors {
+    /// Intervals per bin of [`INTERVAL_ERROR_EDGES_US`].
+    pub counts: [u64; INTERVAL_ERROR_BINS],
+    /// The largest error, ns.
+    pub max_ns: u64,
+}
+
+impl IntervalErrors {
+    /// Count one interval error of `ns`.
+    pub fn add(&mut self, ns: u64) {
+        let us = ns as f64 / 1e3;
+        let bin = INTERVAL_ERROR_EDGES_US.iter().position(|&e| us < e);
+        self.counts[bin.unwrap_or(INTERVAL_ERROR_BINS - 1)] += 1;
+        self.max_ns = self.max_ns.max(ns);
+    }
+    /// Add `other`'s counts (another actor's).
+    pub fn merge(&mut self, other: &IntervalErrors) {
+        for (c, o) in self.counts.iter_mut().zip(other.counts) {
+            *c += o;
+        }
+        self.max_ns = self.max_ns.max(other.max_ns);
+    }
+    /// The histogram as the stats records that carry it (bins in parts of
+    /// [`PACING_PART_BINS`]).
+    pub fn parts(&self) -> impl Iterator<Item = PacingPart> + '_ {
+        let max_error_us = (self.max_ns as f64 / 1e3) as f32;
+        self.counts
+            .chunks(PACING_PART_BINS)
+            .enumerate()
+            .map(move |(i, chunk)| {
+                let mut counts = [0; PACING_PART_BINS];
+                counts[..chunk.len()].copy_from_slice(chunk);
+                PacingPart {
+                    first_bin: (i * PACING_PART_BINS) as u32,
+                    counts,
+                    max_error_us,
+                }
+            })
+    }
+    /// Add an actor's part (the coordinator puts the parts of every actor together).
+    pub fn add_part(&mut self, part: &PacingPart) {
+        let first = part.first_bin as usize;
+        let bins = self.counts.iter_mut().skip(first);
+        for (c, n) in bins.zip(part.counts) {
+            *c += n;
+        }
+        let max_ns = (f64::from(part.max_error_us) * 1e3) as u64;
+        self.max_ns = self.max_ns.max(max_ns);
+    }
+    /// The bins as a person reads them: `< 2 us`, ..., `>= 100 ms`, with their counts.
+    pub fn labelled(&self) -> Vec<(String, u64)> {
+        let text = |us: f64| match us >= 1e3 {
+            true => format!("{} ms", us / 1e3),
+            false => format!("{us} us"),
+        };
+        let mut lower = 0.0;
+        let bins = self.counts.iter().zip(INTERVAL_ERROR_EDGES_US);
+        bins.map(|(&c, upper)| {
+            let label = match (lower, upper.is_finite()) {
+                (0.0, _) => format!("< {}", text(upper)),
+                (_, true) => format!("{}..{}", text(lower), text(upper)),
+                (_, false) => format!(">= {}", text(lower)),
+            };
+            lower = upper;
+            (label, c)
+        })
+        .collect()
+    }
+    /// Intervals counted.
+    pub fn total(&self) -> u64 {
+        self.counts.iter().sum()
+    }
+    /// An upper bound of quantile `q` of the errors, µs: the upper edge of the bin that holds
+    /// it, or the largest error when that is smaller (always for the open last bin). 0 when
+    /// nothing was counted.
+    pub fn quantile_us(&self, q: f64) -> f64 {
+        let total = self.total();
+        if total == 0 {
+            return 0.0;
+        }
+        let rank = ((q * total as f64).ceil() as u64).clamp(1, total);
+        let max_us = self.max_ns as f64 / 1e3;
+        let mut seen = 0;
+        for (count, edge) in self.counts.iter().zip(INTERVAL_ERROR_EDGES_US) {
+            seen += count;
+            if seen >= rank {
+                return edge.min(max_us);
+            }
+        }
+        max_us
+    }
+}
 
 /// Deadlines every `period`, and what happened at them.
 #[derive(Debug, Clone)]
@@ -12,6 +136,10 @@ pub struct Pacer {
     period_ns: u64,
     /// The next deadline (monotonic ns); `None` before the first step.
     next: Option<u64>,
+    /// When the step before started (monotonic ns); `None` at the start of a grid.
+    last_start: Option<u64>,
+    /// Errors of the intervals between steps on one grid.
+    pub intervals: IntervalErrors,
     /// Deadlines a step started after.
     pub missed: u64,
     /// Steps paced.
@@ -28,6 +156,8 @@ impl Pacer {
         (hz > 0.0).then(|| Self {
             period_ns: (1e9 / hz).round().max(1.0) as u64,
             next: None,
+            last_start: None,
+            intervals: IntervalErrors::default(),
             missed: 0,
             steps: 0,
             worst_late_ns: 0,
@@ -42,6 +172,7 @@ impl Pacer {
     /// counted, and the next step starts a new grid, so the wait is not a missed deadline.
     pub fn rest(&mut self) {
         self.next = None;
+        self.last_start = None;
         self.rests += 1;
     }
     /// Sleep until the next deadline (the first step starts at once and sets the grid).
@@ -59,6 +190,12 @@ impl Pacer {
         let behind = (start - deadline) / self.period_ns;
         self.next = Some(deadline + (behind + 1) * self.period_ns);
         self.steps += 1;
+        // The step starts now: when the sleep ended (the scheduler's latency included).
+        let started = monotonic_ns();
+        if let Some(last) = self.last_start.replace(started) {
+            self.intervals
+                .add((started - last).abs_diff(self.period_ns));
+        }
     }
 }
 
@@ -131,5 +268,46 @@ mod tests {
         p.wait();
         assert_eq!((p.missed, p.rests), (missed, 1));
         assert!(Pacer::new(0.0).is_none());
+        // Every interval on a grid is counted (the rest started a new one).
+        assert_eq!(p.intervals.total(), p.steps - 2);
+        assert!(
+            p.intervals.max_ns >= 5_000_000,
+            "the overrun: {:?}",
+            p.intervals
+        );
+    }
+
+    #[test]
+    fn interval_errors_fall_into_log_spaced_bins_with_upper_bounds_as_quantiles() {
+        let mut h = IntervalErrors::default();
+        assert_eq!(h.quantile_us(0.5), 0.0);
+        for ns in [1_000, 1_500, 3_000, 40_000] {
+            h.add(ns);
+        }
+        h.add(250_000_000);
+        assert_eq!(h.counts[0], 2); // < 2 us
+        assert_eq!(h.counts[1], 1); // 2..5 us
+        assert_eq!(h.counts[4], 1); // 20..50 us
+        assert_eq!(h.counts[INTERVAL_ERROR_BINS - 1], 1); // over 100 ms
+        assert_eq!(h.quantile_us(0.4), 2.0);
+        assert_eq!(h.quantile_us(0.6), 5.0);
+        assert_eq!(h.quantile_us(0.99), 250_000.0);
+        let mut other = IntervalErrors::default();
+        other.add(7_000);
+        h.merge(&other);
+        assert_eq!((h.total(), h.counts[2], h.max_ns), (6, 1, 250_000_000));
+        // Through the stats records and back, as the coordinator puts actors together.
+        let mut back = IntervalErrors::default();
+        h.parts().for_each(|p| back.add_part(&p));
+        assert_eq!(back, h);
+        assert_eq!(h.parts().count(), 3);
+        let labels = h.labelled();
+        assert_eq!(labels[0], ("< 2 us".to_string(), 2));
+        assert_eq!(labels[9].0, "1 ms..2 ms");
+        assert_eq!(labels[15], (">= 100 ms".to_string(), 1));
+        // A bin's edge above the largest error is not claimed.
+        let mut one = IntervalErrors::default();
+        one.add(60_000);
+        assert_eq!(one.quantile_us(0.5), 60.0);
     }
 }

@@ -22,6 +22,7 @@ use serde::{de::DeserializeOwned, Serialize};
 
 use crate::barrier::{self, Cut, FileTarget};
 use crate::inbox::ControlInbox;
+use crate::realtime;
 use crate::{Process, Result, RoleKind, RuntimeError, ServiceArgs};
 
 /// What one [`Worker::step`] came to.
@@ -108,6 +109,7 @@ pub trait Worker<S: Transport>: Sized {
 /// Run worker `W` as the process (or thread) of `args` until the supervisor stops it.
 pub fn serve<S: Transport, W: Worker<S>>(args: &ServiceArgs) -> Result<()> {
     let s = Process::<S>::open(args, W::KIND)?;
+    schedule(&s, W::KIND);
     let control = ControlInbox::create(&s.node)?;
     let stats = StatsPublisher::<S>::create(&s.node)?;
     let ports = W::ports(&s)?;
@@ -139,6 +141,22 @@ pub fn serve<S: Transport, W: Worker<S>>(args: &ServiceArgs) -> Result<()> {
         waiting: None,
     }
     .run()
+}
+
+/// A paced actor's scheduling, before it makes its environment (whose process inherits it):
+/// SCHED_FIFO on a core of its own ([`realtime`]); other roles, unpaced runs and
+/// `actor.realtime_priority = 0` change nothing.
+fn schedule<S: Transport>(s: &Process<S>, kind: RoleKind) {
+    let a = &s.cfg.actor;
+    let paced = a.control_hz > 0.0 && s.mode == crate::Mode::Pipelined;
+    if !paced || a.realtime_priority == 0 || !kind.is_actor() {
+        return;
+    }
+    let got = realtime::paced_actor(a.realtime_priority, realtime::actor_cpu(s.args.index));
+    match &got {
+        realtime::Scheduling::Default { why } => tracing::warn!("{why}"),
+        _ => tracing::info!("paced run: {} runs with {got}", kind.name(s.args.index)),
+    }
 }
 
 /// How a barrier turn ended.

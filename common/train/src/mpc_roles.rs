@@ -172,6 +172,10 @@ impl PlanningActorRole {
     pub fn plans(&self) -> u64 {
         self.mpc.plans()
     }
+    /// Iterations per plan (fewest, mean, most) since the role was made.
+    pub fn iterations_per_plan(&self) -> Option<(usize, f64, usize)> {
+        self.mpc.iterations_per_plan()
+    }
     /// The role's state (for checkpoints; the model is not in it).
     pub fn checkpoint(&self) -> PlanningActorState {
         PlanningActorState {

@@ -85,7 +85,7 @@ pub use schema::{
 };
 pub use stats::{
     BarrierReport, Done, EnvFailed, EpisodeEnd, EvalResult, LearnerRow, ModelTrained,
-    ModelTraining, Progress, RolloutBranch, SlackTracker, Stats,
+    ModelTraining, PacingPart, Progress, RolloutBranch, SlackTracker, Stats, PACING_PART_BINS,
 };
 pub use transitions::{
     DrainReport, RowLoan, TransitionBatch, TransitionMeta, TransitionPublisher,

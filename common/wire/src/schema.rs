@@ -168,6 +168,8 @@ pub enum StatsKind {
     /// An actor's environment failed (an exception in a Python env): the run checkpoints and
     /// stops.
     EnvFailed = 8,
+    /// Part of a paced actor's histogram of step-interval errors (sent before its `Done`).
+    Pacing = 9,
 }
 
 impl StatsKind {
@@ -182,6 +184,7 @@ impl StatsKind {
             6 => StatsKind::Heartbeat,
             7 => StatsKind::Checkpoint,
             8 => StatsKind::EnvFailed,
+            9 => StatsKind::Pacing,
             _ => return None,
         })
     }

@@ -13,6 +13,7 @@
 //! | [`Stats::Progress`] | everyone | progress counters for the live line |
 //! | [`Stats::Done`] | everyone | the process finished its work |
 //! | [`Stats::Barrier`] | pausing processes, writers | a checkpoint barrier step |
+//! | [`Stats::Pacing`] | paced actors | at the end, before `Done`: their step-interval errors |
 
 use crate::error::DecodeError;
 use crate::schema::{StatsKind, StatsRecord};
@@ -186,6 +187,23 @@ impl Done {
     }
 }
 
+/// Counts per bin of [`PacingPart`]: the record's exact integer slots (five `u64` and the `f64`,
+/// exact below 2^53).
+pub const PACING_PART_BINS: usize = 6;
+
+/// Part of a paced actor's histogram of step-interval errors `|interval − period|` (the bins
+/// are `mbpo_runtime::pacer`'s): bins `first_bin..first_bin + 6`. An actor sends as many parts
+/// as its histogram needs, before its `Done`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PacingPart {
+    /// The histogram's bin of `counts[0]`.
+    pub first_bin: u32,
+    /// Intervals per bin.
+    pub counts: [u64; PACING_PART_BINS],
+    /// The actor's largest interval error, µs (the same in every part).
+    pub max_error_us: f32,
+}
+
 /// A step of a checkpoint barrier (protocol: `mbpo_runtime::barrier`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BarrierReport {
@@ -219,6 +237,8 @@ pub enum Stats {
     Barrier(BarrierReport),
     /// An actor's environment failed.
     EnvFailed(EnvFailed),
+    /// Part of a paced actor's step-interval errors.
+    Pacing(PacingPart),
 }
 
 // Heartbeat records: metrics[0] tells progress (0) from done (1).
@@ -279,6 +299,22 @@ fn done_record(d: &Done) -> StatsRecord {
             // Exact up to 2^24 rests.
             d.rests as f32,
         ]),
+    }
+}
+
+/// The record of a part of a paced actor's histogram.
+fn pacing_record(p: &PacingPart) -> StatsRecord {
+    let c = p.counts;
+    StatsRecord {
+        kind: StatsKind::Pacing as u32,
+        env_steps: c[0],
+        sac_updates: c[1],
+        model_trainings: c[2],
+        policy_version: c[3],
+        model_version: c[4],
+        value: c[5] as f64,
+        episode_len: p.first_bin,
+        metrics: metrics(&[p.max_error_us]),
     }
 }
 
@@ -344,6 +380,7 @@ impl Stats {
                 env_steps: f.env_steps,
                 ..Default::default()
             },
+            Stats::Pacing(p) => pacing_record(&p),
             Stats::Barrier(b) => {
                 let (env_steps, phase) = match b {
                     BarrierReport::Paused(n) => (n, BARRIER_PAUSED),
@@ -413,6 +450,18 @@ impl Stats {
             StatsKind::EnvFailed => Stats::EnvFailed(EnvFailed {
                 env_steps: r.env_steps,
             }),
+            StatsKind::Pacing => Stats::Pacing(PacingPart {
+                first_bin: r.episode_len,
+                counts: [
+                    r.env_steps,
+                    r.sac_updates,
+                    r.model_trainings,
+                    r.policy_version,
+                    r.model_version,
+                    r.value as u64,
+                ],
+                max_error_us: m[0],
+            }),
         })
     }
 }
@@ -464,7 +513,7 @@ macro_rules! into_stats {
 }
 into_stats!(EpisodeEnd => Episode, EvalResult => Eval, LearnerRow => Learner,
     ModelTrained => Model, ModelTraining => Training, RolloutBranch => Rollout, Progress => Progress, Done => Done,
-    BarrierReport => Barrier, EnvFailed => EnvFailed);
+    BarrierReport => Barrier, EnvFailed => EnvFailed, PacingPart => Pacing);
 
 /// Running min / max / mean of a slack value (for [`Done`]).
 #[derive(Debug, Clone, Copy)]
@@ -586,6 +635,11 @@ mod tests {
             Stats::Barrier(BarrierReport::Paused(7)),
             Stats::Barrier(BarrierReport::Written(1200)),
             Stats::EnvFailed(EnvFailed { env_steps: 50 }),
+            Stats::Pacing(PacingPart {
+                first_bin: 12,
+                counts: [1 << 40, 2, 0, 3, 4, (1 << 52) + 1],
+                max_error_us: 1250.5,
+            }),
         ];
         for s in all {
             assert_eq!(Stats::decode(&s.record()).unwrap(), s, "{s:?}");

@@ -16,6 +16,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Diagnose(args) => diagnose(&args),
         BenchCommand::Checkpoint(args) => checkpoint(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
+        BenchCommand::Realtime(args) => crate::bench_realtime::run(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
             let report = mbpo_bench::termination_bench::termination_benchmark(

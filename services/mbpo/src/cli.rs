@@ -214,6 +214,11 @@ pub enum BenchCommand {
     Checkpoint(CheckpointBenchArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
+    /// Paced actors under load: `mbpo run --mode pipelined` at a control rate, once per
+    /// real-time priority (SCHED_FIFO, and 0 for the default scheduler), with busy threads on
+    /// every core; their step-interval errors, missed deadlines and realised updates per env
+    /// step -> one JSON line each and <out>/realtime.json.
+    Realtime(RealtimeBenchArgs),
     /// The learned termination rule against the env's own: trained on random-action
     /// transitions, tested on other episodes (precision, recall).
     Termination(TerminationBenchArgs),
@@ -287,6 +292,32 @@ pub struct EnvBenchArgs {
     /// measure a Python env through the bridge (compare with tools/gym_env_speed.py).
     #[arg(long = "env")]
     pub envs: Vec<String>,
+}
+
+#[derive(Debug, Args)]
+pub struct RealtimeBenchArgs {
+    /// The run's config.
+    #[arg(long, default_value = "deploy/configs/pendulum.toml")]
+    pub config: std::path::PathBuf,
+    /// Real env steps of each run.
+    #[arg(long, default_value_t = 2000)]
+    pub steps: u64,
+    /// Steps a second of each actor (`actor.control_hz`).
+    #[arg(long, default_value_t = 50.0)]
+    pub control_hz: f64,
+    /// Milliseconds each env step takes at least (`actor.env_step_ms`: a simulator or robot).
+    #[arg(long, default_value_t = 2.0)]
+    pub env_step_ms: f64,
+    /// Real-time priorities to run with, comma-separated (0: the default scheduler).
+    #[arg(long, value_delimiter = ',', default_value = "10,0")]
+    pub priorities: Vec<u32>,
+    /// Busy threads at normal priority during each run (default: one per core): the load a
+    /// shared machine adds to the learning roles'.
+    #[arg(long)]
+    pub load: Option<usize>,
+    /// Where the runs and realtime.json go.
+    #[arg(long, default_value = "runs/bench-realtime")]
+    pub out: std::path::PathBuf,
 }
 
 #[derive(Debug, Args)]

@@ -11,6 +11,7 @@ macro_rules! out {
 }
 
 mod bench;
+mod bench_realtime;
 mod cli;
 mod docs_cmd;
 mod env_cmd;

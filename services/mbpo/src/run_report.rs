@@ -31,6 +31,12 @@ pub fn plot_and_point(out: &Path) {
         ),
         Err(e) => tracing::warn!("no plot of {}: {e}", out.display()),
     }
+    if let Some(pacing) = plot_pacing(out) {
+        tracing::info!(
+            "step-interval errors of the paced actors: {}",
+            pacing.display()
+        );
+    }
     tracing::info!(
         "metrics: {}; summary: {}; TensorBoard: tensorboard --logdir {}",
         out.join("metrics.csv").display(),
@@ -50,4 +56,83 @@ pub fn mbpo_paper_curve_of(runs: &[PathBuf]) -> Option<mbpo_report::PaperCurve> 
     envs.all(|env| env.as_deref() == Some(first.as_str()))
         .then(|| mbpo_report::mbpo_paper_curve(&first))
         .flatten()
+}
+
+/// A paced run's histogram of step-interval errors (`summary.json`'s `pacing`) drawn to
+/// `pacing.png`; `None` for an unpaced run (or a plot that could not be drawn: a warning).
+fn plot_pacing(out: &Path) -> Option<PathBuf> {
+    let text = std::fs::read_to_string(out.join("summary.json")).ok()?;
+    let summary: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let p = summary.get("pacing")?;
+    // A bin `a..b` is drawn as `< b`: short enough to stand under its bar.
+    let bars = p["histogram"].as_array()?.iter().map(|b| {
+        let bin = b["bin"].as_str()?;
+        Some(mbpo_report::Bar {
+            label: bin
+                .split_once("..")
+                .map_or(bin.into(), |(_, hi)| format!("< {hi}")),
+            count: b["steps"].as_u64()?,
+        })
+    });
+    let bars = bars.collect::<Option<Vec<_>>>()?;
+    let e = &p["interval_error_us"];
+    let us = |v: &serde_json::Value| {
+        let v = v.as_f64().unwrap_or(0.0);
+        match v >= 1e3 {
+            true => format!("{:.1} ms", v / 1e3),
+            false => format!("{v:.0} us"),
+        }
+    };
+    let title = format!(
+        "step-interval error at {} Hz: p50 <= {}, p99 <= {}, max {}",
+        p["control_hz"],
+        us(&e["p50"]),
+        us(&e["p99"]),
+        us(&e["max"])
+    );
+    let path = out.join(PACING);
+    match mbpo_report::plot_histogram(&bars, &title, "|interval - period|", &path) {
+        Ok(()) => Some(path),
+        Err(e) => {
+            tracing::warn!("no plot of the step intervals: {e}");
+            None
+        }
+    }
+}
+
+/// The paced actors' histogram of step-interval errors in a run directory.
+pub const PACING: &str = "pacing.png";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_paced_run_gets_its_histogram_drawn_and_an_unpaced_one_none() {
+        let dir = std::env::temp_dir().join(format!("mbpo-pacing-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("summary.json"), r#"{"status": "completed"}"#).unwrap();
+        assert_eq!(plot_pacing(&dir), None);
+        let mut errors = mbpo_runtime::pacer::IntervalErrors::default();
+        for ns in [1_000, 3_000, 3_500, 800_000, 12_000_000] {
+            errors.add(ns);
+        }
+        let histogram: Vec<serde_json::Value> = errors
+            .labelled()
+            .into_iter()
+            .map(|(bin, steps)| serde_json::json!({"bin": bin, "steps": steps}))
+            .collect();
+        let summary = serde_json::json!({"pacing": {
+            "control_hz": 50.0, "missed_deadlines": 0,
+            "interval_error_us": {"p50": 5.0, "p99": 20000.0, "max": 12000.0},
+            "histogram": histogram,
+        }});
+        std::fs::write(dir.join("summary.json"), summary.to_string()).unwrap();
+        let png = plot_pacing(&dir).expect("drawn");
+        assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+        if let Ok(keep) = std::env::var("MBPO_KEEP_PLOT") {
+            std::fs::copy(&png, keep).unwrap();
+        }
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }

@@ -17,6 +17,7 @@ use serde::Serialize;
 
 use super::reached::Reached;
 use super::RunPlan;
+use crate::pacer::IntervalErrors;
 
 /// Real transitions: produced, received by each consumer, lost.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -132,7 +133,7 @@ pub struct PipelineSummary {
 }
 
 /// What the paced actors of a run report.
-#[derive(Debug, Clone, Copy, Default, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct Pacing {
     /// Steps a second each actor was asked for.
     pub control_hz: f64,
@@ -140,6 +141,57 @@ pub struct Pacing {
     pub missed_deadlines: u64,
     /// Waits between episodes for the weights the next step needs, all actors.
     pub rests_between_episodes: u64,
+    /// Intervals between consecutive steps measured, all actors (a rest starts a new grid:
+    /// the wait is not an interval).
+    pub intervals: u64,
+    /// `|interval − period|`, µs, measured where each step starts (after the pacer's sleep):
+    /// upper bounds of the median and the 99th percentile (bin edges of the histogram, or the
+    /// largest error when smaller), and the largest.
+    pub interval_error_us: ErrorQuantiles,
+    /// The histogram of `|interval − period|`: steps per bin (log-spaced, `pacing.png`).
+    pub histogram: Vec<HistogramBin>,
+}
+
+/// Quantiles of an error, µs.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct ErrorQuantiles {
+    /// At most this (the median's bin).
+    pub p50: f64,
+    /// At most this (the 99th percentile's bin).
+    pub p99: f64,
+    /// The largest.
+    pub max: f64,
+}
+
+/// One bin of a histogram.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct HistogramBin {
+    /// What it holds, e.g. `20 us..50 us`.
+    pub bin: String,
+    /// Steps in it.
+    pub steps: u64,
+}
+
+impl Pacing {
+    /// The report of actors paced at `control_hz` with `intervals`, their missed deadlines and
+    /// rests.
+    fn of(control_hz: f64, intervals: &IntervalErrors, missed: u64, rests: u64) -> Self {
+        let histogram = intervals.labelled().into_iter();
+        Self {
+            control_hz,
+            missed_deadlines: missed,
+            rests_between_episodes: rests,
+            intervals: intervals.total(),
+            interval_error_us: ErrorQuantiles {
+                p50: intervals.quantile_us(0.5),
+                p99: intervals.quantile_us(0.99),
+                max: intervals.max_ns as f64 / 1e3,
+            },
+            histogram: histogram
+                .map(|(bin, steps)| HistogramBin { bin, steps })
+                .collect(),
+        }
+    }
 }
 
 /// The collector's bookkeeping, what a checkpoint keeps of it: every row ≤ T is written by
@@ -172,6 +224,9 @@ pub struct Collector {
     /// The model training under way as its last report showed it, the learner's SAC updates
     /// then, and whether they had not moved since the report before (the learner waits).
     training: Option<(ModelTraining, u64, bool)>,
+    /// The paced actors' step-interval errors, put together from their parts (this attempt's:
+    /// a resumed run's summary has the intervals since the resume).
+    intervals: IntervalErrors,
 }
 
 impl Collector {
@@ -194,6 +249,7 @@ impl Collector {
             solved_rule: None,
             solved_at: None,
             training: None,
+            intervals: IntervalErrors::default(),
         }
     }
 
@@ -282,6 +338,7 @@ impl Collector {
                     .is_some_and(|(before, u, _)| before.version == m.version && u == updates);
                 self.training = Some((m, updates, stalled));
             }
+            Stats::Pacing(part) => self.intervals.add_part(&part),
             Stats::Rollout(_) | Stats::Barrier(_) | Stats::EnvFailed(_) => {}
             Stats::Done(d) => {
                 tracing::info!("{from} finished: {d:?}");
@@ -462,10 +519,9 @@ impl Collector {
             ipc_files_removed: 0,
             ipc_leftovers: Vec::new(),
             hosts: None,
-            pacing: (self.cfg.actor.control_hz > 0.0).then_some(Pacing {
-                control_hz: self.cfg.actor.control_hz,
-                missed_deadlines: tally.missed_deadlines,
-                rests_between_episodes: tally.rests,
+            pacing: (self.cfg.actor.control_hz > 0.0).then(|| {
+                let hz = self.cfg.actor.control_hz;
+                Pacing::of(hz, &self.intervals, tally.missed_deadlines, tally.rests)
             }),
         }
     }

@@ -198,6 +198,10 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
         let finish = self.role.finish();
         let (lo, hi, mean) = self.lag.get();
         let a = self.role.env_actor();
+        // Before `Done`: the coordinator has every part when it writes the summary.
+        for part in self.pacer.iter().flat_map(|p| p.intervals.parts()) {
+            cx.stats.report(part)?;
+        }
         cx.stats.report(Done {
             real: self.steps,
             work: finish.work,
@@ -219,12 +223,16 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
         if let Some(p) = &self.pacer {
             let hz = 1.0 / p.period().as_secs_f64();
             let late_ms = p.worst_late_ns as f64 / 1e6;
+            let e = &p.intervals;
             tracing::info!(
-                "paced at {hz:.1} Hz: {} steps, {} deadlines missed (latest start {late_ms:.2} ms late), {} rests between episodes waiting for {}",
+                "paced at {hz:.1} Hz: {} steps, {} deadlines missed (latest start {late_ms:.2} ms late), {} rests between episodes waiting for {}; step-interval error p50 <= {} us, p99 <= {} us, max {:.0} us",
                 p.steps,
                 p.missed,
                 p.rests,
-                weights_name::<R>()
+                weights_name::<R>(),
+                e.quantile_us(0.5),
+                e.quantile_us(0.99),
+                e.max_ns as f64 / 1e3
             );
         }
         Ok(())

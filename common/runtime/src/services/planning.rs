@@ -131,10 +131,17 @@ impl ActingRole for ModelActing {
     fn finish(&mut self) -> Finish {
         let median = mbpo_core::stats::median(&mut self.plan_seconds).unwrap_or(0.0);
         let plans = self.role.plans();
+        let iterations = match self.role.iterations_per_plan() {
+            Some((lo, mean, hi)) => format!(", iterations per plan {lo}..{hi} (mean {mean:.1})"),
+            None => String::new(),
+        };
         Finish {
             work: plans,
             median_step_seconds: median as f32,
-            log: format!("{plans} plans (median {:.1} ms), ", median * 1e3),
+            log: format!(
+                "{plans} plans (median {:.1} ms{iterations}), ",
+                median * 1e3
+            ),
         }
     }
 }

@@ -842,6 +842,10 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
     if args.mode == Mode::Lockstep && cfg.actor.control_hz > 0.0 {
         bail!("actor.control_hz = {} paces the actors of a pipelined run; lockstep takes each step with the sequential run's weights: use --mode pipelined, or actor.control_hz = 0", cfg.actor.control_hz);
     }
+    let budget = cfg.mpc.planner.budget_ms;
+    if args.mode == Mode::Lockstep && cfg.algo == mbpo_train::Algo::MPC && budget > 0.0 {
+        bail!("mpc.planner.budget_ms = {budget} makes each plan depend on the machine's speed, and lockstep equals the sequential run bit for bit: use --mode pipelined, or budget_ms = 0");
+    }
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
     }
