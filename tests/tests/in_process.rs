@@ -200,7 +200,8 @@ fn a_solved_run_stops_with_a_checkpoint_in_the_pipeline_and_in_one_process() {
 
 /// `actor.control_hz`: the actors of a pipelined run step on a clock (at most `hz` steps a
 /// second each: a lower bound on the run's wall time, robust on a busy machine), and the run
-/// still loses nothing. Lockstep refuses it, naming the fix.
+/// still loses nothing, also with `actor.catch_up = "never"`. Lockstep refuses it, naming the
+/// fix.
 #[test]
 fn paced_actors_step_on_the_clock_and_lose_nothing() {
     let mut cfg = tiny_config(400);
@@ -234,6 +235,20 @@ fn paced_actors_step_on_the_clock_and_lose_nothing() {
     for consumer in ["model-trainer", "rollout-generator", "learner"] {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }
+    // `catch_up = "never"`: after its first policy the actor never rests; the learner does the
+    // updates it owes after the actor finished, and the summary says how many it had done.
+    cfg.actor.catch_up = mbpo_train::CatchUp::Never;
+    let never = run_in_process(&cfg, &how(&dir, "paced-never", Mode::Pipelined, 1)).unwrap();
+    assert_eq!(never.summary.status, "completed");
+    assert_eq!(never.real_transitions.lost, 0);
+    let p = never.pacing.expect("paced");
+    assert_eq!(p.catch_up, mbpo_train::CatchUp::Never);
+    assert!(p.rests_between_episodes <= 1, "{p:?}");
+    let r = &never.ratios;
+    let acting = r
+        .updates_per_env_step_while_acting
+        .expect("the actor finished");
+    assert!(acting <= r.updates_per_env_step + 1e-9, "{r:?}");
     let lockstep = how(&dir, "paced-lockstep", Mode::Lockstep, 1);
     let err = run_in_process(&cfg, &lockstep).unwrap_err().to_string();
     assert!(

@@ -195,6 +195,24 @@ pub struct ActorConfig {
     /// CAP_SYS_NICE, or RLIMIT_RTPRIO below it) the actor says so in its log, with the fix, and
     /// runs on the default scheduler. Unpaced runs ignore it.
     pub realtime_priority: u32,
+    /// When a paced actor may wait for the weights its next step needs under `--policy-lag`:
+    /// `between_episodes` keeps MBPO's G updates per env step on average by resting there,
+    /// where a robot rests; `never` lets it act with whatever it holds, so the realised
+    /// updates per env step float (the summary's `ratios.updates_per_env_step_while_acting`
+    /// and `actor_policy_lag` say how far). Either waits once for its first weights after the
+    /// warm-up. Unpaced runs ignore it.
+    pub catch_up: CatchUp,
+}
+
+/// When a paced actor catches up with the learner (`actor.catch_up`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum CatchUp {
+    /// Wait between episodes, if it must, for the weights the next step needs.
+    #[default]
+    BetweenEpisodes,
+    /// Never wait after the first weights: act with the newest held.
+    Never,
 }
 
 impl Default for ActorConfig {
@@ -203,6 +221,7 @@ impl Default for ActorConfig {
             env_step_ms: 0.0,
             control_hz: 0.0,
             realtime_priority: 10,
+            catch_up: CatchUp::BetweenEpisodes,
         }
     }
 }

@@ -18,7 +18,9 @@ pub mod reference;
 pub mod schedule;
 pub mod solved;
 
-pub use config::{Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward};
+pub use config::{
+    Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
+};
 pub use env_config::RolloutTerminationError;
 pub use schedule::Schedule;
 pub use solved::SolvedRule;

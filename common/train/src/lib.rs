@@ -53,7 +53,7 @@ pub use mbpo_config::SolvedRule;
 /// The configuration (`mbpo-config`), re-exported: paths such as `mbpo_train::config::...` hold.
 pub use mbpo_config::{config, env_config, reference as config_reference, schedule, solved};
 pub use mbpo_config::{
-    Algo, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
+    Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
 };
 pub use mbpo_trainer::{train_mbpo, train_mbpo_with, Mbpo};
 pub use mpc::{train_mpc, train_mpc_with};

@@ -65,6 +65,12 @@ impl Range {
 pub struct Ratios {
     /// SAC updates per env step after the warm-up (target: G).
     pub updates_per_env_step: f64,
+    /// The same when the last actor finished: what the policy the actors acted with had of
+    /// G (below G when paced actors do not wait for the learner, `actor.catch_up = "never"`;
+    /// the learner does the rest after them). `None` for MPC or a run whose actors did not
+    /// finish.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub updates_per_env_step_while_acting: Option<f64>,
     /// G.
     pub target_updates_per_env_step: usize,
     /// Updates owed when the learner consumed a step, `(r − warm-up)·G − u`, in
@@ -137,6 +143,8 @@ pub struct PipelineSummary {
 pub struct Pacing {
     /// Steps a second each actor was asked for.
     pub control_hz: f64,
+    /// When the actors could wait for the learner (`actor.catch_up`).
+    pub catch_up: mbpo_train::CatchUp,
     /// Steps started after their deadline, all actors.
     pub missed_deadlines: u64,
     /// Waits between episodes for the weights the next step needs, all actors.
@@ -173,12 +181,13 @@ pub struct HistogramBin {
 }
 
 impl Pacing {
-    /// The report of actors paced at `control_hz` with `intervals`, their missed deadlines and
+    /// The report of the actors paced per `cfg` with `intervals`, their missed deadlines and
     /// rests.
-    fn of(control_hz: f64, intervals: &IntervalErrors, missed: u64, rests: u64) -> Self {
+    fn of(cfg: &ExperimentConfig, intervals: &IntervalErrors, missed: u64, rests: u64) -> Self {
         let histogram = intervals.labelled().into_iter();
         Self {
-            control_hz,
+            control_hz: cfg.actor.control_hz,
+            catch_up: cfg.actor.catch_up,
             missed_deadlines: missed,
             rests_between_episodes: rests,
             intervals: intervals.total(),
@@ -227,6 +236,8 @@ pub struct Collector {
     /// The paced actors' step-interval errors, put together from their parts (this attempt's:
     /// a resumed run's summary has the intervals since the resume).
     intervals: IntervalErrors,
+    /// The learner's SAC updates when the last actor sent `Done` (this attempt's).
+    updates_when_acting_ended: Option<u64>,
 }
 
 impl Collector {
@@ -250,6 +261,7 @@ impl Collector {
             solved_at: None,
             training: None,
             intervals: IntervalErrors::default(),
+            updates_when_acting_ended: None,
         }
     }
 
@@ -346,6 +358,9 @@ impl Collector {
                     self.actor_steps.insert(from, u64::MAX);
                 }
                 self.done.insert(from, d);
+                if from.role() == Some(Role::Actor) && self.all_actors_done() {
+                    self.updates_when_acting_ended = Some(self.book.progress.1);
+                }
             }
             Stats::Progress(p) if from.role() == Some(Role::Learner) => {
                 self.book.progress = (p.env_steps, p.sac_updates, p.model_version)
@@ -359,6 +374,12 @@ impl Collector {
             }
             Stats::Progress(_) => {}
         }
+    }
+
+    /// Every actor of the run sent its `Done`.
+    fn all_actors_done(&self) -> bool {
+        let done = self.done.keys().filter(|p| p.role() == Some(Role::Actor));
+        done.count() == usize::from(self.actors)
     }
 
     /// MPC: every actor reported a step after which its next one is past `t` (its episodes
@@ -489,6 +510,9 @@ impl Collector {
         let after_warmup = tally.real.produced.saturating_sub(warm_up);
         if after_warmup > 0 {
             ratios.updates_per_env_step = tally.sac_updates as f64 / after_warmup as f64;
+            let acting = self.updates_when_acting_ended.filter(|_| !self.plans());
+            ratios.updates_per_env_step_while_acting =
+                acting.map(|u| u as f64 / after_warmup as f64);
         }
         PipelineSummary {
             summary: Summary {
@@ -520,8 +544,12 @@ impl Collector {
             ipc_leftovers: Vec::new(),
             hosts: None,
             pacing: (self.cfg.actor.control_hz > 0.0).then(|| {
-                let hz = self.cfg.actor.control_hz;
-                Pacing::of(hz, &self.intervals, tally.missed_deadlines, tally.rests)
+                Pacing::of(
+                    &self.cfg,
+                    &self.intervals,
+                    tally.missed_deadlines,
+                    tally.rests,
+                )
             }),
         }
     }

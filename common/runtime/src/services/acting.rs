@@ -16,7 +16,7 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 
 use mbpo_train::actor::{Behaviour, EnvActor};
-use mbpo_train::TrainError;
+use mbpo_train::{CatchUp, TrainError};
 use mbpo_wire::*;
 
 use crate::barrier;
@@ -253,9 +253,14 @@ impl<S: Transport, R: ActingRole> Acting<S, R> {
         self.need = role.oldest_allowed(g);
         role.take_newest(&cx.ports.weights, &cx.s.dims)?;
         // A paced actor does not wait inside an episode: it acts with the newest weights it
-        // holds, and waits for those its step needs only between episodes.
+        // holds, and waits for those its step needs only between episodes -- or never, after
+        // its first weights (`actor.catch_up`).
         let paced = self.pacer.is_some();
-        let keeps_pace = paced && self.acted_with_policy && role.env_actor().mid_episode();
+        let may_rest = match cx.s.cfg.actor.catch_up {
+            CatchUp::BetweenEpisodes => !role.env_actor().mid_episode(),
+            CatchUp::Never => false,
+        };
+        let keeps_pace = paced && self.acted_with_policy && !may_rest;
         if !role.holds(self.need) && !keeps_pace {
             self.resting = paced;
             return Ok(None);

@@ -300,6 +300,15 @@ fn plan_run(
                 .with_context(|| format!("resuming {}", dir.display()))?;
             // A checkpoint of `mbpo train` (one actor) runs on in the mode given.
             if let Some(sup) = point.supervisor {
+                // The checkpoint's shape is the run's: a `--mode`, `--actors` or slack given
+                // now is not used, and the log says so.
+                tracing::info!(
+                    "resuming {} as it was checkpointed: mode {}, {} actor(s), slack {:?} (a --mode, --actors or slack given with --resume is not used)",
+                    dir.display(),
+                    sup.mode.name(),
+                    sup.actors,
+                    sup.slack
+                );
                 args.mode = sup.mode;
                 args.actors = sup.actors;
                 args.slack = sup.slack;
