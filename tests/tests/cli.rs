@@ -632,23 +632,10 @@ fn control_hz_is_refused_where_it_cannot_hold() {
             "0 or a positive number",
         ),
     ] {
-        let out = mbpo()
-            .args(["run", "--config"])
-            .arg(config_file())
-            .args(args)
-            .arg("--out")
-            .arg(dir.join("run"))
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success(), "{err}");
+        let err = refused_run(&dir, &args);
         assert!(
             err.contains("actor.control_hz") && err.contains(want),
             "{err}"
-        );
-        assert!(
-            !dir.join("run").exists(),
-            "no run directory for a refused run"
         );
     }
     let _ = std::fs::remove_dir_all(&dir);
@@ -670,22 +657,49 @@ fn remote_roles_are_refused_where_the_gateways_cannot_carry_them() {
         ),
         (vec![], "none is remote: give --remote-actors M"),
     ] {
-        let out = mbpo()
-            .args(["run", "--config"])
-            .arg(config_file())
-            .args(["--listen", "tcp/127.0.0.1:7447"])
-            .args(args)
-            .arg("--out")
-            .arg(dir.join("run"))
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert!(!out.status.success(), "{err}");
+        let mut args = args;
+        args.splice(0..0, ["--listen", "tcp/127.0.0.1:7447"]);
+        let err = refused_run(&dir, &args);
         assert!(err.contains(want), "{err}");
-        assert!(
-            !dir.join("run").exists(),
-            "no run directory for a refused run"
-        );
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `mbpo run` of the tiny config with `args` into `dir/run`, which must be refused before a run
+/// directory is made; its stderr.
+fn refused_run(dir: &std::path::Path, args: &[&str]) -> String {
+    let out = mbpo()
+        .args(["run", "--config"])
+        .arg(config_file())
+        .args(args)
+        .arg("--out")
+        .arg(dir.join("run"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        !dir.join("run").exists(),
+        "no run directory for a refused run"
+    );
+    err
+}
+
+/// `mbpo join --help` is `mbpo`'s own, with the worker's options; a bad argument is refused
+/// by `mbpo` itself, naming it.
+#[test]
+fn mbpo_join_has_its_own_help_and_checks_its_arguments() {
+    let help = mbpo().args(["join", "--help"]).output().unwrap();
+    let text = String::from_utf8_lossy(&help.stdout);
+    assert!(help.status.success(), "{text}");
+    for option in ["--actors", "--roles", "--credentials", "--head-timeout"] {
+        assert!(text.contains(option), "{option}: {text}");
+    }
+    let bad = mbpo()
+        .args(["join", "tcp/127.0.0.1:1", "--actors", "many"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(!bad.status.success());
+    assert!(err.contains("--actors") && err.contains("many"), "{err}");
 }

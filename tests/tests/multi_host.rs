@@ -186,6 +186,22 @@ fn text(p: &Path) -> String {
     std::fs::read_to_string(p).unwrap_or_default()
 }
 
+/// The head's run, once it ends: completed, with the final policy and evaluation of the
+/// sequential run `seq` (`what` names the run in the failure); its summary.
+fn completed_as(head: Run, seq: &mbpo_train::Summary, what: &str) -> serde_json::Value {
+    let o = wait_output(head.child, TIMEOUT);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&head.out);
+    assert_eq!(s["status"], "completed");
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "{what} != sequential"
+    );
+    assert_eq!(s["final_eval_return"], seq.final_eval_return);
+    s
+}
+
 /// Wait until `path` contains `needle` (at most `timeout`).
 fn wait_for_text(path: &Path, needle: &str, timeout: Duration) -> bool {
     let t = Instant::now();
@@ -284,16 +300,7 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
     let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
-    let o = wait_output(head.child, TIMEOUT);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = summary(&head.out);
-    assert_eq!(s["status"], "completed");
-    assert_eq!(
-        s["policy_sha256"],
-        seq.policy_sha256.as_str(),
-        "remote lockstep != sequential"
-    );
-    assert_eq!(s["final_eval_return"], seq.final_eval_return);
+    completed_as(head, &seq, "remote lockstep");
     assert!(wait_output(worker, TIMEOUT).status.success());
     let _ = std::fs::remove_dir_all(dir);
 }
@@ -325,16 +332,8 @@ fn lockstep_with_the_evaluator_on_a_worker_equals_sequential() {
     let offer = ["--actors", "0", "--roles", "evaluator"];
     let worker = start_worker_offering(&hosts, "tcp", &dir, "w1", Some(&creds), &offer);
     let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
-    let o = wait_output(head.child, TIMEOUT);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let s = summary(&head.out);
-    assert_eq!(s["status"], "completed");
-    assert_eq!(
-        s["policy_sha256"],
-        seq.policy_sha256.as_str(),
-        "lockstep with a remote evaluator != sequential"
-    );
-    assert_eq!(s["final_eval_return"], seq.final_eval_return);
+    let out = head.out.clone();
+    let s = completed_as(head, &seq, "lockstep with a remote evaluator");
     assert_eq!(
         s["hosts"]["w1"]["roles"],
         serde_json::json!(["evaluator"]),
@@ -342,15 +341,15 @@ fn lockstep_with_the_evaluator_on_a_worker_equals_sequential() {
     );
     assert_eq!(s["hosts"]["w1"]["actors"], serde_json::json!([]), "{s}");
     // No evaluator ran on the head; its files came over the link.
-    assert!(!head.out.join("logs").join("evaluator.log").exists());
-    let log = head.out.join("logs").join("w1").join("evaluator.log");
+    assert!(!out.join("logs").join("evaluator.log").exists());
+    let log = out.join("logs").join("w1").join("evaluator.log");
     assert!(
         text(&log).contains("eval after step 400"),
         "{}",
         log.display()
     );
     // Every checkpoint (the two newest are kept) holds the remote evaluator's file.
-    let kept: Vec<_> = std::fs::read_dir(head.out.join("checkpoints"))
+    let kept: Vec<_> = std::fs::read_dir(out.join("checkpoints"))
         .unwrap()
         .map(|e| e.unwrap().path())
         .collect();

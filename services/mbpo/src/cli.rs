@@ -41,23 +41,14 @@ pub enum Command {
     /// Run MBPO as a multi-process pipeline (actors, model trainer, rollout generator, SAC
     /// learner over iceoryx2 shared memory), supervised by this process.
     Run(RunArgs),
-    /// Run actors for a head on another host (`mbpo run --listen E --remote-actors M` there):
-    /// `mbpo join tcp/<head>:7447 [--actors N | --actors-per-core K] [--credentials DIR]`.
-    /// Runs `mbpo-gateway join`; `mbpo join --help` lists its options.
-    #[command(disable_help_flag = true)]
-    Join {
-        /// The head's endpoint, then the options of `mbpo-gateway join`.
-        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
-        args: Vec<String>,
-    },
+    /// Run actors (and other roles) for a head on another host (`mbpo run --listen E
+    /// --remote-actors M` there): `mbpo join tcp/<head>:7447 [--actors N | --actors-per-core K]
+    /// [--roles evaluator] [--credentials DIR]`. Checks its arguments, then runs `mbpo-gateway
+    /// join` with them.
+    Join(mbpo_runtime::args::JoinArgs),
     /// Make credentials for a multi-host run: `mbpo certs --out DIR` writes DIR/head and
     /// DIR/worker (a CA, a certificate each, a password); runs `mbpo-gateway certs`.
-    #[command(disable_help_flag = true)]
-    Certs {
-        /// `--out DIR`.
-        #[arg(trailing_var_arg = true, allow_hyphen_values = true, num_args = 0..)]
-        args: Vec<String>,
-    },
+    Certs(mbpo_runtime::args::CertsArgs),
     /// Environment tools: list environments, replay an action sequence.
     #[command(subcommand)]
     Env(EnvCommand),

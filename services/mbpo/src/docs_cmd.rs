@@ -5,7 +5,7 @@
 
 use crate::cli::{Cli, DocsArgs};
 use anyhow::Context as _;
-use clap::{Args as _, CommandFactory as _};
+use clap::CommandFactory as _;
 
 /// The generated pages: file name under `docs/src/reference/`, and its text.
 pub fn pages() -> [(&'static str, String); 2] {
@@ -65,10 +65,7 @@ pub fn commands_reference() -> String {
 }
 
 fn write_command(out: &mut String, cmd: &mut clap::Command, path: &str, level: usize) {
-    let help = gateway_command(cmd, path)
-        .unwrap_or_else(|| cmd.clone())
-        .render_long_help()
-        .to_string();
+    let help = cmd.render_long_help().to_string();
     let lines: Vec<&str> = help.lines().map(str::trim_end).collect();
     out.push_str(&format!(
         "\n{} `{path}`\n\n```text\n{}\n```\n",
@@ -80,26 +77,6 @@ fn write_command(out: &mut String, cmd: &mut clap::Command, path: &str, level: u
         let name = sub.get_name().to_string();
         write_command(out, sub, &format!("{path} {name}"), (level + 1).min(4));
     }
-}
-
-/// `mbpo join` and `mbpo certs` hand their arguments to `mbpo-gateway`, so their own help is
-/// the gateway's: the same arguments (`mbpo_runtime::args`), under the `mbpo` name.
-fn gateway_command(cmd: &clap::Command, path: &str) -> Option<clap::Command> {
-    let augment = match cmd.get_name() {
-        "join" => mbpo_runtime::args::JoinArgs::augment_args,
-        "certs" => mbpo_runtime::args::CertsArgs::augment_args,
-        _ => return None,
-    };
-    // The arguments' own doc comment would become the about: `mbpo`'s is set after them.
-    let mut built = augment(clap::Command::new("gateway"))
-        .bin_name(path)
-        .term_width(100)
-        .about(cmd.get_about().cloned().unwrap_or_default());
-    if let Some(long) = cmd.get_long_about() {
-        built = built.long_about(long.clone());
-    }
-    built.build();
-    Some(built)
 }
 
 #[cfg(test)]

@@ -60,12 +60,19 @@ fn write_stdout(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
     }
 }
 
+/// This process's arguments after its subcommand `command` (`mbpo` takes no flags before it).
+fn arguments_after(command: &str) -> Vec<String> {
+    let args = std::env::args().skip_while(|a| a != command).skip(1);
+    args.collect()
+}
+
 fn run(cli: cli::Cli) -> anyhow::Result<()> {
     match cli.command {
         cli::Command::Train(args) => train_cmd::run(&args),
         cli::Command::Run(args) => supervisor::run(&args),
-        cli::Command::Join { args } => supervisor::gateway("join", &args),
-        cli::Command::Certs { args } => supervisor::gateway("certs", &args),
+        // Parsed here for `--help` and for errors; the gateway gets the arguments as given.
+        cli::Command::Join(_) => supervisor::gateway("join", &arguments_after("join")),
+        cli::Command::Certs(_) => supervisor::gateway("certs", &arguments_after("certs")),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
         cli::Command::Config(cli::ConfigCommand::Show(source)) => {
             let cfg =
