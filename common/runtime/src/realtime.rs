@@ -50,9 +50,13 @@ pub fn paced_actor(priority: u32, cpu: usize) -> Scheduling {
 }
 
 /// The core actor `index` of a run paces on: the last cores first (the first ones keep the
-/// supervisor and the learning roles' first threads).
+/// supervisor and the learning roles' first threads). Counted over the machine's online cores,
+/// not this process's affinity: the launcher may have pinned the process to one core already
+/// (a Python env's roles), and the actor then moves to its own.
 pub fn actor_cpu(index: u16) -> usize {
-    let n = std::thread::available_parallelism().map_or(1, |n| n.get());
+    // SAFETY: sysconf reads a system value.
+    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    let n = usize::try_from(online).unwrap_or(1).max(1);
     n - 1 - usize::from(index) % n
 }
 
@@ -123,6 +127,11 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+        // A process already pinned to one core still counts the machine's cores.
+        // SAFETY: sysconf reads a system value.
+        let cores = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) } as usize;
+        assert_eq!(actor_cpu(0), cores - 1);
+        assert_eq!(actor_cpu(cores as u16), cores - 1);
         let off = std::thread::spawn(|| paced_actor(0, 0)).join().unwrap();
         assert_eq!(off, Scheduling::Default { why: String::new() });
     }
