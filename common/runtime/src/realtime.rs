@@ -49,14 +49,38 @@ pub fn paced_actor(priority: u32, cpu: usize) -> Scheduling {
     }
 }
 
+/// Whether the actors of a run with `cfg` in `mode` run under SCHED_FIFO on cores of their own:
+/// paced (`actor.control_hz`), pipelined, and `actor.realtime_priority` above 0.
+pub fn actors_run_real_time(cfg: &mbpo_train::ExperimentConfig, mode: crate::Mode) -> bool {
+    let a = &cfg.actor;
+    a.control_hz > 0.0 && mode == crate::Mode::Pipelined && a.realtime_priority > 0
+}
+
+/// The core a launcher pins the `i`-th of its pinned processes to, keeping off the cores of the
+/// run's `real_time_actors` (actor k's is [`actor_cpu`]`(k)`) while any other core is left.
+pub fn launcher_cpu(i: usize, real_time_actors: u16) -> usize {
+    let n = online_cores();
+    let taken: Vec<usize> = (0..real_time_actors).map(actor_cpu).collect();
+    let free: Vec<usize> = (0..n).filter(|c| !taken.contains(c)).collect();
+    match free.is_empty() {
+        true => i % n,
+        false => free[i % free.len()],
+    }
+}
+
+/// The machine's online cores (not this process's affinity).
+fn online_cores() -> usize {
+    // SAFETY: sysconf reads a system value.
+    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
+    usize::try_from(online).unwrap_or(1).max(1)
+}
+
 /// The core actor `index` of a run paces on: the last cores first (the first ones keep the
 /// supervisor and the learning roles' first threads). Counted over the machine's online cores,
 /// not this process's affinity: the launcher may have pinned the process to one core already
 /// (a Python env's roles), and the actor then moves to its own.
 pub fn actor_cpu(index: u16) -> usize {
-    // SAFETY: sysconf reads a system value.
-    let online = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) };
-    let n = usize::try_from(online).unwrap_or(1).max(1);
+    let n = online_cores();
     n - 1 - usize::from(index) % n
 }
 
@@ -128,10 +152,14 @@ mod tests {
             other => panic!("{other:?}"),
         }
         // A process already pinned to one core still counts the machine's cores.
-        // SAFETY: sysconf reads a system value.
-        let cores = unsafe { libc::sysconf(libc::_SC_NPROCESSORS_ONLN) } as usize;
+        let cores = online_cores();
         assert_eq!(actor_cpu(0), cores - 1);
         assert_eq!(actor_cpu(cores as u16), cores - 1);
+        // The launcher keeps other processes off a real-time actor's core while it can.
+        if cores > 1 {
+            assert!((0..2 * cores).all(|i| launcher_cpu(i, 1) != actor_cpu(0)));
+        }
+        assert!((0..2 * cores).all(|i| launcher_cpu(i, cores as u16) < cores));
         let off = std::thread::spawn(|| paced_actor(0, 0)).join().unwrap();
         assert_eq!(off, Scheduling::Default { why: String::new() });
     }

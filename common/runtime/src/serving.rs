@@ -147,12 +147,11 @@ pub fn serve<S: Transport, W: Worker<S>>(args: &ServiceArgs) -> Result<()> {
 /// SCHED_FIFO on a core of its own ([`realtime`]); other roles, unpaced runs and
 /// `actor.realtime_priority = 0` change nothing.
 fn schedule<S: Transport>(s: &Process<S>, kind: RoleKind) {
-    let a = &s.cfg.actor;
-    let paced = a.control_hz > 0.0 && s.mode == crate::Mode::Pipelined;
-    if !paced || a.realtime_priority == 0 || !kind.is_actor() {
+    if !kind.is_actor() || !realtime::actors_run_real_time(&s.cfg, s.mode) {
         return;
     }
-    let got = realtime::paced_actor(a.realtime_priority, realtime::actor_cpu(s.args.index));
+    let priority = s.cfg.actor.realtime_priority;
+    let got = realtime::paced_actor(priority, realtime::actor_cpu(s.args.index));
     match &got {
         realtime::Scheduling::Default { why } => tracing::warn!("{why}"),
         _ => tracing::info!("paced run: {} runs with {got}", kind.name(s.args.index)),

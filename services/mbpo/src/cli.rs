@@ -517,7 +517,9 @@ pub struct RunArgs {
     /// Restarts allowed per process with `--restart on-failure`.
     #[arg(long, default_value_t = 3)]
     pub max_restarts: u32,
-    /// Pin process i to CPU i mod ncpu (sched_setaffinity).
+    /// Pin process i to CPU i mod ncpu (sched_setaffinity). A paced actor under real-time
+    /// priority (`actor.realtime_priority`) pins itself to a core of its own, which the other
+    /// processes keep off while another core is left.
     #[arg(long)]
     pub pin_cpus: bool,
     /// No live progress bar: log a plain progress line every 10 s instead.

@@ -23,7 +23,7 @@ use anyhow::{bail, Context};
 use mbpo_runtime::coordinator::checkpoints::{self, ResumePoint};
 use mbpo_runtime::coordinator::collect::PipelineSummary;
 use mbpo_runtime::coordinator::{self, Coordinator, CoordinatorPorts, OnSignal, Phase, RunPlan};
-use mbpo_runtime::{configure_run, pipeline, remote, Mode, ResolvedRun};
+use mbpo_runtime::{configure_run, pipeline, realtime, remote, Mode, ResolvedRun};
 use mbpo_train::progress::{Display, Progress};
 use mbpo_train::RunDir;
 use mbpo_wire::{ipc, RunIpc, StopReason, WaitOutcome, Waiter};
@@ -523,6 +523,8 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
         common.extend(["--resume-from".into(), dir.display().to_string()]);
     }
     let local = args.local_actors();
+    let real_time = realtime::actors_run_real_time(cx.cfg, args.mode);
+    let real_time_actors = if real_time { local } else { 0 };
     let roles = cx.pipeline.roles(args.actors);
     let mut procs: Vec<Proc> = roles
         .into_iter()
@@ -533,7 +535,9 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
             // A Python env's process inherits its actor's CPU: each env step's two wake-ups are
             // then context switches (the bridge adds ~6 us a step) instead of cross-CPU wake-ups
             // (~70 us on a 2-core VM; deploy/bench_python_bridge.sh).
+            // A real-time actor pins itself to a core of its own; the others keep off it.
             let pin = args.pin_cpus || (cx.cfg.is_gym_env() && role.steps_an_env());
+            let pin = pin && !(real_time && role.kind.is_actor());
             let mut a = common.clone();
             a.extend(role.binary_args());
             Proc {
@@ -543,7 +547,7 @@ fn role_processes(cx: &AttemptCtx, resume: Option<&Path>) -> Vec<Proc> {
                 args: a,
                 child: None,
                 exit: None,
-                cpu: pin.then(|| i % ncpu()),
+                cpu: pin.then(|| realtime::launcher_cpu(i, real_time_actors)),
             }
         })
         .collect();
