@@ -191,7 +191,10 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
     fn done_so_far(&self) -> u64 {
         self.t - 1
     }
+    /// A paced actor waits at the cut until the run resumes: like a rest, its next step starts a
+    /// new grid (the pause is not a missed deadline).
     fn at_cut(&mut self, _: barrier::Cut, _: &ActingCx<'_, S>) -> Result<AtCut<R::Checkpoint>> {
+        self.resting = self.pacer.is_some();
         Ok(AtCut::Write(self.role.checkpoint(self.t - 1)))
     }
     fn finish(&mut self, cx: &ActingCx<'_, S>) -> Result<()> {
