@@ -560,9 +560,29 @@ impl SlackTracker {
 mod tests {
     use super::*;
 
-    #[test]
-    fn every_report_round_trips_through_its_record() {
-        let all = [
+    /// A `Done` with every field set.
+    fn a_done() -> Done {
+        Done {
+            real: 1000,
+            lost: 2,
+            work: 9,
+            median_step_seconds: 0.5,
+            slack_min: -3.0,
+            slack_max: 4.0,
+            slack_mean: 0.5,
+            ipc_seconds: 0.125,
+            wall_seconds: 12.0,
+            episodes_cut: 3,
+            episodes_lost: 2,
+            real_spilled: 6,
+            missed_deadlines: 11,
+            rests: 5,
+        }
+    }
+
+    /// One report of every kind, with values in every field.
+    fn one_of_each() -> Vec<Stats> {
+        vec![
             Stats::Episode(EpisodeEnd {
                 env_steps: 200,
                 episode_return: -1234.5,
@@ -615,22 +635,7 @@ mod tests {
                 model_version: 1,
                 policy_version: 4,
             }),
-            Stats::Done(Done {
-                real: 1000,
-                lost: 2,
-                work: 9,
-                median_step_seconds: 0.5,
-                slack_min: -3.0,
-                slack_max: 4.0,
-                slack_mean: 0.5,
-                ipc_seconds: 0.125,
-                wall_seconds: 12.0,
-                episodes_cut: 3,
-                episodes_lost: 2,
-                real_spilled: 6,
-                missed_deadlines: 11,
-                rests: 5,
-            }),
+            Stats::Done(a_done()),
             Stats::Barrier(BarrierReport::Paused(0)),
             Stats::Barrier(BarrierReport::Paused(7)),
             Stats::Barrier(BarrierReport::Written(1200)),
@@ -640,8 +645,12 @@ mod tests {
                 counts: [1 << 40, 2, 0, 3, 4, (1 << 52) + 1],
                 max_error_us: 1250.5,
             }),
-        ];
-        for s in all {
+        ]
+    }
+
+    #[test]
+    fn every_report_round_trips_through_its_record() {
+        for s in one_of_each() {
             assert_eq!(Stats::decode(&s.record()).unwrap(), s, "{s:?}");
         }
     }
