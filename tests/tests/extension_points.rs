@@ -8,6 +8,8 @@
 //!   `mbpo_train::algorithm::register` call) is a config's `algo`, runs where `mbpo train`
 //!   runs algorithms, and is refused by the pipeline by name, as it names no roles; one that
 //!   names its roles (MBPO's, under another name) runs in the in-process pipeline too;
+//!   and `mbpo run`'s launcher, called from this program, runs it as processes of the role
+//!   binaries, which learn it from the run plan;
 //! - a role served by a worker of one's own (one `Worker` impl on the serving loop: a toy
 //!   evaluator) over a transport the project does not use (iceoryx2's `ipc_threadsafe`, picked
 //!   at the call site), with a checkpoint barrier, and lockstep still equals sequential;
@@ -16,6 +18,7 @@
 use std::path::Path;
 use std::time::Duration;
 
+use clap::Parser as _;
 use mbpo_core::rng::{stream, uniform_range_f32, Rng};
 use mbpo_core::{BatchPolicy, UniformPolicy};
 use mbpo_envs::{register, BoxSpace, Env, EnvError, Step, TaskSpec};
@@ -322,6 +325,62 @@ fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
         metrics_without_timing(&run.out),
         metrics_without_timing(&dir.join("sequential"))
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The launcher of `mbpo run` as a library (`mbpo::supervisor::launch`): this test program
+/// registers an algorithm and launches it; its roles are processes of the installed role
+/// binaries, which know the algorithm from the run plan alone.
+#[test]
+fn a_registered_algorithm_runs_under_the_launcher_of_mbpo_run() {
+    let mbpo = algorithm::lookup("mbpo").unwrap();
+    let algo = algorithm::register(AlgorithmSpec {
+        name: "mbpo-launched",
+        train: train_mbpo_with,
+        pipeline: mbpo.pipeline,
+    })
+    .unwrap();
+    let mut cfg = tiny_config(300);
+    cfg.algo = algo;
+    cfg.eval.every = 100;
+    let dir = scratch("extension-algo-launched");
+    let seq = algorithm::train(&cfg, &dir.join("sequential"), RunOptions::default()).unwrap();
+    let (input, out, root) = (
+        write_config(&cfg, &dir),
+        dir.join("lockstep"),
+        ipc_root("ext-launch"),
+    );
+    let mut argv = vec!["mbpo", "run", "--mode", "lockstep", "--quiet"];
+    argv.extend(run_args(&input, &out, &root, &[]));
+    let mbpo::cli::Command::Run(args) = mbpo::cli::Cli::try_parse_from(argv).unwrap().command
+    else {
+        panic!("not `mbpo run`");
+    };
+    let bins = bin_dir();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let ended = mbpo::supervisor::launch(&args, bins).map_err(|e| format!("{e:#}"));
+        tx.send(ended).unwrap();
+    });
+    let ended = rx.recv_timeout(Duration::from_secs(300));
+    ended.expect("the run ends within 5 minutes").unwrap();
+    let s = summary(&out);
+    assert_eq!(
+        (s["status"].as_str(), s["algo"].as_str()),
+        (Some("completed"), Some("mbpo-launched"))
+    );
+    assert_eq!(
+        s["policy_sha256"],
+        seq.policy_sha256.as_str(),
+        "lockstep != sequential"
+    );
+    assert_eq!(
+        metrics_without_timing(&out),
+        metrics_without_timing(&dir.join("sequential"))
+    );
+    // Each role a process of its own binary: the learner's log names the algorithm.
+    let learner = std::fs::read_to_string(out.join("logs/learner.log")).unwrap();
+    assert!(learner.contains("mbpo-launched"), "{learner}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -98,9 +98,11 @@ fn coordinate<S: Transport>(
     let node = coordinator::node::<S>(ipc)?;
     // The run resolved once: every role thread reads its sizes from the plan.
     let dims = Dims::of(cfg)?;
-    ResolvedRun::new(dims, how.mode, how.actors, how.actors, how.slack).write(&how.out)?;
+    let pipeline = pipeline::spec(cfg.algo)?;
+    ResolvedRun::new(pipeline, dims, how.mode, how.actors, how.actors, how.slack)
+        .write(&how.out)?;
     let plan = RunPlan {
-        pipeline: pipeline::spec(cfg.algo)?,
+        pipeline,
         run_id: run_id.into(),
         mode: how.mode,
         actors: how.actors,

@@ -38,8 +38,20 @@ pub fn init_service_process() {
 /// Load `<run_dir>/config.toml`, the config the launcher resolved and validated (parsed, not
 /// validated again: see [`crate::run_plan`]).
 pub fn load_config(run_dir: &Path) -> Result<ExperimentConfig> {
+    load_run(run_dir).map(|(cfg, _)| cfg)
+}
+
+/// The run plan and the config of the run in `run_dir`. The plan first: its algorithm may be
+/// one only the launcher's program registered, which the config names.
+pub fn load_run(run_dir: &Path) -> Result<(ExperimentConfig, ResolvedRun)> {
+    let plan = ResolvedRun::read(run_dir)?;
+    if let Some(row) = &plan.algorithm {
+        row.make_known()?;
+    }
     let path = run_dir.join("config.toml");
-    ExperimentConfig::load_resolved(&path).map_err(|source| RuntimeError::Config { path, source })
+    let cfg = ExperimentConfig::load_resolved(&path)
+        .map_err(|source| RuntimeError::Config { path, source })?;
+    Ok((cfg, plan))
 }
 
 /// One service: its config, run IPC and node.
@@ -68,7 +80,7 @@ impl<S: Transport> Process<S> {
     /// Load the config, open the run and create the node of role `kind` (index `args.index`);
     /// refused when the run's algorithm has no such role (a launcher started the wrong one).
     pub fn open(args: &ServiceArgs, kind: RoleKind) -> Result<Self> {
-        let cfg = load_config(&args.run_dir)?;
+        let (cfg, plan) = load_run(&args.run_dir)?;
         let pipeline = pipeline::spec(cfg.algo)?;
         ensure_protocol!(
             pipeline.has(kind),
@@ -77,7 +89,6 @@ impl<S: Transport> Process<S> {
             pipeline.roles(1).iter().map(|r| r.kind).collect::<Vec<_>>()
         );
         let role = kind.wire_role();
-        let plan = ResolvedRun::read(&args.run_dir)?;
         ensure_protocol!(
             (plan.mode, plan.actors) == (args.mode, args.actors),
             "started with --mode {} --actors {}, but the run plan says {} and {}",

@@ -14,7 +14,10 @@ use mbpo_train::ExperimentConfig;
 use mbpo_wire::{ModelWireLayout, RowLayout};
 use serde::{Deserialize, Serialize};
 
-use crate::pipeline::RoleKind;
+use mbpo_train::algorithm::{self, AlgorithmSpec};
+
+use crate::error::ensure_protocol;
+use crate::pipeline::{PipelineRoles, PipelineSpec, RoleKind};
 use crate::{Mode, Result, RuntimeError, Slack};
 pub use mbpo_core::roles::Slot;
 
@@ -130,11 +133,117 @@ pub struct ResolvedRun {
     /// the head's gateway stands in for (absent in plans of builds before them: none).
     #[serde(default)]
     pub remote_services: Vec<RoleKind>,
+    /// The run's algorithm and its roles (absent in plans of builds before it: the config's
+    /// `algo` is then a built-in one).
+    #[serde(default)]
+    pub algorithm: Option<AlgorithmRow>,
+}
+
+/// The run's algorithm as the pipeline runs it: its name and its roles, the algorithm table's
+/// row. A program that registered an algorithm (`mbpo_train::algorithm::register`) launches
+/// it with role binaries that never heard of it: each process of the run learns it here
+/// ([`AlgorithmRow::make_known`]) before it reads the config that names it.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct AlgorithmRow {
+    /// The config's `algo`.
+    pub name: String,
+    /// Its roles besides the training actors, in start order.
+    pub services: Vec<RoleKind>,
+    /// What its training actors are.
+    pub actor: RoleKind,
+}
+
+impl AlgorithmRow {
+    /// The row of `pipeline`.
+    pub fn of(pipeline: &PipelineSpec) -> Self {
+        Self {
+            name: pipeline.algo.into(),
+            services: pipeline.services.to_vec(),
+            actor: pipeline.actor,
+        }
+    }
+
+    /// Make the algorithm known in this process: one this process knows (built in, or
+    /// registered by its program) must have these roles; another is registered for its roles
+    /// alone (its single-process run refuses: only its launcher's program has it).
+    pub fn make_known(&self) -> Result<()> {
+        for _ in 0..2 {
+            if let Some(known) = algorithm::lookup(&self.name) {
+                let roles = known.pipeline.map(|p| (p.services.to_vec(), p.actor));
+                ensure_protocol!(
+                    roles == Some((self.services.clone(), self.actor)),
+                    "the run plan's algorithm '{}' has roles {:?} and actors {:?}, this build's {:?}: run every process of a run with one build",
+                    self.name,
+                    self.services,
+                    self.actor,
+                    roles
+                );
+                return Ok(());
+            }
+            let spec = AlgorithmSpec {
+                name: Box::leak(self.name.clone().into_boxed_str()),
+                train: runs_only_as_roles,
+                pipeline: Some(PipelineRoles {
+                    services: Box::leak(self.services.clone().into_boxed_slice()),
+                    actor: self.actor,
+                }),
+            };
+            // Another thread of this process may have made it known meanwhile: look again.
+            if algorithm::register(spec).is_ok() {
+                return Ok(());
+            }
+        }
+        Err(RuntimeError::protocol(format!(
+            "the run plan's algorithm '{}' could not be registered",
+            self.name
+        )))
+    }
+
+    /// What is wrong with it, if anything (the plan may come from another host).
+    fn check(&self) -> std::result::Result<(), String> {
+        let name_ok = !self.name.is_empty()
+            && self.name.len() <= 64
+            && self.name.bytes().all(|b| b.is_ascii_graphic());
+        if !name_ok {
+            return Err(format!(
+                "algorithm name {:?} is not a config key",
+                self.name
+            ));
+        }
+        if !self.actor.is_actor() || self.services.iter().any(|k| k.is_actor()) {
+            return Err(format!(
+                "algorithm '{}': actors {:?} and services {:?} (actors must be an actor kind, services none)",
+                self.name, self.actor, self.services
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The single-process run of an algorithm learned from a run plan: its code is in the program
+/// that launched the run, not here.
+fn runs_only_as_roles(
+    cfg: &ExperimentConfig,
+    _: &Path,
+    _: mbpo_train::RunOptions,
+) -> std::result::Result<mbpo_train::Summary, mbpo_train::TrainError> {
+    Err(mbpo_train::TrainError::Config(format!(
+        "algorithm '{}' is known here from a run plan, for its roles: train it with the program that registered it",
+        cfg.algo.name()
+    )))
 }
 
 impl ResolvedRun {
-    /// The plan of a run of `dims` with `actors` actors, `local_actors` of them on this host.
-    pub fn new(dims: Dims, mode: Mode, actors: u16, local_actors: u16, slack: Slack) -> Self {
+    /// The plan of a run of `pipeline` and `dims` with `actors` actors, `local_actors` of them
+    /// on this host.
+    pub fn new(
+        pipeline: &PipelineSpec,
+        dims: Dims,
+        mode: Mode,
+        actors: u16,
+        local_actors: u16,
+        slack: Slack,
+    ) -> Self {
         Self {
             format: RUN_PLAN_FORMAT,
             dims,
@@ -143,6 +252,7 @@ impl ResolvedRun {
             local_actors,
             slack,
             remote_services: Vec::new(),
+            algorithm: Some(AlgorithmRow::of(pipeline)),
         }
     }
 
@@ -204,6 +314,9 @@ impl ResolvedRun {
                 "{k:?} among the remote services: actors are remote by slot (local_actors)"
             ));
         }
+        if let Some(row) = &plan.algorithm {
+            row.check()?;
+        }
         if plan.local_actors > plan.actors {
             return Err(format!(
                 "{} local actors of {}",
@@ -234,7 +347,8 @@ mod tests {
             policy_len: 50,
             model,
         };
-        ResolvedRun::new(dims, Mode::Pipelined, 3, 1, Slack::ZERO)
+        let mbpo = crate::pipeline::spec(mbpo_train::Algo::MBPO).unwrap();
+        ResolvedRun::new(mbpo, dims, Mode::Pipelined, 3, 1, Slack::ZERO)
     }
 
     #[test]
@@ -270,6 +384,45 @@ mod tests {
         assert!(ResolvedRun::parse(&actor)
             .unwrap_err()
             .contains("remote by slot"));
+    }
+
+    #[test]
+    fn a_plans_algorithm_is_made_known_and_another_of_a_known_name_is_refused() {
+        let mpc_roles = vec![RoleKind::ModelTrainer, RoleKind::PlanningEvaluator];
+        let row = AlgorithmRow {
+            name: "plan-only-mpc".into(),
+            services: mpc_roles.clone(),
+            actor: RoleKind::PlanningActor,
+        };
+        assert!(algorithm::lookup(&row.name).is_none());
+        row.make_known().unwrap();
+        let known = algorithm::lookup(&row.name).unwrap().pipeline.unwrap();
+        assert_eq!((known.services, known.actor), (&mpc_roles[..], row.actor));
+        row.make_known().unwrap(); // known now, with the same roles
+        let p = crate::pipeline::spec(mbpo_train::Algo::parse(&row.name).unwrap()).unwrap();
+        assert_eq!(AlgorithmRow::of(p), row);
+        // MBPO under MPC's roles: another build's table.
+        let renamed = AlgorithmRow {
+            name: "mbpo".into(),
+            ..row.clone()
+        };
+        let err = renamed.make_known().unwrap_err().to_string();
+        assert!(
+            err.contains("run every process of a run with one build"),
+            "{err}"
+        );
+        for (name, actor) in [("two words", row.actor), ("ok", RoleKind::Learner)] {
+            let bad = AlgorithmRow {
+                name: name.into(),
+                actor,
+                ..row.clone()
+            };
+            let mut p = plan();
+            p.algorithm = Some(bad);
+            let text = serde_json::to_string(&p).unwrap();
+            let err = ResolvedRun::parse(&text).unwrap_err();
+            assert!(err.contains(name), "{err}");
+        }
     }
 
     #[test]

@@ -4,9 +4,10 @@
 //! run, which starts fresh or from the run directory's newest checkpoint, writes the metrics
 //! rows, the checkpoints and the summary, and stops cleanly when asked ([`RunOptions`]), and
 //! the roles it runs as under `mbpo run` (none: `mbpo train` only; `mbpo_runtime::pipeline`
-//! reads them). `sac`, `mbpo` and `mpc` are built in; a program adds one with [`register`]
-//! (`tests/tests/extension_points.rs` adds a random-policy baseline, and an algorithm on MBPO's
-//! roles that the in-process pipeline runs, from the test file alone).
+//! reads them, and the run plan carries them to the role processes). `sac`, `mbpo` and `mpc`
+//! are built in; a program adds one with [`register`] (`tests/tests/extension_points.rs` adds
+//! a random-policy baseline, and an algorithm on MBPO's roles that the in-process pipeline and
+//! `mbpo run`'s launcher run, from the test file alone).
 
 use std::path::Path;
 use std::sync::RwLock;

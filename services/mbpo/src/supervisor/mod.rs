@@ -199,8 +199,18 @@ fn build_hint(bin: &Path) -> String {
     )
 }
 
-/// Run the pipeline per `args`.
+/// Run the pipeline per `args` with the role binaries installed beside this program.
 pub fn run(args: &RunArgs) -> anyhow::Result<()> {
+    let bin_dir = std::env::current_exe()?
+        .parent()
+        .map(Path::to_path_buf)
+        .context("locating the service binaries")?;
+    launch(args, &bin_dir)
+}
+
+/// Run the pipeline per `args` with the role binaries in `bin_dir`. Every algorithm this
+/// process knows can be launched: the run plan tells the role processes its roles.
+pub fn launch(args: &RunArgs, bin_dir: &Path) -> anyhow::Result<()> {
     // iceoryx2 captures SIGINT/SIGTERM from its first look at them on: from here on a Ctrl-C
     // is not fatal (it would kill this process while it sets the run up, leaving a run
     // directory without a summary) but a request the coordinator answers once it runs: a
@@ -214,10 +224,6 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&logs)?;
     crate::logging::also_to_file(&logs.join("supervisor.log"))?;
     crate::train_cmd::record_env(&cfg, &out)?;
-    let bin_dir = std::env::current_exe()?
-        .parent()
-        .map(Path::to_path_buf)
-        .context("locating the service binaries")?;
     let run_id = make_run_id(&cfg.env, cfg.seed);
     let ipc = open_ipc(args, &cfg, &run_id, &out)?;
     // A resumed run's clock continues from its checkpoint.
@@ -237,7 +243,7 @@ pub fn run(args: &RunArgs) -> anyhow::Result<()> {
         run_id: &run_id,
         out: &out,
         logs: &logs,
-        bin_dir: &bin_dir,
+        bin_dir,
         started,
     };
     let outcome = attempts(&cx, &mut run_dir, resume);
@@ -603,7 +609,8 @@ fn supervise(
     // model); every process and gateway reads them from the plan.
     let dims = mbpo_runtime::Dims::of_run(cx.cfg, cx.out)?;
     let local = cx.args.local_actors();
-    let resolved = ResolvedRun::new(dims, cx.args.mode, cx.args.actors, local, cx.args.slack)
+    let (mode, actors, slack) = (cx.args.mode, cx.args.actors, cx.args.slack);
+    let resolved = ResolvedRun::new(cx.pipeline, dims, mode, actors, local, slack)
         .with_remote_services(cx.remote_services.clone());
     resolved.write(cx.out)?;
     let plan = RunPlan {

@@ -1,0 +1,131 @@
+//! The `mbpo` command as a library: [`main`] is the whole command line, and [`supervisor`] the
+//! launcher of `mbpo run`. A program that registers an algorithm of its own
+//! (`mbpo_train::algorithm::register`) and then calls [`main`] is `mbpo` with that algorithm:
+//! `train` runs it in one process, `run` launches its roles -- the role binaries installed
+//! beside the program learn it from the run plan. `tests/tests/extension_points.rs` launches
+//! one with [`supervisor::launch`].
+
+/// `println!` that returns an error instead of panicking: piped into a reader that stops early
+/// (`mbpo bench gemm | head -1`), a command ends quietly rather than with a panic trace (see
+/// [`write_stdout`]).
+macro_rules! out {
+    ($($arg:tt)*) => {
+        crate::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+    };
+}
+
+mod bench;
+mod bench_realtime;
+pub mod cli;
+mod docs_cmd;
+mod env_cmd;
+mod logging;
+mod run_report;
+pub mod supervisor;
+mod train_cmd;
+
+use clap::Parser;
+use std::process::ExitCode;
+
+/// The `mbpo` command: parse this process's command line, set up logging, run the command.
+pub fn main() -> ExitCode {
+    let cli = cli::Cli::parse();
+    logging::init();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) if err.chain().any(|cause| cause.is::<StdoutClosed>()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {}", mbpo_runtime::error_chain(err.as_ref()));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// The reader of stdout went away (as `head` does once it has its lines): the output the
+/// command still had is unwanted, so it ends with success. Only a write to stdout reports this;
+/// a broken pipe anywhere else (a child process, the Python env bridge) stays an error.
+#[derive(Debug)]
+struct StdoutClosed;
+
+impl std::fmt::Display for StdoutClosed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("stdout was closed by its reader")
+    }
+}
+
+impl std::error::Error for StdoutClosed {}
+
+/// Write to stdout; a closed pipe becomes [`StdoutClosed`], any other failure (a full disk)
+/// its own error.
+fn write_stdout(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
+    use std::io::Write as _;
+    match std::io::stdout().lock().write_fmt(text) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(StdoutClosed.into()),
+        other => Ok(other?),
+    }
+}
+
+/// This process's arguments after its subcommand `command` (`mbpo` takes no flags before it).
+fn arguments_after(command: &str) -> Vec<String> {
+    let args = std::env::args().skip_while(|a| a != command).skip(1);
+    args.collect()
+}
+
+fn run(cli: cli::Cli) -> anyhow::Result<()> {
+    match cli.command {
+        cli::Command::Train(args) => train_cmd::run(&args),
+        cli::Command::Run(args) => supervisor::run(&args),
+        // Parsed here for `--help` and for errors; the gateway gets the arguments as given.
+        cli::Command::Join(_) => supervisor::gateway("join", &arguments_after("join")),
+        cli::Command::Certs(_) => supervisor::gateway("certs", &arguments_after("certs")),
+        cli::Command::Env(cmd) => env_cmd::run(cmd),
+        cli::Command::Config(cli::ConfigCommand::Show(source)) => {
+            let cfg =
+                mbpo_train::ExperimentConfig::resolve(source.config.as_deref(), &source.overrides)?;
+            write_stdout(format_args!("{}", cfg.to_toml()))
+        }
+        cli::Command::Eval(args) => {
+            let report =
+                mbpo_train::policy_file::evaluate_run(&args.run, args.episodes, args.seed)?;
+            out!("{}", serde_json::to_string(&report)?)?;
+            Ok(())
+        }
+        cli::Command::Plot(args) => {
+            let reference = (args.column == "eval_return")
+                .then(|| run_report::mbpo_paper_curve_of(&args.runs))
+                .flatten();
+            let curves = mbpo_report::plot_runs(
+                &args.runs,
+                &args.column,
+                &args.title,
+                &args.out,
+                reference.as_ref(),
+            )?;
+            let losses = mbpo_report::companion_path(&args.out, "losses");
+            let title = format!("{}: training losses", args.title);
+            let losses = mbpo_report::plot_losses(&args.runs, &title, &losses)?;
+            let table = args.out.with_extension("md");
+            let text =
+                mbpo_report::learning_table(&args.runs, args.table_every, reference.as_ref())?;
+            std::fs::write(&table, format!("### {}\n\n{text}", args.title))?;
+            out!(
+                "{}",
+                serde_json::json!({
+                    "plot": curves.out,
+                    "losses": losses.out,
+                    "table": table,
+                    "reference": reference.map(|r| r.label),
+                    "runs": args.runs.len(),
+                    "groups": curves.groups,
+                    "loss_panels_with_data": losses.panels_with_data,
+                })
+            )?;
+            Ok(())
+        }
+        cli::Command::Bench(cmd) => bench::run(cmd),
+        cli::Command::Docs(args) => docs_cmd::run(&args),
+        cli::Command::Chaos(args) => {
+            mbpo_bench::chaos::run(&args.plan()?, &mut |line| out!("{line}"))
+        }
+    }
+}
