@@ -20,7 +20,7 @@ from pathlib import Path
 from tensorboard.backend.event_processing import event_accumulator, plugin_event_accumulator
 from tensorboard.util import tensor_util
 
-# Must match TENSORBOARD_TAGS in common/train/src/run_dir.rs.
+# Must match TENSORBOARD_TAGS in common/rundir/src/run_dir.rs.
 TAGS = {
     "episodes": "train/episodes",
     "eval_return": "eval/return",

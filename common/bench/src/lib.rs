@@ -6,7 +6,9 @@
 //! critic and model held against the real environment, from a kept checkpoint),
 //! [`checkpoint_bench`] (what checkpointing costs the training loop), [`termination_bench`]
 //! (the learned termination rule against a task's exact one) and [`chaos`] (`mbpo run` under
-//! random SIGKILLs: what a user must be able to trust after them).
+//! random SIGKILLs: what a user must be able to trust after them); [`command`] is `mbpo
+//! bench`'s commands (their arguments and the micro-benchmarks' glue), [`stdout`] how every
+//! `mbpo` command prints.
 //!
 //! Must not hold what a run needs to train, resume or be read: nothing below depends on this
 //! crate, so a trainer never links a benchmark.
@@ -16,6 +18,8 @@
 pub mod breakdown;
 pub mod chaos;
 pub mod checkpoint_bench;
+pub mod command;
 pub mod diagnose;
 pub mod learning_bench;
+pub mod stdout;
 pub mod termination_bench;

@@ -5,17 +5,13 @@
 //! beside the program learn it from the run plan. `tests/tests/extension_points.rs` launches
 //! one with [`supervisor::launch`].
 
-/// `println!` that returns an error instead of panicking: piped into a reader that stops early
-/// (`mbpo bench gemm | head -1`), a command ends quietly rather than with a panic trace (see
-/// [`write_stdout`]).
+/// `println!` that returns an error instead of panicking (`mbpo_bench::out!`).
 macro_rules! out {
     ($($arg:tt)*) => {
-        crate::write_stdout(format_args!("{}\n", format_args!($($arg)*)))
+        mbpo_bench::out!($($arg)*)
     };
 }
 
-mod bench;
-mod bench_realtime;
 pub mod cli;
 mod docs_cmd;
 mod env_cmd;
@@ -25,6 +21,7 @@ pub mod supervisor;
 mod train_cmd;
 
 use clap::Parser;
+use mbpo_bench::stdout::{write_stdout, StdoutClosed};
 use std::process::ExitCode;
 
 /// The `mbpo` command: parse this process's command line, set up logging, run the command.
@@ -38,30 +35,6 @@ pub fn main() -> ExitCode {
             eprintln!("error: {}", mbpo_runtime::error_chain(err.as_ref()));
             ExitCode::FAILURE
         }
-    }
-}
-
-/// The reader of stdout went away (as `head` does once it has its lines): the output the
-/// command still had is unwanted, so it ends with success. Only a write to stdout reports this;
-/// a broken pipe anywhere else (a child process, the Python env bridge) stays an error.
-#[derive(Debug)]
-struct StdoutClosed;
-
-impl std::fmt::Display for StdoutClosed {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("stdout was closed by its reader")
-    }
-}
-
-impl std::error::Error for StdoutClosed {}
-
-/// Write to stdout; a closed pipe becomes [`StdoutClosed`], any other failure (a full disk)
-/// its own error.
-fn write_stdout(text: std::fmt::Arguments<'_>) -> anyhow::Result<()> {
-    use std::io::Write as _;
-    match std::io::stdout().lock().write_fmt(text) {
-        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Err(StdoutClosed.into()),
-        other => Ok(other?),
     }
 }
 
@@ -122,7 +95,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             )?;
             Ok(())
         }
-        cli::Command::Bench(cmd) => bench::run(cmd),
+        cli::Command::Bench(cmd) => mbpo_bench::command::run(cmd, train_cmd::bench_run),
         cli::Command::Docs(args) => docs_cmd::run(&args),
         cli::Command::Chaos(args) => {
             mbpo_bench::chaos::run(&args.plan()?, &mut |line| out!("{line}"))

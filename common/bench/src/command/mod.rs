@@ -1,25 +1,38 @@
-//! `mbpo bench ...`: micro-benchmarks printing one JSON object per line on stdout.
+//! `mbpo bench ...`: the benchmarks' commands, each printing one JSON object per line on
+//! stdout ([`args`] are their command-line arguments, [`realtime`] the paced-actor benchmark).
 
-use crate::cli::{BenchCommand, BenchTime, EnvBenchArgs};
+pub mod args;
+mod realtime;
+
+pub use args::*;
+
+use crate::out;
 use mbpo_core::rng::uniform_range_f32;
 use mbpo_envs::{make, ENV_IDS};
 use mbpo_nn::gemm::Op;
+use mbpo_train::{ExperimentConfig, Summary, TrainError};
 use serde_json::json;
+use std::path::Path;
 use std::time::{Duration, Instant};
 
-pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+/// One seed of `mbpo bench learning` into its run directory: `mbpo`'s resumable run (which
+/// also logs into the seed's own `logs/train.log`).
+pub type SeedRun = fn(&ExperimentConfig, &Path) -> Result<Summary, TrainError>;
+
+/// Run the benchmark `cmd`; `seed_run` runs one seed of a learning benchmark.
+pub fn run(cmd: BenchCommand, seed_run: SeedRun) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Gemm(t) => gemm(&t),
         BenchCommand::Env(args) => env(&args),
-        BenchCommand::Learning(args) => learning(&args),
+        BenchCommand::Learning(args) => learning(&args, seed_run),
         BenchCommand::Breakdown(args) => breakdown(&args),
         BenchCommand::Diagnose(args) => diagnose(&args),
         BenchCommand::Checkpoint(args) => checkpoint(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
-        BenchCommand::Realtime(args) => crate::bench_realtime::run(&args),
+        BenchCommand::Realtime(args) => realtime::run(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
-            let report = mbpo_bench::termination_bench::termination_benchmark(
+            let report = crate::termination_bench::termination_benchmark(
                 env,
                 args.train_steps,
                 args.test_steps,
@@ -171,7 +184,7 @@ fn pin_to_current_cpu() {
     }
 }
 
-fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
+fn learning(args: &LearningArgs, seed_run: SeedRun) -> anyhow::Result<()> {
     let mut cfg = mbpo_train::ExperimentConfig::resolve(Some(&args.config), &args.overrides)?;
     if let Some(s) = args.steps {
         cfg.steps = s;
@@ -191,12 +204,12 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         );
     }
     if !args.only_seeds.is_empty() {
-        let done = mbpo_bench::learning_bench::run_seeds(
+        let done = crate::learning_bench::run_seeds(
             &cfg,
             &args.only_seeds,
             args.threads,
             &args.out,
-            crate::train_cmd::bench_run,
+            seed_run,
             &args.budgets,
         )?;
         out!(
@@ -209,13 +222,13 @@ fn learning(args: &crate::cli::LearningArgs) -> anyhow::Result<()> {
         )?;
         return Ok(());
     }
-    let r = mbpo_bench::learning_bench::learning_benchmark_at(
+    let r = crate::learning_bench::learning_benchmark_at(
         &cfg,
         &name,
         &seeds,
         args.threads,
         &args.out,
-        crate::train_cmd::bench_run,
+        seed_run,
         &args.budgets,
     )?;
     out!(
@@ -251,8 +264,8 @@ fn mbpo_run_config(
     Ok(cfg)
 }
 
-fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
-    use mbpo_bench::breakdown::{breakdown_at, Projection};
+fn breakdown(args: &BreakdownArgs) -> anyhow::Result<()> {
+    use crate::breakdown::{breakdown_at, Projection};
     let cfg = mbpo_run_config(&args.run, &args.overrides, "breakdown")?;
     let mut points = Vec::new();
     let mut pipelines = Vec::new();
@@ -293,7 +306,7 @@ fn breakdown(args: &crate::cli::BreakdownArgs) -> anyhow::Result<()> {
 }
 
 /// `mbpo bench checkpoint`: one JSON line, and a summary line on stderr.
-fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
+fn checkpoint(args: &CheckpointBenchArgs) -> anyhow::Result<()> {
     let cfg = mbpo_run_config(&args.run, &[], "checkpoint benchmark")?;
     anyhow::ensure!(args.repeats > 0, "--repeats must be at least 1");
     let scratch = args.scratch.clone().unwrap_or_else(|| {
@@ -306,13 +319,8 @@ fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
         "{}: the scratch directory exists; remove it or pass another --scratch",
         scratch.display()
     );
-    let cost = mbpo_bench::checkpoint_bench::checkpoint_cost(
-        &cfg,
-        &args.run,
-        args.at,
-        args.repeats,
-        &scratch,
-    )?;
+    let cost =
+        crate::checkpoint_bench::checkpoint_cost(&cfg, &args.run, args.at, args.repeats, &scratch)?;
     eprintln!("{}", cost.summary_line());
     out!(
         "{}",
@@ -323,8 +331,8 @@ fn checkpoint(args: &crate::cli::CheckpointBenchArgs) -> anyhow::Result<()> {
 
 /// `mbpo bench diagnose`: one JSON line per checkpoint, a summary line each on stderr, and
 /// all of them in `<out>/diagnose-<run>.json`.
-fn diagnose(args: &crate::cli::DiagnoseArgs) -> anyhow::Result<()> {
-    use mbpo_bench::diagnose::diagnose_at;
+fn diagnose(args: &DiagnoseArgs) -> anyhow::Result<()> {
+    use crate::diagnose::diagnose_at;
     let cfg = mbpo_run_config(&args.run, &args.overrides, "diagnosis")?;
     let at = match args.at.is_empty() {
         true => mbpo_train::checkpoint::complete_steps(&args.run),
@@ -438,14 +446,14 @@ fn set_simd_levels(
     }
 }
 
-fn model_bench_config(r: &crate::cli::Repetitions) -> mbpo_model::bench::ModelBenchConfig {
+fn model_bench_config(r: &Repetitions) -> mbpo_model::bench::ModelBenchConfig {
     mbpo_model::bench::ModelBenchConfig {
         repetitions: r.repetitions,
         ..Default::default()
     }
 }
 
-fn plan_latency(args: &crate::cli::PlanLatencyArgs) -> anyhow::Result<()> {
+fn plan_latency(args: &PlanLatencyArgs) -> anyhow::Result<()> {
     use mbpo_plan::{PlannerConfig, PlannerKind};
     let kind: PlannerKind = serde_json::from_value(json!(args.planner)).map_err(|_| {
         anyhow::anyhow!(

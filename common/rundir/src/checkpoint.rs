@@ -2,7 +2,7 @@
 //!
 //! A run checkpoints into `<run>/checkpoints/<env steps, 10 digits>/`, one file per role
 //! (`actor-0`, `model-trainer`, `rollout-generator`, `learner`, `evaluator`), the run's book
-//! and, written last, `COMPLETE` (JSON: env steps and the files); [`crate::run_files`] defines
+//! and, written last, `COMPLETE` (JSON: env steps and the files); `mbpo_train::run_files` defines
 //! them, the same for `mbpo train` and `mbpo run` (MBPO, MPC). Only a directory with `COMPLETE` is
 //! ever resumed from, so a crash while checkpointing falls back to the previous one.
 //!
@@ -30,7 +30,7 @@ const MAGIC: &[u8; 8] = b"MBPOCKPT";
 /// actor's episode in progress is optional, for environments that cannot save their state, and
 /// the role files are one format for both commands, `run_files`; 4: an actor counts the episodes
 /// lost to an environment process that exited; 5: the learner's file may store D_model as the
-/// branches that made it, a field after all others, `crate::d_model_branches`).
+/// branches that made it, a field after all others, `mbpo_train::d_model_branches`).
 pub const FORMAT_VERSION: u32 = 5;
 
 /// The oldest format this build still reads: every file of format 4 is its format-5 payload

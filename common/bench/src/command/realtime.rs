@@ -11,7 +11,8 @@ use std::sync::Arc;
 use anyhow::Context;
 use serde_json::{json, Value};
 
-use crate::cli::RealtimeBenchArgs;
+use super::RealtimeBenchArgs;
+use crate::out;
 
 pub fn run(args: &RealtimeBenchArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)?;

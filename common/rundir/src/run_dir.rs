@@ -6,8 +6,8 @@
 //! Every row is also written as TensorBoard scalars (tags in [`TENSORBOARD_TAGS`], step =
 //! env steps), flushed at once, so `tensorboard --logdir runs` shows a run while it trains.
 
-use crate::config::ExperimentConfig;
 use crate::tensorboard::EventWriter;
+use mbpo_config::ExperimentConfig;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 use std::fs::File;
