@@ -221,18 +221,38 @@ impl<S: Transport> RealInbox<S> {
         // Rows received earlier that the role may see by now.
         self.take_upto(take_upto, sink);
         let mut n = 0;
-        // One borrow is kept free for the receive itself.
-        let hold = sub.max_borrowed().saturating_sub(1).max(1);
-        while sub.has_pending()? {
-            if self.held.len() >= hold {
-                self.spill_front();
-            }
-            let Some(b) = sub.receive()? else { break };
-            n += b.n_rows();
-            self.pending += b.n_rows();
-            self.received += b.n_rows() as u64;
-            self.held.push_back(b);
+        while let Some(rows) = self.receive_batch(sub)? {
+            n += rows;
             self.take_upto(take_upto, sink);
+        }
+        Ok(n)
+    }
+    /// Receive one pending batch of `sub` (its rows), spilling the oldest held one first when
+    /// the subscriber holds all it may (one borrow is kept free for the receive itself).
+    fn receive_batch(&mut self, sub: &TransitionSubscriber<S>) -> Result<Option<usize>> {
+        if !sub.has_pending()? {
+            return Ok(None);
+        }
+        if self.held.len() >= sub.max_borrowed().saturating_sub(1).max(1) {
+            self.spill_front();
+        }
+        let Some(b) = sub.receive()? else {
+            return Ok(None);
+        };
+        let rows = b.n_rows();
+        self.pending += rows;
+        self.received += rows as u64;
+        self.held.push_back(b);
+        Ok(Some(rows))
+    }
+    /// Receive every pending batch of `sub` and hand none out: a role busy with its data (a
+    /// model training) keeps what arrives meanwhile, copied out of shared memory beyond
+    /// `max_borrowed`, so an actor never blocks on it however long the work takes (a paced
+    /// actor must not). Returns the rows received.
+    pub fn receive(&mut self, sub: &TransitionSubscriber<S>) -> Result<usize> {
+        let mut n = 0;
+        while let Some(rows) = self.receive_batch(sub)? {
+            n += rows;
         }
         Ok(n)
     }
@@ -357,11 +377,20 @@ mod tests {
             assert_eq!(inbox.spilled(), 8, "11 waiting, 3 held");
             inbox.take(100, &mut d_env);
             assert_eq!((inbox.pending(), inbox.taken()), (0, 13));
+            // A consumer busy with its data (a model training) only receives: nothing is
+            // handed out, and what arrived is kept in order, out of the actors' way.
+            (13..53).for_each(|k| send_row(&tx, layout, k));
+            assert_eq!(inbox.receive(&rx).unwrap(), 40);
+            assert_eq!(
+                (inbox.pending(), inbox.taken(), inbox.spilled()),
+                (40, 13, 45)
+            );
+            inbox.take(100, &mut d_env);
             let snap = d_env.snapshot();
-            let want: Vec<f32> = (0..13).map(|k| k as f32).collect();
+            let want: Vec<f32> = (0..53).map(|k| k as f32).collect();
             assert_eq!(snap.slots.reward, want);
             assert_eq!(snap.slots.act, want);
-            let odd: Vec<f32> = (0..13).map(|k| (k % 2) as f32).collect();
+            let odd: Vec<f32> = (0..53).map(|k| (k % 2) as f32).collect();
             assert_eq!(snap.slots.terminated, odd);
         }
         let _ = run.remove_all::<local::Service>();

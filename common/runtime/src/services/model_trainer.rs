@@ -114,7 +114,15 @@ impl<S: Transport> Worker<S> for ModelTrainer<S> {
             t,
             version: version + 1,
         };
-        let trained = train(&mut self.role, abandon, cx.control, version, watch)?;
+        let arriving = (&cx.ports.real, &mut self.inbox);
+        let trained = train(
+            &mut self.role,
+            abandon,
+            cx.control,
+            version,
+            watch,
+            arriving,
+        )?;
         let Some((snapshot, report)) = trained else {
             // The loop serves the barrier next (a resumed run trains again) or stops.
             tracing::info!(
@@ -231,22 +239,26 @@ impl<S: Transport> ModelTrainer<S> {
 /// again, on at least as much data: pipelined runs train on whatever has arrived). A periodic
 /// barrier lets the training finish, since the run goes on with it; lockstep must hold every
 /// training of the train points ≤ T, and an MPC evaluator needs the model of every eval point
-/// ≤ T (`Barrier::take_cut`).
+/// ≤ T (`Barrier::take_cut`). Real transitions arriving meanwhile are received after every
+/// epoch into `arriving`'s inbox (not into the data being trained on): a training may last
+/// minutes, and the actors must not block on a full queue (a paced actor least of all).
 fn train<S: Transport>(
     role: &mut ModelTrainerRole,
     abandon_at_stop_barrier: bool,
     control: &ControlInbox<S>,
     done: u64,
     watch: Watch<'_, S>,
+    arriving: (&TransitionSubscriber<S>, &mut RealInbox<S>),
 ) -> Result<Option<(ModelSnapshot, TrainReport)>> {
     let mut poll_error = None;
     let mut last_shown = Instant::now();
+    let (real, inbox) = arriving;
     let trained = role.train_watched(|epoch| {
         if last_shown.elapsed() >= SHOW_TRAINING_EVERY {
             last_shown = Instant::now();
             watch.show(epoch);
         }
-        if let Err(e) = control.poll() {
+        if let Err(e) = control.poll().and_then(|()| inbox.receive(real).map(drop)) {
             poll_error = Some(e);
             return true;
         }

@@ -1,0 +1,247 @@
+//! TD-MPC2's element-wise pieces, forward and backward, on row-major batches:
+//!
+//! | piece | forward | backward (what the forward pass kept) |
+//! |---|---|---|
+//! | Mish | a = z·tanh(softplus(z)) | tanh(sp) + z·σ(z)·(1 − tanh²(sp)), from z |
+//! | LayerNorm | x̂ = (z − μ)/√(σ² + ε), y = γ·x̂ + β | dz = (g − mean(g) − x̂·mean(g·x̂)) / √(σ² + ε), g = γ·dy |
+//! | SimNorm | softmax within each group of `SIMNORM_GROUP` | dz = s ⊙ (dy − Σ_group dy·s) |
+//!
+//! (Hansen, Su, Wang, "TD-MPC2", ICLR 2024: every hidden layer is Linear → LayerNorm → Mish;
+//! the latent state is normalised by SimNorm, groups of 8.)
+
+/// LayerNorm's ε (PyTorch's default, as TD-MPC2 uses it).
+pub const LAYER_NORM_EPS: f32 = 1e-5;
+
+/// Width of a SimNorm group: the latent is a set of `dim / 8` simplices.
+pub const SIMNORM_GROUP: usize = 8;
+
+/// softplus(z) = ln(1 + eᶻ), exact for large |z| (PyTorch switches to z above 20).
+fn softplus(z: f32) -> f32 {
+    if z > 20.0 {
+        z
+    } else {
+        z.exp().ln_1p()
+    }
+}
+
+/// `a = mish(z)` element-wise.
+pub fn mish_forward(z: &[f32], a: &mut [f32]) {
+    for (a, &z) in a.iter_mut().zip(z) {
+        *a = z * softplus(z).tanh();
+    }
+}
+
+/// `dz = dy · mish'(z)` element-wise.
+pub fn mish_backward(z: &[f32], dy: &[f32], dz: &mut [f32]) {
+    for ((dz, &z), &dy) in dz.iter_mut().zip(z).zip(dy) {
+        let t = softplus(z).tanh();
+        let sigmoid = 1.0 / (1.0 + (-z).exp());
+        *dz = dy * (t + z * sigmoid * (1.0 - t * t));
+    }
+}
+
+/// Row-wise LayerNorm of `rows` rows of `z` (width `gamma.len()`) into `y`, keeping the
+/// normalised `x_hat` and each row's `inv_std` for the backward pass.
+pub fn layer_norm_forward(
+    z: &[f32],
+    gamma: &[f32],
+    beta: &[f32],
+    x_hat: &mut [f32],
+    inv_std: &mut [f32],
+    y: &mut [f32],
+) {
+    let n = gamma.len();
+    for (r, inv) in inv_std.iter_mut().enumerate() {
+        let row = &z[r * n..(r + 1) * n];
+        let mean = row.iter().sum::<f32>() / n as f32;
+        let var = row.iter().map(|v| (v - mean) * (v - mean)).sum::<f32>() / n as f32;
+        *inv = 1.0 / (var + LAYER_NORM_EPS).sqrt();
+        let (xh, out) = (&mut x_hat[r * n..(r + 1) * n], &mut y[r * n..(r + 1) * n]);
+        for j in 0..n {
+            xh[j] = (row[j] - mean) * *inv;
+            out[j] = gamma[j] * xh[j] + beta[j];
+        }
+    }
+}
+
+/// LayerNorm's backward pass, in place: `d` holds ∂L/∂y and receives ∂L/∂z; `dγ`, `dβ` are
+/// added into `d_affine` when given.
+pub fn layer_norm_backward(
+    x_hat: &[f32],
+    inv_std: &[f32],
+    gamma: &[f32],
+    d: &mut [f32],
+    mut d_affine: Option<(&mut [f32], &mut [f32])>,
+) {
+    let n = gamma.len();
+    for (r, &inv) in inv_std.iter().enumerate() {
+        let (xh, g_out) = (&x_hat[r * n..(r + 1) * n], &mut d[r * n..(r + 1) * n]);
+        if let Some((dg, db)) = d_affine.as_mut() {
+            for j in 0..n {
+                dg[j] += g_out[j] * xh[j];
+                db[j] += g_out[j];
+            }
+        }
+        let (mut mean_g, mut mean_gx) = (0.0f32, 0.0f32);
+        for j in 0..n {
+            let g = gamma[j] * g_out[j];
+            mean_g += g;
+            mean_gx += g * xh[j];
+        }
+        let (mean_g, mean_gx) = (mean_g / n as f32, mean_gx / n as f32);
+        // Each output reads only its own input and the row's means: in place is safe.
+        for j in 0..n {
+            g_out[j] = (gamma[j] * g_out[j] - mean_g - xh[j] * mean_gx) * inv;
+        }
+    }
+}
+
+/// SimNorm: `s` = softmax of each group of [`SIMNORM_GROUP`] consecutive values of `z`.
+pub fn simnorm_forward(z: &[f32], s: &mut [f32]) {
+    for (zg, sg) in z
+        .chunks_exact(SIMNORM_GROUP)
+        .zip(s.chunks_exact_mut(SIMNORM_GROUP))
+    {
+        let max = zg.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+        let mut sum = 0.0;
+        for (s, &z) in sg.iter_mut().zip(zg) {
+            *s = (z - max).exp();
+            sum += *s;
+        }
+        sg.iter_mut().for_each(|s| *s /= sum);
+    }
+}
+
+/// SimNorm's backward pass: `dz` from `dy` and the forward output `s`.
+pub fn simnorm_backward(s: &[f32], dy: &[f32], dz: &mut [f32]) {
+    for ((sg, dyg), dzg) in s
+        .chunks_exact(SIMNORM_GROUP)
+        .zip(dy.chunks_exact(SIMNORM_GROUP))
+        .zip(dz.chunks_exact_mut(SIMNORM_GROUP))
+    {
+        let dot: f32 = sg.iter().zip(dyg).map(|(s, d)| s * d).sum();
+        for ((dz, &s), &dy) in dzg.iter_mut().zip(sg).zip(dyg) {
+            *dz = s * (dy - dot);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central differences of `f` at `x` along each input, against `analytic` (∂(Σ w·f)/∂x).
+    fn check(x: &[f32], w: &[f32], f: &dyn Fn(&[f32]) -> Vec<f32>, analytic: &[f32]) {
+        let eps = 1e-2f32;
+        for i in 0..x.len() {
+            let at = |d: f32| {
+                let mut x = x.to_vec();
+                x[i] += d;
+                f(&x)
+                    .iter()
+                    .zip(w)
+                    .map(|(y, w)| (y * w) as f64)
+                    .sum::<f64>()
+            };
+            let numeric = (at(eps) - at(-eps)) / (2.0 * eps as f64);
+            let err = (analytic[i] as f64 - numeric).abs();
+            assert!(
+                err < 2e-3 + 1e-2 * numeric.abs(),
+                "input {i}: analytic {} numeric {numeric}",
+                analytic[i]
+            );
+        }
+    }
+
+    fn values(n: usize, seed: u32) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i as f32 + 1.0) * 0.37 * seed as f32).sin() * 2.5)
+            .collect()
+    }
+
+    #[test]
+    fn mish_matches_its_definition_and_its_derivative_finite_differences() {
+        let z = values(16, 1);
+        let mut a = vec![0.0; 16];
+        mish_forward(&z, &mut a);
+        for (&z, &a) in z.iter().zip(&a) {
+            let exact = z as f64 * (z as f64).exp().ln_1p().tanh();
+            assert!(
+                (a as f64 - exact).abs() < 1e-6,
+                "mish({z}) = {a}, not {exact}"
+            );
+        }
+        let w = values(16, 2);
+        let mut dz = vec![0.0; 16];
+        mish_backward(&z, &w, &mut dz);
+        let f = |z: &[f32]| {
+            let mut a = vec![0.0; z.len()];
+            mish_forward(z, &mut a);
+            a
+        };
+        check(&z, &w, &f, &dz);
+    }
+
+    #[test]
+    fn layer_norm_gradients_match_finite_differences() {
+        let (rows, n) = (3, 6);
+        let z = values(rows * n, 3);
+        let (gamma, beta) = (values(n, 4), values(n, 5));
+        let w = values(rows * n, 6);
+        let f = |z: &[f32]| {
+            let (mut xh, mut inv, mut y) =
+                (vec![0.0; rows * n], vec![0.0; rows], vec![0.0; rows * n]);
+            layer_norm_forward(z, &gamma, &beta, &mut xh, &mut inv, &mut y);
+            y
+        };
+        let y = f(&z);
+        for r in 0..rows {
+            let row: Vec<f32> = (0..n)
+                .map(|j| (y[r * n + j] - beta[j]) / gamma[j])
+                .collect();
+            let mean = row.iter().sum::<f32>() / n as f32;
+            assert!(mean.abs() < 1e-5, "a normalised row has mean 0, not {mean}");
+        }
+        let (mut xh, mut inv, mut out) =
+            (vec![0.0; rows * n], vec![0.0; rows], vec![0.0; rows * n]);
+        layer_norm_forward(&z, &gamma, &beta, &mut xh, &mut inv, &mut out);
+        let (mut dz, mut dg, mut db) = (w.clone(), vec![0.0; n], vec![0.0; n]);
+        layer_norm_backward(&xh, &inv, &gamma, &mut dz, Some((&mut dg, &mut db)));
+        check(&z, &w, &f, &dz);
+        // dγ and dβ: the same check with γ (then β) as the input.
+        let of_gamma = |g: &[f32]| {
+            let (mut xh, mut inv, mut y) =
+                (vec![0.0; rows * n], vec![0.0; rows], vec![0.0; rows * n]);
+            layer_norm_forward(&z, g, &beta, &mut xh, &mut inv, &mut y);
+            y
+        };
+        check(&gamma, &w, &of_gamma, &dg);
+        let of_beta = |b: &[f32]| {
+            let (mut xh, mut inv, mut y) =
+                (vec![0.0; rows * n], vec![0.0; rows], vec![0.0; rows * n]);
+            layer_norm_forward(&z, &gamma, b, &mut xh, &mut inv, &mut y);
+            y
+        };
+        check(&beta, &w, &of_beta, &db);
+    }
+
+    #[test]
+    fn simnorm_makes_simplices_and_its_gradient_matches_finite_differences() {
+        let z = values(2 * SIMNORM_GROUP, 7);
+        let mut s = vec![0.0; z.len()];
+        simnorm_forward(&z, &mut s);
+        for g in s.chunks_exact(SIMNORM_GROUP) {
+            assert!((g.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+            assert!(g.iter().all(|&v| v > 0.0));
+        }
+        let w = values(z.len(), 8);
+        let mut dz = vec![0.0; z.len()];
+        simnorm_backward(&s, &w, &mut dz);
+        let f = |z: &[f32]| {
+            let mut s = vec![0.0; z.len()];
+            simnorm_forward(z, &mut s);
+            s
+        };
+        check(&z, &w, &f, &dz);
+    }
+}

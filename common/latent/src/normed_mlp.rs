@@ -1,0 +1,428 @@
+//! TD-MPC2's network: every hidden layer is Linear → LayerNorm → Mish, and the output layer is
+//! a plain Linear (reward, Q and policy heads) or Linear → LayerNorm → SimNorm (the encoder and
+//! the latent dynamics, whose output is a latent state).
+//!
+//! Like `mbpo_nn::Mlp`, the network owns no numbers: its parameters are one `&[f32]` described
+//! by its [`ParamLayout`] (per layer `w` `in x out`, `b`, then `ln_g`, `ln_b` on normed layers),
+//! and a [`NormedCache`] keeps what a forward pass needs for its backward pass. The backward
+//! pass *adds* into the parameter gradient: the world model applies its dynamics once per step
+//! of the horizon, and the gradients of every application sum.
+
+use std::ops::Range;
+
+use mbpo_core::rng::{normal_f32, Rng};
+use mbpo_nn::gemm::{gemm, Op};
+use mbpo_nn::ParamLayout;
+
+use crate::elementwise::{
+    layer_norm_backward, layer_norm_forward, mish_backward, mish_forward, simnorm_backward,
+    simnorm_forward, SIMNORM_GROUP,
+};
+
+/// What the output layer is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Head {
+    /// A plain Linear layer (logits, a mean and log-std, a value).
+    Linear,
+    /// Linear → LayerNorm → SimNorm: a latent state (its width a multiple of the group).
+    SimNorm,
+}
+
+/// The parameter ranges of one layer.
+#[derive(Debug, Clone)]
+struct LayerParams {
+    w: Range<usize>,
+    b: Range<usize>,
+    /// LayerNorm's γ and β (every layer but a Linear head).
+    norm: Option<(Range<usize>, Range<usize>)>,
+}
+
+/// A TD-MPC2 network of widths `dims` (see the module docs).
+#[derive(Debug, Clone)]
+pub struct NormedMlp {
+    dims: Vec<usize>,
+    head: Head,
+    layers: Vec<LayerParams>,
+    layout: ParamLayout,
+}
+
+impl NormedMlp {
+    /// A network of widths `dims` (input, hidden..., output) with output layer `head`.
+    pub fn new(dims: &[usize], head: Head) -> Self {
+        assert!(
+            dims.len() >= 2,
+            "a network has an input and an output width"
+        );
+        if head == Head::SimNorm {
+            assert!(
+                dims[dims.len() - 1].is_multiple_of(SIMNORM_GROUP),
+                "a SimNorm output is a multiple of {SIMNORM_GROUP} wide"
+            );
+        }
+        let mut layout = ParamLayout::new();
+        let n = dims.len() - 1;
+        let layers = (0..n)
+            .map(|l| {
+                let (i, o) = (dims[l], dims[l + 1]);
+                let w = layout.push(format!("l{l}.w"), &[i, o]);
+                let b = layout.push(format!("l{l}.b"), &[o]);
+                let normed = l + 1 < n || head == Head::SimNorm;
+                let norm = normed.then(|| {
+                    let g = layout.push(format!("l{l}.ln_g"), &[o]);
+                    (g, layout.push(format!("l{l}.ln_b"), &[o]))
+                });
+                LayerParams { w, b, norm }
+            })
+            .collect();
+        Self {
+            dims: dims.to_vec(),
+            head,
+            layers,
+            layout,
+        }
+    }
+
+    /// Input width.
+    pub fn in_dim(&self) -> usize {
+        self.dims[0]
+    }
+    /// Output width.
+    pub fn out_dim(&self) -> usize {
+        self.dims[self.dims.len() - 1]
+    }
+    /// What its output layer is.
+    pub fn head(&self) -> Head {
+        self.head
+    }
+    /// Number of parameters.
+    pub fn num_params(&self) -> usize {
+        self.layout.len()
+    }
+    /// The parameter layout.
+    pub fn layout(&self) -> &ParamLayout {
+        &self.layout
+    }
+
+    /// TD-MPC2's initialisation: weights N(0, 0.02²) truncated at ±2σ, biases 0, LayerNorm
+    /// γ = 1 and β = 0; with `zero_output`, the output layer's weights 0 (its reward and Q
+    /// heads start at a value of exactly 0).
+    pub fn init(&self, params: &mut [f32], zero_output: bool, rng: &mut Rng) {
+        assert_eq!(params.len(), self.num_params());
+        let last = self.layers.len() - 1;
+        for (l, p) in self.layers.iter().enumerate() {
+            for w in &mut params[p.w.clone()] {
+                *w = match zero_output && l == last {
+                    true => 0.0,
+                    false => truncated_normal(rng) * 0.02,
+                };
+            }
+            params[p.b.clone()].fill(0.0);
+            if let Some((g, b)) = &p.norm {
+                params[g.clone()].fill(1.0);
+                params[b.clone()].fill(0.0);
+            }
+        }
+    }
+
+    /// Forward pass on `batch` rows of `x`; the output rows are in `cache`.
+    pub fn forward<'c>(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        batch: usize,
+        cache: &'c mut NormedCache,
+    ) -> &'c [f32] {
+        cache.ensure(self, batch);
+        let last = self.layers.len() - 1;
+        for (l, p) in self.layers.iter().enumerate() {
+            let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
+            let (done, todo) = cache.layers.split_at_mut(l);
+            let input = match l {
+                0 => &x[..batch * n_in],
+                _ => &done[l - 1].a[..batch * n_in],
+            };
+            let c = &mut todo[0];
+            let z = &mut c.z[..batch * n_out];
+            gemm(
+                z,
+                input,
+                Op::N,
+                &params[p.w.clone()],
+                Op::N,
+                batch,
+                n_in,
+                n_out,
+                false,
+            );
+            add_bias(z, &params[p.b.clone()]);
+            let Some((g, b)) = &p.norm else {
+                c.a[..batch * n_out].copy_from_slice(z);
+                continue;
+            };
+            let (gamma, beta) = (&params[g.clone()], &params[b.clone()]);
+            layer_norm_forward(
+                z,
+                gamma,
+                beta,
+                &mut c.x_hat,
+                &mut c.inv_std[..batch],
+                &mut c.y,
+            );
+            match l == last {
+                true => simnorm_forward(&c.y[..batch * n_out], &mut c.a[..batch * n_out]),
+                false => mish_forward(&c.y[..batch * n_out], &mut c.a[..batch * n_out]),
+            }
+        }
+        &cache.layers[last].a[..batch * self.out_dim()]
+    }
+
+    /// Backward pass of the last [`NormedMlp::forward`] with `cache` on `x`: `d_out` is
+    /// ∂L/∂y; ∂L/∂θ is **added** into `grads` and ∂L/∂x written into `d_input`, when given.
+    pub fn backward(
+        &self,
+        params: &[f32],
+        x: &[f32],
+        cache: &mut NormedCache,
+        d_out: &[f32],
+        mut grads: Option<&mut [f32]>,
+        d_input: Option<&mut [f32]>,
+    ) {
+        let batch = cache.batch;
+        let last = self.layers.len() - 1;
+        cache.d_a[..batch * self.out_dim()].copy_from_slice(&d_out[..batch * self.out_dim()]);
+        let mut d_input = d_input;
+        for (l, p) in self.layers.iter().enumerate().rev() {
+            let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
+            let rows = batch * n_out;
+            let NormedCache {
+                layers, d_a, d_y, ..
+            } = cache;
+            let c = &layers[l];
+            // ∂L/∂z into d_y: through the activation and the LayerNorm, or as it is.
+            if let Some((g, b)) = &p.norm {
+                match l == last {
+                    true => simnorm_backward(&c.a[..rows], &d_a[..rows], &mut d_y[..rows]),
+                    false => mish_backward(&c.y[..rows], &d_a[..rows], &mut d_y[..rows]),
+                }
+                let affine = grads.as_deref_mut().map(|gr| {
+                    let (lo, hi) = gr.split_at_mut(b.start);
+                    (&mut lo[g.clone()], &mut hi[..b.len()])
+                });
+                let gamma = &params[g.clone()];
+                let (x_hat, inv_std) = (&c.x_hat[..rows], &c.inv_std[..batch]);
+                layer_norm_backward(x_hat, inv_std, gamma, &mut d_y[..rows], affine);
+            } else {
+                d_y[..rows].copy_from_slice(&d_a[..rows]);
+            }
+            let dz = &d_y[..rows];
+            let input = match l {
+                0 => &x[..batch * n_in],
+                _ => &layers[l - 1].a[..batch * n_in],
+            };
+            if let Some(gr) = grads.as_deref_mut() {
+                gemm(
+                    &mut gr[p.w.clone()],
+                    input,
+                    Op::T,
+                    dz,
+                    Op::N,
+                    n_in,
+                    batch,
+                    n_out,
+                    true,
+                );
+                let gb = &mut gr[p.b.clone()];
+                for row in dz.chunks_exact(n_out) {
+                    gb.iter_mut().zip(row).for_each(|(g, d)| *g += d);
+                }
+            }
+            let w = &params[p.w.clone()];
+            match l {
+                0 => {
+                    if let Some(out) = d_input.as_deref_mut() {
+                        gemm(
+                            &mut out[..batch * n_in],
+                            dz,
+                            Op::N,
+                            w,
+                            Op::T,
+                            batch,
+                            n_out,
+                            n_in,
+                            false,
+                        );
+                    }
+                }
+                _ => gemm(
+                    &mut d_a[..batch * n_in],
+                    dz,
+                    Op::N,
+                    w,
+                    Op::T,
+                    batch,
+                    n_out,
+                    n_in,
+                    false,
+                ),
+            }
+        }
+    }
+}
+
+fn add_bias(z: &mut [f32], bias: &[f32]) {
+    for row in z.chunks_exact_mut(bias.len()) {
+        row.iter_mut().zip(bias).for_each(|(z, b)| *z += b);
+    }
+}
+
+/// N(0, 1) truncated to [−2, 2] by redrawing (PyTorch's `trunc_normal_` bounds).
+fn truncated_normal(rng: &mut Rng) -> f32 {
+    loop {
+        let v = normal_f32(rng);
+        if v.abs() <= 2.0 {
+            return v;
+        }
+    }
+}
+
+/// One layer's activations.
+#[derive(Debug, Clone, Default)]
+struct LayerCache {
+    z: Vec<f32>,
+    x_hat: Vec<f32>,
+    inv_std: Vec<f32>,
+    y: Vec<f32>,
+    a: Vec<f32>,
+}
+
+/// What a forward pass keeps for its backward pass, sized for a batch once.
+#[derive(Debug, Clone, Default)]
+pub struct NormedCache {
+    batch: usize,
+    layers: Vec<LayerCache>,
+    /// ∂L/∂a of the layer being passed back through (the widest layer's size).
+    d_a: Vec<f32>,
+    /// ∂L/∂y, then ∂L/∂z, of that layer.
+    d_y: Vec<f32>,
+}
+
+impl NormedCache {
+    /// A cache for `batch` rows of `net`.
+    pub fn new(net: &NormedMlp, batch: usize) -> Self {
+        let mut c = Self::default();
+        c.ensure(net, batch);
+        c
+    }
+
+    fn ensure(&mut self, net: &NormedMlp, batch: usize) {
+        self.batch = batch;
+        let widest = net.dims.iter().copied().max().unwrap_or(0) * batch;
+        if self.layers.len() == net.layers.len() && self.d_a.len() >= widest {
+            return;
+        }
+        self.layers = net.dims[1..]
+            .iter()
+            .map(|&o| LayerCache {
+                z: vec![0.0; batch * o],
+                x_hat: vec![0.0; batch * o],
+                inv_std: vec![0.0; batch],
+                y: vec![0.0; batch * o],
+                a: vec![0.0; batch * o],
+            })
+            .collect();
+        self.d_a = vec![0.0; widest];
+        self.d_y = vec![0.0; widest];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mbpo_core::rng::stream;
+
+    /// ∂(Σ w·net(x))/∂θ and ∂/∂x against central differences.
+    fn check(net: &NormedMlp, batch: usize) {
+        let mut rng = stream(3, "test.normed", 0);
+        let mut params = vec![0.0; net.num_params()];
+        net.init(&mut params, false, &mut rng);
+        // Larger weights than the init's 0.02 so every path carries a visible gradient.
+        for (i, p) in params.iter_mut().enumerate() {
+            *p += 0.3 * ((i as f32) * 0.91).sin();
+        }
+        let x: Vec<f32> = (0..batch * net.in_dim())
+            .map(|i| (i as f32 * 0.53).cos())
+            .collect();
+        let w: Vec<f32> = (0..batch * net.out_dim())
+            .map(|i| (i as f32 * 0.29).sin())
+            .collect();
+        let mut cache = NormedCache::new(net, batch);
+        let loss = |p: &[f32], x: &[f32], c: &mut NormedCache| -> f64 {
+            let y = net.forward(p, x, batch, c);
+            y.iter().zip(&w).map(|(y, w)| (y * w) as f64).sum()
+        };
+        loss(&params, &x, &mut cache);
+        let mut grads = vec![0.0; net.num_params()];
+        let mut dx = vec![0.0; x.len()];
+        net.backward(&params, &x, &mut cache, &w, Some(&mut grads), Some(&mut dx));
+        let eps = 2e-3f32;
+        let mut worst = 0.0f64;
+        for i in 0..params.len() {
+            let mut p = params.clone();
+            p[i] += eps;
+            let up = loss(&p, &x, &mut cache);
+            p[i] -= 2.0 * eps;
+            let down = loss(&p, &x, &mut cache);
+            let numeric = (up - down) / (2.0 * eps as f64);
+            let err = (grads[i] as f64 - numeric).abs() / (1e-2 + numeric.abs());
+            worst = worst.max(err);
+            assert!(
+                err < 5e-2,
+                "{} param {i}: analytic {} numeric {numeric}",
+                net.layout.describe().len(),
+                grads[i]
+            );
+        }
+        for i in 0..x.len() {
+            let mut xp = x.clone();
+            xp[i] += eps;
+            let up = loss(&params, &xp, &mut cache);
+            xp[i] -= 2.0 * eps;
+            let down = loss(&params, &xp, &mut cache);
+            let numeric = (up - down) / (2.0 * eps as f64);
+            assert!(
+                (dx[i] as f64 - numeric).abs() < 1e-2 + 5e-2 * numeric.abs(),
+                "input {i}: {} vs {numeric}",
+                dx[i]
+            );
+        }
+        assert!(worst < 5e-2);
+    }
+
+    #[test]
+    fn gradients_of_a_linear_head_match_finite_differences() {
+        check(&NormedMlp::new(&[5, 12, 9, 3], Head::Linear), 4);
+    }
+
+    #[test]
+    fn gradients_of_a_simnorm_head_match_finite_differences() {
+        check(&NormedMlp::new(&[6, 10, 16], Head::SimNorm), 3);
+    }
+
+    #[test]
+    fn a_backward_pass_adds_to_the_gradient() {
+        let net = NormedMlp::new(&[3, 8, 2], Head::Linear);
+        let mut params = vec![0.0; net.num_params()];
+        net.init(&mut params, false, &mut stream(1, "test.normed", 1));
+        let x = [0.1, -0.4, 0.7, 0.2, 0.0, -0.3];
+        let d = [1.0, -1.0, 0.5, 0.25];
+        let mut cache = NormedCache::new(&net, 2);
+        net.forward(&params, &x, 2, &mut cache);
+        let mut once = vec![0.0; net.num_params()];
+        net.backward(&params, &x, &mut cache, &d, Some(&mut once), None);
+        let mut twice = once.clone();
+        net.backward(&params, &x, &mut cache, &d, Some(&mut twice), None);
+        for (a, b) in once.iter().zip(&twice) {
+            assert!((2.0 * a - b).abs() <= 1e-6 * a.abs().max(1.0));
+        }
+    }
+}
