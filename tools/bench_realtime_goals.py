@@ -10,9 +10,10 @@ Cases:
                   tools/step_clock_env.py, which records time.monotonic_ns() at each step):
                   |interval - 20 ms| by the env's own clock, intervals across a reset left out.
                   The learner, model trainer and rollout generator learn on the other core all
-                  along (`catch_up = "never"`, G = 10).
+                  along (`catch_up = "never"`, G = 2: the updates it owes when the actor
+                  is done are few).
   builtin-500hz   50k steps at 500 Hz with the built-in Pendulum (`catch_up = "never"`, G = 1, a
-                  model every 5000 steps): the actor's own step-interval figures.
+                  model every 25000 steps of at most 50 epochs): the actor's own figures.
   sequential      `mbpo train`, 3000 steps: the reference of the next three.
   paced-50hz      50 Hz, `catch_up = "between_episodes"`, 3000 steps: env steps to -200.
   never-50hz      50 Hz, `catch_up = "never"`, 3000 steps: wall-clock to -200.
@@ -106,7 +107,7 @@ def env_clock_50hz(case):
     tools = os.path.join(ROOT, "tools")
     run = mbpo("run", case, 10_000, 'env="gym:step_clock_env:make"', f'gym.path=["{tools}"]',
                f'gym.kwargs={{env_id="Pendulum-v1", out="{clock}"}}', 'actor.catch_up="never"',
-               "mbpo.updates_per_step=10", "eval.every=1000", extra=["--control-hz", "50"])
+               "mbpo.updates_per_step=2", "eval.every=1000", extra=["--control-hz", "50"])
     env = subprocess.run([sys.executable, os.path.join(tools, "step_clock.py"), clock, "--hz", "50"],
                          capture_output=True, text=True, check=True).stdout
     return {**figures(run), "env_clock": json.loads(env)}
@@ -114,7 +115,8 @@ def env_clock_50hz(case):
 
 def builtin_500hz(case):
     run = mbpo("run", case, 50_000, 'actor.catch_up="never"', "mbpo.updates_per_step=1",
-               "mbpo.model_train_freq=5000", "eval.every=10000", extra=["--control-hz", "500"])
+               "mbpo.model_train_freq=25000", "model.max_epochs=50", "eval.every=25000",
+               extra=["--control-hz", "500"])
     return figures(run)
 
 

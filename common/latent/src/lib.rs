@@ -8,6 +8,7 @@
 //! * [`elementwise`]: Mish, LayerNorm and SimNorm, forward and backward.
 //! * [`normed_mlp`]: the network every part is made of (Linear → LayerNorm → Mish layers; a
 //!   Linear or SimNorm output).
+//! * [`policy`]: the policy prior: sampling, the TD targets, the policy loss.
 //! * [`two_hot`]: symlog, two-hot encodings and their cross-entropy (rewards and values).
 //! * [`world_model`]: the encoder, dynamics, reward, Q and policy networks in one parameter
 //!   vector, and the loss of a sampled subsequence (consistency, reward, value) with its
@@ -19,6 +20,7 @@
 
 pub mod elementwise;
 pub mod normed_mlp;
+pub mod policy;
 pub mod two_hot;
 pub mod world_model;
 

@@ -173,6 +173,27 @@ impl WorldModel {
         self.policy.init(&mut params[r.policy.clone()], false, rng);
     }
 
+    /// Observation width.
+    pub fn obs_dim(&self) -> usize {
+        self.obs
+    }
+    /// Action width.
+    pub fn act_dim(&self) -> usize {
+        self.act
+    }
+    /// The policy's parameters within the model's vector.
+    pub fn policy_range(&self) -> Range<usize> {
+        self.ranges.policy.clone()
+    }
+    /// Q head `k`'s parameters within the model's vector.
+    pub fn q_head_range(&self, k: usize) -> Range<usize> {
+        self.ranges.q[k].clone()
+    }
+    /// The latents z₀..z_H of the last loss evaluation ((H+1) x B x latent, time-major): the
+    /// policy loss's inputs, detached.
+    pub fn rolled_latents<'w>(&self, ws: &'w LossWorkspace) -> &'w [f32] {
+        &ws.zs
+    }
     /// The Q heads' parameters within the model's vector (what the target copies track).
     pub fn q_range(&self) -> Range<usize> {
         self.ranges.q[0].start..self.ranges.q[self.cfg.q_heads - 1].end
