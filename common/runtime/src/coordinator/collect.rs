@@ -474,11 +474,29 @@ impl Collector {
     pub fn show_progress(&self, progress: &mut Progress) {
         let (steps, updates, model) = self.book.progress;
         progress.set_model_version(model);
-        progress.set_activity(self.training_note());
+        let notes = [self.acting_note(), self.training_note()];
+        let notes: Vec<String> = notes.into_iter().flatten().collect();
+        progress.set_activity((!notes.is_empty()).then(|| notes.join("; ")));
         if let Some(r) = self.book.last_eval {
             progress.set_eval(r);
         }
         progress.update(steps, updates);
+    }
+
+    /// How far paced actors that never wait (`actor.catch_up = "never"`) have acted, when it
+    /// is past what the learner consumed: the progress line counts consumed steps, and
+    /// without this a user would see "0.0 env steps/s" while the actors step on the clock.
+    fn acting_note(&self) -> Option<String> {
+        let acts_freely = self.cfg.actor.control_hz > 0.0
+            && self.cfg.actor.catch_up == mbpo_train::CatchUp::Never;
+        let acted = self.book.episodes.iter().map(|&(t, _)| t).max()?;
+        (acts_freely && acted > self.book.progress.0).then(|| match self.all_actors_done() {
+            true => format!(
+                "the actors are done ({} steps), the learner catches up",
+                self.cfg.steps
+            ),
+            false => format!("the actors at step {acted}"),
+        })
     }
 
     /// The model training under way, in words, and whether the learner waits for it (its

@@ -190,7 +190,7 @@ impl<S: Transport> RolloutGenerator<S> {
     fn branch(&mut self, cx: &RolloutCx<'_, S>, t: u64) -> Result<()> {
         let epoch = cx.s.schedule.train_point(t).expect("a train point");
         let started = Instant::now();
-        let batch = self.role.branch(epoch)?;
+        let batch = branch_receiving(&mut self.role, epoch, &cx.ports.real, &mut self.inbox)?;
         let seconds = started.elapsed().as_secs_f64();
         cx.stats.report(RolloutBranch {
             env_steps: t - 1,
@@ -218,3 +218,38 @@ impl<S: Transport> RolloutGenerator<S> {
         Ok(())
     }
 }
+
+/// The branch of train point epoch `epoch`, computed on a thread of its own while this one
+/// receives the real transitions arriving meanwhile into `inbox` (not into the data the branch
+/// reads): a branch of M · model_train_freq rollouts can take many seconds, and the actors
+/// must not block on a full real queue meanwhile (a paced actor least of all). The branch is
+/// the same computation as on this thread, so its bits do not change.
+fn branch_receiving<S: Transport>(
+    role: &mut RolloutRole,
+    epoch: usize,
+    real: &TransitionSubscriber<S>,
+    inbox: &mut RealInbox<S>,
+) -> Result<mbpo_train::roles::ImaginedBatch> {
+    std::thread::scope(|scope| {
+        let work = std::thread::Builder::new()
+            .name("branch".into())
+            .spawn_scoped(scope, || role.branch(epoch))
+            .map_err(|e| RuntimeError::protocol(format!("starting the branch's thread: {e}")))?;
+        let mut received = Ok(());
+        while !work.is_finished() {
+            if received.is_ok() {
+                received = inbox.receive(real).map(drop);
+            }
+            // A queue of 1024 transitions lasts 2 s at 500 Hz: a millisecond's sleep between
+            // looks is far inside that, and costs nothing next to the branch.
+            std::thread::sleep(RECEIVE_EVERY);
+        }
+        let batch = work
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))?;
+        received.map(|()| batch)
+    })
+}
+
+/// How often a branch under way looks for real transitions.
+const RECEIVE_EVERY: Duration = Duration::from_millis(1);
