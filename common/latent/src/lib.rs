@@ -10,6 +10,7 @@
 //!   Linear or SimNorm output).
 //! * [`policy`]: the policy prior: sampling, the TD targets, the policy loss.
 //! * [`two_hot`]: symlog, two-hot encodings and their cross-entropy (rewards and values).
+//! * [`update`]: one TD-MPC2 update (targets, the model's and the policy's Adam steps, Polyak).
 //! * [`world_model`]: the encoder, dynamics, reward, Q and policy networks in one parameter
 //!   vector, and the loss of a sampled subsequence (consistency, reward, value) with its
 //!   gradient.
@@ -22,6 +23,7 @@ pub mod elementwise;
 pub mod normed_mlp;
 pub mod policy;
 pub mod two_hot;
+pub mod update;
 pub mod world_model;
 
 pub use normed_mlp::{Head, NormedCache, NormedMlp};

@@ -69,6 +69,14 @@ impl PolicyWorkspace {
     }
 }
 
+impl PolicyWorkspace {
+    /// The Q values (the mean of the two heads) of the last [`WorldModel::policy_loss`], per
+    /// row: what the running scale of Q follows.
+    pub fn q_values(&self) -> &[f32] {
+        &self.q_value
+    }
+}
+
 /// log σ of a raw output, and ∂ log σ / ∂ raw.
 fn log_std(raw: f32) -> (f32, f32) {
     let t = raw.tanh();
@@ -193,6 +201,12 @@ impl WorldModel {
                     &mut ws.d_logits[rows.clone()],
                 );
                 loss -= (w * 0.5 * q / q_scale) as f64;
+                // The mean of the two heads' values, for the running scale.
+                ws.q_value[r] = if k == 0 {
+                    0.5 * q
+                } else {
+                    ws.q_value[r] + 0.5 * q
+                };
                 // ∂L/∂Q of this head: −w / (2 S).
                 ws.d_logits[rows]
                     .iter_mut()

@@ -181,6 +181,15 @@ impl WorldModel {
     pub fn act_dim(&self) -> usize {
         self.act
     }
+    /// The encoder's parameters within the model's vector (the first).
+    pub fn encoder_range(&self) -> Range<usize> {
+        self.ranges.encoder.clone()
+    }
+    /// The latent targets sg(h(o₁..o_H)) of the last [`WorldModel::encode_targets`]
+    /// (H x B x latent).
+    pub fn latent_targets<'w>(&self, ws: &'w LossWorkspace) -> &'w [f32] {
+        &ws.next_z
+    }
     /// The policy's parameters within the model's vector.
     pub fn policy_range(&self) -> Range<usize> {
         self.ranges.policy.clone()
