@@ -237,33 +237,14 @@ impl NormedMlp {
                 }
             }
             let w = &params[p.w.clone()];
-            match l {
-                0 => {
-                    if let Some(out) = d_input.as_deref_mut() {
-                        gemm(
-                            &mut out[..batch * n_in],
-                            dz,
-                            Op::N,
-                            w,
-                            Op::T,
-                            batch,
-                            n_out,
-                            n_in,
-                            false,
-                        );
-                    }
-                }
-                _ => gemm(
-                    &mut d_a[..batch * n_in],
-                    dz,
-                    Op::N,
-                    w,
-                    Op::T,
-                    batch,
-                    n_out,
-                    n_in,
-                    false,
-                ),
+            // ∂L/∂x for the caller on the first layer, ∂L/∂a of the layer below otherwise.
+            let below = match l {
+                0 => d_input.as_deref_mut(),
+                _ => Some(&mut d_a[..]),
+            };
+            if let Some(out) = below {
+                let out = &mut out[..batch * n_in];
+                gemm(out, dz, Op::N, w, Op::T, batch, n_out, n_in, false);
             }
         }
     }

@@ -14,7 +14,7 @@
 
 use crate::normed_mlp::NormedCache;
 use crate::two_hot::TwoHot;
-use crate::world_model::WorldModel;
+use crate::world_model::{concat_rows, WorldModel};
 
 /// log σ's bounds (TD-MPC2's `log_std_min`, `log_std_max`).
 pub const LOG_STD_MIN: f32 = -10.0;
@@ -153,7 +153,7 @@ impl WorldModel {
     ) {
         self.sample_policy(params, next_z, eps, ws);
         let (z, a, bins) = (self.cfg.latent, self.act_dim(), self.cfg.two_hot.bins);
-        concat(next_z, z, &ws.act, a, &mut ws.za);
+        concat_rows(next_z, z, &ws.act, a, &mut ws.za);
         for (k, &head) in heads.iter().enumerate() {
             let p = &target_q[self.q_head_range(head)];
             let logits = self.q.forward(p, &ws.za, ws.rows, &mut ws.q[k]);
@@ -186,7 +186,7 @@ impl WorldModel {
         let (z, a, bins) = (self.cfg.latent, self.act_dim(), self.cfg.two_hot.bins);
         let steps = self.cfg.horizon + 1;
         let batch = ws.rows / steps;
-        concat(zs, z, &ws.act, a, &mut ws.za);
+        concat_rows(zs, z, &ws.act, a, &mut ws.za);
         ws.d_act.fill(0.0);
         let mut loss = 0.0f64;
         for (k, &head) in heads.iter().enumerate() {
@@ -266,36 +266,13 @@ impl WorldModel {
     }
 }
 
-/// Concatenate rows of `x` (width `nx`) and `y` (width `ny`) into `out`.
-fn concat(x: &[f32], nx: usize, y: &[f32], ny: usize, out: &mut [f32]) {
-    for ((o, x), y) in out
-        .chunks_exact_mut(nx + ny)
-        .zip(x.chunks_exact(nx))
-        .zip(y.chunks_exact(ny))
-    {
-        o[..nx].copy_from_slice(x);
-        o[nx..].copy_from_slice(y);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::world_model::WorldModelConfig;
     use mbpo_core::rng::{normal_f32, stream};
 
     fn small() -> (WorldModel, Vec<f32>) {
-        let cfg = WorldModelConfig {
-            latent: 16,
-            encoder_hidden: 10,
-            hidden: 12,
-            two_hot: TwoHot {
-                bins: 11,
-                v_min: -3.0,
-                v_max: 3.0,
-            },
-            ..Default::default()
-        };
+        let cfg = crate::world_model::tests::small_config();
         let model = WorldModel::new(3, 2, cfg);
         let mut params = vec![0.0; model.num_params()];
         model.init(&mut params, &mut stream(4, "test.pi", 0));

@@ -497,7 +497,7 @@ fn add_latent_part(d_za: &[f32], latent: usize, d_z: &mut [f32]) {
 }
 
 /// Concatenate rows of `x` (width `nx`) and `y` (width `ny`) into `out`.
-fn concat_rows(x: &[f32], nx: usize, y: &[f32], ny: usize, out: &mut [f32]) {
+pub(crate) fn concat_rows(x: &[f32], nx: usize, y: &[f32], ny: usize, out: &mut [f32]) {
     for ((o, x), y) in out
         .chunks_exact_mut(nx + ny)
         .zip(x.chunks_exact(nx))
@@ -509,12 +509,13 @@ fn concat_rows(x: &[f32], nx: usize, y: &[f32], ny: usize, out: &mut [f32]) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use mbpo_core::rng::{normal_f32, stream};
 
-    fn small() -> (WorldModel, Sequences, Vec<f32>) {
-        let cfg = WorldModelConfig {
+    /// A world model small enough to check every parameter by finite differences.
+    pub(crate) fn small_config() -> WorldModelConfig {
+        WorldModelConfig {
             latent: 16,
             encoder_hidden: 10,
             hidden: 12,
@@ -525,9 +526,12 @@ mod tests {
                 v_max: 3.0,
             },
             ..Default::default()
-        };
+        }
+    }
+
+    fn small() -> (WorldModel, Sequences, Vec<f32>) {
         let (obs, act, batch) = (3, 2, 4);
-        let model = WorldModel::new(obs, act, cfg);
+        let model = WorldModel::new(obs, act, small_config());
         let h = model.cfg.horizon;
         let mut g = stream(5, "test.seq", 0);
         let mut draw = |n: usize| (0..n).map(|_| normal_f32(&mut g)).collect::<Vec<f32>>();
