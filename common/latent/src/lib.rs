@@ -9,6 +9,7 @@
 //! * [`normed_mlp`]: the network every part is made of (Linear → LayerNorm → Mish layers; a
 //!   Linear or SimNorm output).
 //! * [`policy`]: the policy prior: sampling, the TD targets, the policy loss.
+//! * [`replay`]: real transitions as episodes, sampled as H-step subsequences inside one.
 //! * [`two_hot`]: symlog, two-hot encodings and their cross-entropy (rewards and values).
 //! * [`update`]: one TD-MPC2 update (targets, the model's and the policy's Adam steps, Polyak).
 //! * [`world_model`]: the encoder, dynamics, reward, Q and policy networks in one parameter
@@ -22,10 +23,12 @@
 pub mod elementwise;
 pub mod normed_mlp;
 pub mod policy;
+pub mod replay;
 pub mod two_hot;
 pub mod update;
 pub mod world_model;
 
 pub use normed_mlp::{Head, NormedCache, NormedMlp};
+pub use replay::EpisodeBuffer;
 pub use two_hot::{symexp, symlog, TwoHot};
 pub use world_model::{LossWorkspace, Losses, Sequences, WorldModel, WorldModelConfig};
