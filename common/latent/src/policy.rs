@@ -92,7 +92,7 @@ fn decode_with_gradient(two_hot: &TwoHot, logits: &[f32], d_logits: &mut [f32]) 
     let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
     let mut sum = 0.0f32;
     for (d, &l) in d_logits.iter_mut().zip(logits) {
-        *d = (l - max).exp();
+        *d = mbpo_nn::math::exp_neg_f32(max - l);
         sum += *d;
     }
     let bin = |i: usize| {

@@ -4,6 +4,8 @@
 //! distance -- and a head's logits are trained by cross-entropy against it. The head's scalar
 //! is symexp of the expected bin under softmax(logits). One scale fits every task's rewards.
 
+use mbpo_nn::math::exp_neg_f32;
+
 /// symlog(x) = sign(x)·ln(1 + |x|).
 pub fn symlog(x: f32) -> f32 {
     x.signum() * x.abs().ln_1p()
@@ -56,7 +58,7 @@ impl TwoHot {
         let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         let (mut sum, mut weighted) = (0.0f32, 0.0f32);
         for (i, &l) in logits.iter().enumerate() {
-            let p = (l - max).exp();
+            let p = exp_neg_f32(max - l);
             sum += p;
             weighted += p * (self.v_min + i as f32 * self.bin_size());
         }
@@ -68,7 +70,12 @@ impl TwoHot {
     pub fn cross_entropy(&self, logits: &[f32], target: f32, d_logits: &mut [f32]) -> f32 {
         self.encode(target, d_logits);
         let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-        let log_sum = logits.iter().map(|&l| (l - max).exp()).sum::<f32>().ln() + max;
+        let log_sum = logits
+            .iter()
+            .map(|&l| exp_neg_f32(max - l))
+            .sum::<f32>()
+            .ln()
+            + max;
         let mut loss = 0.0;
         for (d, &l) in d_logits.iter_mut().zip(logits) {
             let log_p = l - log_sum;
