@@ -6,6 +6,7 @@
 //!
 //! This crate holds the world model's pieces, each checked against finite differences:
 //! * [`elementwise`]: Mish, LayerNorm and SimNorm, forward and backward.
+//! * [`mppi`]: the planner, MPPI over latent action sequences with the value at the horizon.
 //! * [`normed_mlp`]: the network every part is made of (Linear → LayerNorm → Mish layers; a
 //!   Linear or SimNorm output).
 //! * [`policy`]: the policy prior: sampling, the TD targets, the policy loss.
@@ -21,6 +22,7 @@
 #![warn(missing_docs)]
 
 pub mod elementwise;
+pub mod mppi;
 pub mod normed_mlp;
 pub mod policy;
 pub mod replay;

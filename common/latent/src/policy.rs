@@ -115,14 +115,27 @@ impl WorldModel {
     /// Actions a ~ π(· | z) for `ws.rows` latents `z` with noise `eps` (rows x act) into
     /// `ws.act`, and log π(a) into `ws.log_pi`.
     pub fn sample_policy(&self, params: &[f32], z: &[f32], eps: &[f32], ws: &mut PolicyWorkspace) {
+        self.sample_policy_rows(params, z, eps, ws.rows, ws);
+    }
+
+    /// [`WorldModel::sample_policy`] for the first `rows` latents (at most the workspace's);
+    /// returns their actions (rows x act).
+    pub fn sample_policy_rows<'w>(
+        &self,
+        params: &[f32],
+        z: &[f32],
+        eps: &[f32],
+        rows: usize,
+        ws: &'w mut PolicyWorkspace,
+    ) -> &'w [f32] {
         let a = self.act_dim();
         let out = self
             .policy
-            .forward(&params[self.policy_range()], z, ws.rows, &mut ws.policy);
-        ws.policy_out.copy_from_slice(out);
+            .forward(&params[self.policy_range()], z, rows, &mut ws.policy);
+        ws.policy_out[..rows * 2 * a].copy_from_slice(out);
         let out = &ws.policy_out;
         let norm = -0.5 * (2.0 * std::f32::consts::PI).ln();
-        for r in 0..ws.rows {
+        for r in 0..rows {
             let (mu, raw) = out[r * 2 * a..(r + 1) * 2 * a].split_at(a);
             let mut log_pi = 0.0;
             for j in 0..a {
@@ -134,6 +147,7 @@ impl WorldModel {
             }
             ws.log_pi[r] = log_pi;
         }
+        &ws.act[..rows * a]
     }
 
     /// The TD targets q_t = r_t + γ · min of the two Q heads `heads` of `target_q` (the target

@@ -190,6 +190,14 @@ impl WorldModel {
     pub fn latent_targets<'w>(&self, ws: &'w LossWorkspace) -> &'w [f32] {
         &ws.next_z
     }
+    /// The dynamics' parameters within the model's vector.
+    pub fn dynamics_range(&self) -> Range<usize> {
+        self.ranges.dynamics.clone()
+    }
+    /// The reward head's parameters within the model's vector.
+    pub fn reward_range(&self) -> Range<usize> {
+        self.ranges.reward.clone()
+    }
     /// The policy's parameters within the model's vector.
     pub fn policy_range(&self) -> Range<usize> {
         self.ranges.policy.clone()
