@@ -291,13 +291,13 @@ fn a_registered_algorithm_runs_as_a_configs_algo_and_the_pipeline_refuses_it() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-#[test]
-fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
-    // One row: a name, a single-process run and the roles it runs as (here MBPO's own, so
-    // lockstep must equal the sequential run bit for bit).
+/// One row: a name, a single-process run and the roles it runs as -- MBPO's own, so lockstep
+/// must equal the sequential run bit for bit. Registers it, and returns a tiny config of it,
+/// a scratch directory and its sequential run's summary (in `<dir>/sequential`).
+fn mbpo_under_another_name(name: &'static str) -> (ExperimentConfig, std::path::PathBuf, Summary) {
     let mbpo = algorithm::lookup("mbpo").unwrap();
     let algo = algorithm::register(AlgorithmSpec {
-        name: "mbpo-again",
+        name,
         train: train_mbpo_with,
         pipeline: mbpo.pipeline,
     })
@@ -305,8 +305,14 @@ fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
     let mut cfg = tiny_config(300);
     cfg.algo = algo;
     cfg.eval.every = 100;
-    let dir = scratch("extension-algo-roles");
+    let dir = scratch(&format!("extension-{name}"));
     let seq = algorithm::train(&cfg, &dir.join("sequential"), RunOptions::default()).unwrap();
+    (cfg, dir, seq)
+}
+
+#[test]
+fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
+    let (cfg, dir, seq) = mbpo_under_another_name("mbpo-again");
     let run = InProcessRun {
         out: dir.join("lockstep"),
         ipc_root: ipc_root("ext-roles"),
@@ -333,18 +339,7 @@ fn a_registered_algorithm_on_existing_roles_runs_in_the_pipeline_too() {
 /// binaries, which know the algorithm from the run plan alone.
 #[test]
 fn a_registered_algorithm_runs_under_the_launcher_of_mbpo_run() {
-    let mbpo = algorithm::lookup("mbpo").unwrap();
-    let algo = algorithm::register(AlgorithmSpec {
-        name: "mbpo-launched",
-        train: train_mbpo_with,
-        pipeline: mbpo.pipeline,
-    })
-    .unwrap();
-    let mut cfg = tiny_config(300);
-    cfg.algo = algo;
-    cfg.eval.every = 100;
-    let dir = scratch("extension-algo-launched");
-    let seq = algorithm::train(&cfg, &dir.join("sequential"), RunOptions::default()).unwrap();
+    let (cfg, dir, seq) = mbpo_under_another_name("mbpo-launched");
     let (input, out, root) = (
         write_config(&cfg, &dir),
         dir.join("lockstep"),
