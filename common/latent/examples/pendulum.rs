@@ -23,7 +23,6 @@ struct Agent {
     learner: Learner,
     mppi: LatentMppi,
     encoder: NormedCache,
-    z: Vec<f32>,
 }
 
 impl Agent {
@@ -31,9 +30,8 @@ impl Agent {
         let m = &self.learner.model;
         let p = &self.learner.params[m.encoder_range()];
         let z = m.encoder.forward(p, obs, 1, &mut self.encoder);
-        self.z.copy_from_slice(z);
         self.mppi
-            .plan(m, &self.learner.params, &self.z, explore, rng, action);
+            .plan(m, &self.learner.params, z, explore, rng, action);
     }
 }
 
@@ -46,7 +44,7 @@ fn evaluate(agent: &mut Agent, seed: u64) -> f64 {
         env.reset(&mut rng, &mut obs).unwrap();
         agent.mppi.reset();
         loop {
-            agent.act(&obs.clone(), false, &mut rng, &mut action);
+            agent.act(&obs, false, &mut rng, &mut action);
             let step = env.step(&[2.0 * action[0]], &mut obs).unwrap();
             total += step.reward;
             if step.terminated || step.truncated {
@@ -84,21 +82,14 @@ fn main() {
         },
     );
     let encoder = NormedCache::new(&model.encoder, 1);
-    let z = vec![0.0; model.cfg.latent];
     let learner = Learner::new(model, params, UpdateConfig::default(), BATCH);
     let mut agent = Agent {
         learner,
         mppi,
         encoder,
-        z,
     };
     let mut buf = EpisodeBuffer::new(3, 1, steps);
-    let mut seq = Sequences {
-        batch: BATCH,
-        obs: vec![0.0; (h + 1) * BATCH * 3],
-        act: vec![0.0; h * BATCH],
-        reward: vec![0.0; h * BATCH],
-    };
+    let mut seq = Sequences::zeros(BATCH, h, 3, 1);
     let (mut env, mut rng) = (
         mbpo_envs::make("Pendulum-v1").unwrap(),
         stream(seed, "example.act", 0),

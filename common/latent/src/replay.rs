@@ -140,12 +140,7 @@ mod tests {
     }
 
     fn sequences(batch: usize, h: usize) -> Sequences {
-        Sequences {
-            batch,
-            obs: vec![0.0; (h + 1) * batch * 2],
-            act: vec![0.0; h * batch],
-            reward: vec![0.0; h * batch],
-        }
+        Sequences::zeros(batch, h, 2, 1)
     }
 
     #[test]

@@ -201,6 +201,7 @@ fn update_scale(scale: f32, q: &[f32], tau: f32) -> f32 {
 mod tests {
     use super::*;
     use crate::two_hot::TwoHot;
+    use crate::world_model::tests::random_sequences;
     use crate::world_model::WorldModelConfig;
     use mbpo_core::rng::stream;
 
@@ -221,15 +222,7 @@ mod tests {
         let model = WorldModel::new(obs, act, cfg);
         let mut params = vec![0.0; model.num_params()];
         model.init(&mut params, &mut stream(0, "test.update", 0));
-        let h = model.cfg.horizon;
-        let mut g = stream(1, "test.update.seq", 0);
-        let mut draw = |n: usize| (0..n).map(|_| normal_f32(&mut g)).collect::<Vec<f32>>();
-        let seq = Sequences {
-            batch,
-            obs: draw((h + 1) * batch * obs),
-            act: draw(h * batch * act).iter().map(|a| a.tanh()).collect(),
-            reward: draw(h * batch),
-        };
+        let seq = random_sequences(&model, batch, &mut stream(1, "test.update.seq", 0));
         let config = UpdateConfig {
             lr: 3e-3,
             ..Default::default()

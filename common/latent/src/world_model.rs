@@ -120,6 +120,19 @@ pub struct Sequences {
     pub reward: Vec<f32>,
 }
 
+impl Sequences {
+    /// `batch` zeroed subsequences of `horizon` steps of `obs`- and `act`-wide transitions (a
+    /// buffer for `EpisodeBuffer::sample`).
+    pub fn zeros(batch: usize, horizon: usize, obs: usize, act: usize) -> Self {
+        Self {
+            batch,
+            obs: vec![0.0; (horizon + 1) * batch * obs],
+            act: vec![0.0; horizon * batch * act],
+            reward: vec![0.0; horizon * batch],
+        }
+    }
+}
+
 impl WorldModel {
     /// A world model of `cfg` for observations of `obs` values and actions of `act`.
     pub fn new(obs: usize, act: usize, cfg: WorldModelConfig) -> Self {
@@ -537,19 +550,26 @@ pub(crate) mod tests {
         }
     }
 
-    fn small() -> (WorldModel, Sequences, Vec<f32>) {
-        let (obs, act, batch) = (3, 2, 4);
-        let model = WorldModel::new(obs, act, small_config());
-        let h = model.cfg.horizon;
-        let mut g = stream(5, "test.seq", 0);
-        let mut draw = |n: usize| (0..n).map(|_| normal_f32(&mut g)).collect::<Vec<f32>>();
-        let seq = Sequences {
+    /// `batch` subsequences for `model` drawn from `g`: N(0, 1) observations and rewards,
+    /// tanh of N(0, 1) actions.
+    pub(crate) fn random_sequences(model: &WorldModel, batch: usize, g: &mut Rng) -> Sequences {
+        let (h, obs, act) = (model.cfg.horizon, model.obs_dim(), model.act_dim());
+        let mut draw = |n: usize| (0..n).map(|_| normal_f32(g)).collect::<Vec<f32>>();
+        Sequences {
             batch,
             obs: draw((h + 1) * batch * obs),
             act: draw(h * batch * act).iter().map(|a| a.tanh()).collect(),
             reward: draw(h * batch),
-        };
-        let targets = draw(h * batch).iter().map(|v| 3.0 * v).collect();
+        }
+    }
+
+    fn small() -> (WorldModel, Sequences, Vec<f32>) {
+        let model = WorldModel::new(3, 2, small_config());
+        let mut g = stream(5, "test.seq", 0);
+        let seq = random_sequences(&model, 4, &mut g);
+        let targets = (0..model.cfg.horizon * 4)
+            .map(|_| 3.0 * normal_f32(&mut g))
+            .collect();
         (model, seq, targets)
     }
 

@@ -47,12 +47,7 @@ fn the_world_model_learns_pendulums_reward_from_random_actions() {
         ..Default::default()
     };
     let mut learner = Learner::new(model, params, config, batch);
-    let mut seq = Sequences {
-        batch,
-        obs: vec![0.0; (h + 1) * batch * 3],
-        act: vec![0.0; h * batch],
-        reward: vec![0.0; h * batch],
-    };
+    let mut seq = Sequences::zeros(batch, h, 3, 1);
     let mut rng = stream(0, "test.pendulum.updates", 0);
     assert!(buf.sample(h, &mut rng, &mut seq));
     let first = learner.update(&seq, &mut rng);
