@@ -28,8 +28,10 @@ impl Algo {
     pub const MBPO: Algo = Algo("mbpo");
     /// Model predictive control with a planner on the learned model (no policy network).
     pub const MPC: Algo = Algo("mpc");
+    /// TD-MPC2: planning in a learned latent space with a value at the horizon.
+    pub const TDMPC: Algo = Algo("tdmpc");
     /// The algorithms every build has.
-    pub const BUILT_IN: [Algo; 3] = [Algo::SAC, Algo::MBPO, Algo::MPC];
+    pub const BUILT_IN: [Algo; 4] = [Algo::SAC, Algo::MBPO, Algo::MPC, Algo::TDMPC];
 
     /// Lower-case name (as in config files and run directory names).
     pub const fn name(self) -> &'static str {
@@ -390,6 +392,8 @@ pub struct ExperimentConfig {
     pub mpc: MpcConfig,
     /// How the environments act in time.
     pub actor: ActorConfig,
+    /// TD-MPC2 on a latent world model (algo = "tdmpc").
+    pub tdmpc: crate::tdmpc::TdmpcConfig,
 }
 
 impl Default for ExperimentConfig {
@@ -409,6 +413,7 @@ impl Default for ExperimentConfig {
             checkpoint: CheckpointConfig::default(),
             mpc: MpcConfig::default(),
             actor: ActorConfig::default(),
+            tdmpc: Default::default(),
         }
     }
 }
@@ -581,6 +586,11 @@ impl ExperimentConfig {
         self.validate_mbpo(&bad)?;
         if self.algo == Algo::MPC {
             self.validate_mpc(&bad)?;
+        }
+        if self.algo == Algo::TDMPC {
+            self.tdmpc
+                .check()
+                .map_err(|(key, expected, found)| bad(&format!("tdmpc.{key}"), &expected, found))?;
         }
         if matches!(self.algo, Algo::MBPO | Algo::MPC) {
             self.validate_model(&bad)?;

@@ -6,6 +6,7 @@
 //! environment, built-in or Python Gymnasium, and the termination rule of model rollouts) and
 //! [`schedule`] (when trainings, rollouts, evaluations and updates happen: one rule each);
 //! [`solved`] (when a run counts its task as solved and ends early);
+//! [`tdmpc`] (the `[tdmpc]` table: TD-MPC2's sizes, loss weights and planner);
 //! [`reference`] writes the configuration reference page from these types' doc comments.
 //!
 //! Must not hold anything that trains, writes a run or knows an algorithm's code: the
@@ -17,6 +18,7 @@ pub mod env_config;
 pub mod reference;
 pub mod schedule;
 pub mod solved;
+pub mod tdmpc;
 
 pub use config::{
     Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
@@ -24,3 +26,4 @@ pub use config::{
 pub use env_config::RolloutTerminationError;
 pub use schedule::Schedule;
 pub use solved::SolvedRule;
+pub use tdmpc::{LatentPlannerConfig, TdmpcConfig, TdmpcSize};

@@ -234,7 +234,7 @@ mod tests {
         for line in [
             "- **`gamma`** (number; default `0.99`): Discount γ.",
             "- **`actor_lr`** (number; default `0.0003`): Actor learning rate.",
-            "- **`algo`** (one of `\"sac\"`, `\"mbpo\"`, `\"mpc\"`; default `\"sac\"`)",
+            "- **`algo`** (one of `\"sac\"`, `\"mbpo\"`, `\"mpc\"`, `\"tdmpc\"`; default `\"sac\"`)",
             "- **`rollout_schedule`** (array of 4 × integer ≥ 0; default `[20, 150, 1, 1]`)",
             "- **`target_entropy`** (number, optional; default unset)",
             "  - `\"real_box\"`: Clamp each dimension",

@@ -26,6 +26,9 @@ pub struct Schedule {
 impl Schedule {
     /// The schedule of a config (MPC's warm-up and retrain period for algo = "mpc").
     pub fn of(cfg: &ExperimentConfig) -> Self {
+        if cfg.algo == Algo::TDMPC {
+            return Self::of_tdmpc(cfg);
+        }
         let mpc = cfg.algo == Algo::MPC;
         let (init_random_steps, epoch_length, model_train_freq) = match mpc {
             true => (
@@ -51,6 +54,19 @@ impl Schedule {
             eval_every: cfg.eval.every,
             steps: cfg.steps,
             skip_warm_up_evals: mpc,
+        }
+    }
+    /// TD-MPC2's: `seed_steps` of warm-up, then `updates_per_step` updates per step (the
+    /// burst after the warm-up is the trainer's); no model trainings or rollouts of MBPO's.
+    fn of_tdmpc(cfg: &ExperimentConfig) -> Self {
+        Self {
+            init_random_steps: cfg.tdmpc.seed_steps,
+            epoch_length: cfg.steps.max(1),
+            model_train_freq: cfg.steps.max(1),
+            updates_per_step: cfg.tdmpc.updates_per_step as u64,
+            eval_every: cfg.eval.every,
+            steps: cfg.steps,
+            skip_warm_up_evals: false,
         }
     }
     /// Is step `t` a warm-up step?

@@ -276,6 +276,20 @@ impl LatentMppi {
         &self.mean
     }
 
+    /// Continue from a checkpoint's warm start ([`LatentMppi::mean`]); one of another
+    /// horizon or action width is refused.
+    pub fn set_mean(&mut self, mean: &[f32]) -> Result<(), String> {
+        if mean.len() != self.mean.len() {
+            return Err(format!(
+                "a plan of {} values, this planner's is {} (horizon x action width)",
+                mean.len(),
+                self.mean.len()
+            ));
+        }
+        self.mean.copy_from_slice(mean);
+        Ok(())
+    }
+
     /// The return estimate of each candidate of the last iteration.
     pub fn values(&self) -> &[f32] {
         &self.values

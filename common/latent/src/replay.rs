@@ -5,6 +5,7 @@
 //! each but the last continued by the next, and none but the last ends its episode.
 
 use mbpo_core::rng::{index, Rng};
+use serde::{Deserialize, Serialize};
 
 use crate::world_model::Sequences;
 
@@ -13,7 +14,7 @@ use crate::world_model::Sequences;
 const MAX_DRAWS: usize = 10_000;
 
 /// The transitions, oldest first within a ring of `capacity` rows.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EpisodeBuffer {
     obs_dim: usize,
     act_dim: usize,
@@ -53,9 +54,40 @@ impl EpisodeBuffer {
         self.len
     }
 
+    /// Rows it can hold.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
     /// Whether it holds none.
     pub fn is_empty(&self) -> bool {
         self.len == 0
+    }
+
+    /// Whether `other` holds rows of the same observation and action widths (a checkpoint's
+    /// buffer of this task).
+    pub fn same_widths(&self, other: &EpisodeBuffer) -> bool {
+        (self.obs_dim, self.act_dim) == (other.obs_dim, other.act_dim)
+    }
+
+    /// The same transitions in a ring of `capacity` rows (a run extended past its planned
+    /// steps keeps more), oldest first from row 0, so a draw of the k-th oldest row picks the
+    /// same transition; the newest `capacity` are kept when there are more.
+    pub fn resized(&self, capacity: usize) -> EpisodeBuffer {
+        let mut out = EpisodeBuffer::new(self.obs_dim, self.act_dim, capacity);
+        let (o, a) = (self.obs_dim, self.act_dim);
+        let oldest = (self.next + self.capacity - self.len) % self.capacity;
+        for k in self.len.saturating_sub(capacity)..self.len {
+            let r = (oldest + k) % self.capacity;
+            out.push(
+                &self.obs[r * o..(r + 1) * o],
+                &self.act[r * a..(r + 1) * a],
+                self.reward[r],
+                &self.next_obs[r * o..(r + 1) * o],
+                self.ended[r],
+            );
+        }
+        out
     }
 
     /// Append a transition; `episode_ended`: terminated or truncated (the next one starts a new
@@ -175,6 +207,28 @@ mod tests {
             starts.into_iter().collect::<Vec<_>>(),
             (0..=7).collect::<Vec<_>>()
         );
+    }
+
+    #[test]
+    fn a_resized_buffer_draws_the_same_subsequences_and_keeps_the_newest_rows() {
+        // 7 episodes of 10 steps in a ring of 50: wrapped, the oldest row mid-ring.
+        let buf = filled(50, 7, 10);
+        let mut same = sequences(32, 3);
+        let mut bigger = sequences(32, 3);
+        assert!(buf.sample(3, &mut stream(3, "test.replay", 0), &mut same));
+        let grown = buf.resized(80);
+        assert_eq!(grown.len(), 50);
+        assert!(grown.sample(3, &mut stream(3, "test.replay", 0), &mut bigger));
+        assert_eq!(same.obs, bigger.obs);
+        assert_eq!(same.reward, bigger.reward);
+        let shrunk = buf.resized(20);
+        assert_eq!(shrunk.len(), 20);
+        assert_eq!(
+            &shrunk.obs[..2],
+            &[5.0, 0.0],
+            "the newest 20 rows: episodes 5 and 6"
+        );
+        assert!(shrunk.sample(3, &mut stream(4, "test.replay", 0), &mut same));
     }
 
     #[test]

@@ -5,7 +5,8 @@
 
 use mbpo_core::rng::{index, normal_f32, Rng};
 use mbpo_nn::ops::{clip_grad_norm, polyak};
-use mbpo_nn::{Adam, AdamConfig};
+use mbpo_nn::{Adam, AdamConfig, AdamState};
+use serde::{Deserialize, Serialize};
 
 use crate::policy::PolicyWorkspace;
 use crate::world_model::{LossWorkspace, Losses, Sequences, WorldModel};
@@ -50,6 +51,23 @@ pub struct UpdateStats {
     pub q_scale: f32,
 }
 
+/// What a checkpoint keeps of a [`Learner`]: everything an update reads besides the batch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnerState {
+    /// The networks' parameters.
+    pub params: Vec<f32>,
+    /// The target Q heads (laid out as the whole model).
+    pub target: Vec<f32>,
+    /// The encoder's optimiser.
+    pub encoder_adam: AdamState,
+    /// The dynamics', reward's and Q heads' optimiser.
+    pub model_adam: AdamState,
+    /// The policy's optimiser.
+    pub policy_adam: AdamState,
+    /// The running scale of Q.
+    pub q_scale: f32,
+}
+
 /// A world model with its parameters, target Q heads, optimisers and buffers for one batch size.
 pub struct Learner {
     /// The networks.
@@ -69,6 +87,8 @@ pub struct Learner {
     policy_ws: PolicyWorkspace,
     q_targets: Vec<f32>,
     noise: Vec<f32>,
+    /// Scratch for the percentiles of Q (no allocation per update).
+    sorted_q: Vec<f32>,
 }
 
 impl Learner {
@@ -93,6 +113,7 @@ impl Learner {
             policy_ws: PolicyWorkspace::new(&model, (h + 1) * batch),
             q_targets: vec![0.0; h * batch],
             noise: vec![0.0; (h + 1) * batch * model.act_dim()],
+            sorted_q: Vec::with_capacity((h + 1) * batch),
             model,
             params,
             config,
@@ -102,6 +123,55 @@ impl Learner {
     /// The running scale of Q.
     pub fn q_scale(&self) -> f32 {
         self.q_scale
+    }
+
+    /// The state a checkpoint keeps.
+    pub fn state(&self) -> LearnerState {
+        LearnerState {
+            params: self.params.clone(),
+            target: self.target.clone(),
+            encoder_adam: self.encoder_adam.state().clone(),
+            model_adam: self.model_adam.state().clone(),
+            policy_adam: self.policy_adam.state().clone(),
+            q_scale: self.q_scale,
+        }
+    }
+
+    /// Continue from [`Learner::state`]; a state of another model's size is refused (nothing
+    /// changed).
+    pub fn restore(&mut self, s: LearnerState) -> Result<(), String> {
+        let sizes = [
+            ("params", s.params.len(), self.params.len()),
+            ("target", s.target.len(), self.target.len()),
+            (
+                "encoder Adam",
+                s.encoder_adam.m.len(),
+                self.encoder_adam.state().m.len(),
+            ),
+            (
+                "model Adam",
+                s.model_adam.m.len(),
+                self.model_adam.state().m.len(),
+            ),
+            (
+                "policy Adam",
+                s.policy_adam.m.len(),
+                self.policy_adam.state().m.len(),
+            ),
+        ];
+        if let Some((what, found, expected)) = sizes.iter().find(|(_, f, e)| f != e) {
+            return Err(format!(
+                "the world model's {what} hold {found} values, this model {expected}: \
+                 the checkpoint is of another model size"
+            ));
+        }
+        self.params = s.params;
+        self.target = s.target;
+        self.encoder_adam.set_state(s.encoder_adam);
+        self.model_adam.set_state(s.model_adam);
+        self.policy_adam.set_state(s.policy_adam);
+        self.q_scale = s.q_scale;
+        Ok(())
     }
 
     /// One update on `seq`, its random draws from `rng`.
@@ -159,6 +229,7 @@ impl Learner {
             self.q_scale,
             self.policy_ws.q_values(),
             self.config.scale_tau,
+            &mut self.sorted_q,
         );
         clip_grad_norm(&mut self.grads[policy.clone()], self.config.grad_clip);
         self.policy_adam
@@ -188,9 +259,10 @@ fn two_heads(k: usize, rng: &mut Rng) -> [usize; 2] {
 }
 
 /// TD-MPC2's running scale of Q: a step of `tau` towards the 5-95 percentile range of `q`
-/// (at least 1, so a flat Q does not blow the loss up).
-fn update_scale(scale: f32, q: &[f32], tau: f32) -> f32 {
-    let mut sorted = q.to_vec();
+/// (at least 1, so a flat Q does not blow the loss up). `sorted` is scratch.
+fn update_scale(scale: f32, q: &[f32], tau: f32, sorted: &mut Vec<f32>) -> f32 {
+    sorted.clear();
+    sorted.extend_from_slice(q);
     sorted.sort_by(f32::total_cmp);
     let at = |p: f64| sorted[((sorted.len() - 1) as f64 * p).round() as usize];
     let range = (at(0.95) - at(0.05)).max(1.0);

@@ -4,8 +4,8 @@
 //! run, which starts fresh or from the run directory's newest checkpoint, writes the metrics
 //! rows, the checkpoints and the summary, and stops cleanly when asked ([`RunOptions`]), and
 //! the roles it runs as under `mbpo run` (none: `mbpo train` only; `mbpo_runtime::pipeline`
-//! reads them, and the run plan carries them to the role processes). `sac`, `mbpo` and `mpc`
-//! are built in; a program adds one with [`register`] (`tests/tests/extension_points.rs` adds
+//! reads them, and the run plan carries them to the role processes). `sac`, `mbpo`, `mpc` and
+//! `tdmpc` are built in; a program adds one with [`register`] (`tests/tests/extension_points.rs` adds
 //! a random-policy baseline, and an algorithm on MBPO's roles that the in-process pipeline and
 //! `mbpo run`'s launcher run, from the test file alone).
 
@@ -34,7 +34,7 @@ pub struct AlgorithmSpec {
 }
 
 /// The runs of [`Algo::BUILT_IN`].
-const BUILT_IN: [AlgorithmSpec; 3] = [
+const BUILT_IN: [AlgorithmSpec; 4] = [
     AlgorithmSpec {
         name: Algo::SAC.name(),
         train: crate::sac_trainer::train_sac_with,
@@ -63,6 +63,12 @@ const BUILT_IN: [AlgorithmSpec; 3] = [
             services: &[RoleKind::ModelTrainer, RoleKind::PlanningEvaluator],
             actor: RoleKind::PlanningActor,
         }),
+    },
+    // A world model learned in a latent space, planned on by MPPI (`mbpo train` only so far).
+    AlgorithmSpec {
+        name: Algo::TDMPC.name(),
+        train: crate::tdmpc::train_tdmpc_with,
+        pipeline: None,
     },
 ];
 
@@ -109,12 +115,12 @@ mod tests {
 
     #[test]
     fn built_in_algorithms_parse_and_unknown_ones_are_named() {
-        for algo in [Algo::SAC, Algo::MBPO, Algo::MPC] {
+        for algo in Algo::BUILT_IN {
             assert_eq!(Algo::parse(algo.name()), Ok(algo));
         }
         let err = Algo::parse("ppo").unwrap_err();
         assert!(err.contains("unknown algorithm 'ppo'"), "{err}");
-        assert!(err.contains("sac, mbpo, mpc"), "{err}");
+        assert!(err.contains("sac, mbpo, mpc, tdmpc"), "{err}");
         let dup = register(BUILT_IN[1]).unwrap_err().to_string();
         assert!(dup.contains("'mbpo' is already registered"), "{dup}");
         for (spec, algo) in BUILT_IN.iter().zip(Algo::BUILT_IN) {

@@ -6,7 +6,7 @@
 //! not hold a benchmark, a file format of the run directory or anything of the multi-process
 //! pipeline (`mbpo-runtime`).
 //!
-//! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, and any registered).
+//! * [`algorithm`]: the algorithm registry (`sac`, `mbpo`, `mpc`, `tdmpc`, and any registered).
 //! * [`run_control`]: how a run starts (fresh or resumed), checkpoints and stops.
 //! * `driver`: the one loop of a single-process run that the SAC, MBPO and MPC trainers share.
 //! * [`run_files`]: the files of a checkpoint, one format for `mbpo train` and `mbpo run`.
@@ -20,6 +20,7 @@
 //! * [`phase_times`]: seconds per phase of an MBPO run (model training, rollouts, SAC, acting).
 //! * [`mpc_roles`]: the planning actor and evaluator of model predictive control.
 //! * [`mpc`]: model predictive control on the learned model in one process.
+//! * [`tdmpc`]: TD-MPC2, planning in a learned latent space, in one process.
 #![warn(missing_docs)]
 #![allow(clippy::needless_range_loop)]
 
@@ -40,6 +41,7 @@ pub mod run_control;
 pub mod run_files;
 pub mod sac_checkpoint;
 pub mod sac_trainer;
+pub mod tdmpc;
 
 pub use error::TrainError;
 pub use mbpo_config::SolvedRule;
@@ -47,6 +49,7 @@ pub use mbpo_config::SolvedRule;
 pub use mbpo_config::{config, env_config, reference as config_reference, schedule, solved};
 pub use mbpo_config::{
     Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
+    TdmpcConfig, TdmpcSize,
 };
 /// A run's directory (`mbpo-rundir`), re-exported: paths such as `mbpo_train::run_dir::...` hold.
 pub use mbpo_rundir::{checkpoint, checkpoint_writer, progress, run_dir, tensorboard};

@@ -6,11 +6,11 @@ use mbpo_train::run_dir::read_eval_curve;
 use mbpo_train::{
     checkpoint, train_mpc, train_mpc_with, Algo, ExperimentConfig, PlanReward, RunOptions,
 };
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
 mod support;
-use support::temp_dir;
+use support::{crash_copy_after, metrics_without_timings, temp_dir};
 
 /// MPC-CEM on Pendulum with a small model and planner.
 fn small_config(steps: u64) -> ExperimentConfig {
@@ -93,36 +93,6 @@ fn mpc_config_errors_name_the_key() {
 }
 
 /// metrics.csv without the timing columns (wall_seconds onwards).
-fn metrics_without_timings(run: &Path) -> Vec<String> {
-    std::fs::read_to_string(run.join("metrics.csv"))
-        .unwrap()
-        .lines()
-        .map(|l| l.split(',').take(13).collect::<Vec<_>>().join(","))
-        .collect()
-}
-
-/// A crash right after the checkpoint of `at`: later checkpoints and the summary are gone.
-fn crash_copy_after(full: &Path, at: u64, name: &str) -> PathBuf {
-    let crashed = temp_dir(name);
-    let _ = std::fs::remove_dir_all(&crashed);
-    let status = std::process::Command::new("cp")
-        .arg("-r")
-        .arg(full)
-        .arg(&crashed)
-        .status()
-        .unwrap();
-    assert!(status.success());
-    for entry in std::fs::read_dir(checkpoint::root(&crashed)).unwrap() {
-        let dir = entry.unwrap().path();
-        let steps: u64 = dir.file_name().unwrap().to_str().unwrap().parse().unwrap();
-        if steps > at {
-            std::fs::remove_dir_all(dir).unwrap();
-        }
-    }
-    std::fs::remove_file(crashed.join("summary.json")).unwrap();
-    crashed
-}
-
 /// An MPC run resumed from a checkpoint -- mid-episode, where the planner's warm start carries
 /// over; at the end of the warm-up; mid warm-up; after a clean stop -- ends with the final
 /// model and the metrics of the uninterrupted run.

@@ -1,0 +1,340 @@
+//! The parts of a TD-MPC2 run, each with the state a checkpoint keeps: the world-model learner
+//! (real episodes, the networks and their optimisers), the planning actor (an env and MPPI on
+//! the learner's newest parameters) and the evaluator (deterministic planning episodes).
+//!
+//! Random draws come from named streams: `actor.env` / `actor.policy` (planning and its
+//! exploration noise) of the actor, `tdmpc.init` (the first parameters) and `tdmpc.update`
+//! (subsequences, Q heads, the policy's noise) of the learner, `eval.env` / `eval.plan` of the
+//! evaluator.
+
+use mbpo_core::rng::stream;
+use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
+use mbpo_envs::Env;
+use mbpo_latent::mppi::{LatentMppi, MppiConfig};
+use mbpo_latent::update::{Learner, LearnerState, UpdateConfig, UpdateStats};
+use mbpo_latent::{EpisodeBuffer, NormedCache, Sequences, TwoHot, WorldModel, WorldModelConfig};
+use mbpo_sac::ActionScale;
+use serde::{Deserialize, Serialize};
+
+use crate::actor::{Behaviour, EnvActor, EnvActorState};
+use crate::config::ExperimentConfig;
+use crate::error::TrainError;
+
+/// The world model `cfg` describes for `env` (its widths, horizon, loss weights, and γ from
+/// the task's episode length unless the config sets one).
+pub fn world_model(cfg: &ExperimentConfig, env: &dyn Env) -> WorldModel {
+    let (t, w) = (&cfg.tdmpc, cfg.tdmpc.widths());
+    let model_cfg = WorldModelConfig {
+        latent: w.latent,
+        encoder_hidden: w.encoder_hidden,
+        hidden: w.hidden,
+        q_heads: w.q_heads,
+        horizon: t.horizon,
+        rho: t.rho,
+        consistency_coef: t.consistency_coef,
+        reward_coef: t.reward_coef,
+        value_coef: t.value_coef,
+        discount: t.discount_for(env.max_episode_steps()),
+        two_hot: TwoHot::default(),
+    };
+    WorldModel::new(env.obs_dim(), env.act_dim(), model_cfg)
+}
+
+fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
+    let p = &cfg.tdmpc.planner;
+    MppiConfig {
+        samples: p.samples,
+        policy_samples: p.policy_samples,
+        elites: p.elites,
+        iterations: p.iterations,
+        min_std: p.min_std,
+        max_std: p.max_std,
+        temperature: p.temperature,
+    }
+}
+
+/// MPPI on a copy of the learner's parameters, as a one-observation [`BatchPolicy`] so the
+/// shared [`EnvActor`] acts with it.
+pub struct LatentPlanner {
+    model: WorldModel,
+    params: Vec<f32>,
+    version: u64,
+    mppi: LatentMppi,
+    encoder: NormedCache,
+    /// Add the plan's σ as exploration noise (the actor, not the evaluator).
+    explore: bool,
+}
+
+impl LatentPlanner {
+    fn new(cfg: &ExperimentConfig, env: &dyn Env, explore: bool) -> Self {
+        let model = world_model(cfg, env);
+        Self {
+            params: vec![0.0; model.num_params()],
+            version: 0,
+            mppi: LatentMppi::new(&model, mppi_config(cfg)),
+            encoder: NormedCache::new(&model.encoder, 1),
+            model,
+            explore,
+        }
+    }
+    /// Take parameters `version` (the learner's updates so far).
+    pub fn set_params(&mut self, params: &[f32], version: u64) {
+        self.params.copy_from_slice(params);
+        self.version = version;
+    }
+    /// The version planned with.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+    /// Forget the warm start (a new episode).
+    pub fn reset(&mut self) {
+        self.mppi.reset();
+    }
+}
+
+impl BatchPolicy for LatentPlanner {
+    fn act_batch(&mut self, obs: &[f32], batch: usize, actions: &mut [f32], rng: &mut Rng) {
+        debug_assert_eq!(batch, 1, "MPPI plans for one observation at a time");
+        let p = &self.params[self.model.encoder_range()];
+        let z = self.model.encoder.forward(p, obs, 1, &mut self.encoder);
+        let (model, params) = (&self.model, &self.params);
+        self.mppi.plan(model, params, z, self.explore, rng, actions);
+    }
+}
+
+/// What a checkpoint keeps of the [`WorldModelLearner`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WorldModelLearnerState {
+    /// Networks, targets, optimisers, Q's scale.
+    pub learner: LearnerState,
+    /// The real transitions.
+    pub buffer: EpisodeBuffer,
+    /// The `tdmpc.update` stream.
+    pub rng: Rng,
+    /// Updates done.
+    pub updates: u64,
+}
+
+/// The world model learning from real episodes.
+pub struct WorldModelLearner {
+    learner: Learner,
+    buffer: EpisodeBuffer,
+    rng: Rng,
+    seq: Sequences,
+    updates: u64,
+    /// The last update's losses.
+    pub last: Option<UpdateStats>,
+}
+
+impl WorldModelLearner {
+    /// The learner of `cfg` for `env`'s sizes, its parameters drawn from `tdmpc.init`.
+    pub fn new(cfg: &ExperimentConfig, env: &dyn Env) -> Self {
+        let model = world_model(cfg, env);
+        let mut params = vec![0.0; model.num_params()];
+        model.init(&mut params, &mut stream(cfg.seed, "tdmpc.init", 0));
+        let (t, o, a) = (&cfg.tdmpc, env.obs_dim(), env.act_dim());
+        let seq = Sequences::zeros(t.batch_size, t.horizon, o, a);
+        let update = UpdateConfig {
+            lr: t.lr,
+            ..Default::default()
+        };
+        Self {
+            learner: Learner::new(model, params, update, t.batch_size),
+            buffer: EpisodeBuffer::new(o, a, t.capacity_for(cfg.steps)),
+            rng: stream(cfg.seed, "tdmpc.update", 0),
+            seq,
+            updates: 0,
+            last: None,
+        }
+    }
+    /// Keep one real transition; `episode_ended`: terminated or truncated.
+    pub fn add(&mut self, row: &Batch, episode_ended: bool) {
+        self.buffer.push(
+            &row.obs,
+            &row.act,
+            row.reward[0],
+            &row.next_obs,
+            episode_ended,
+        );
+    }
+    /// `n` updates, each on a fresh batch of subsequences.
+    pub fn update(&mut self, n: u64) -> Result<(), TrainError> {
+        let h = self.learner.model.cfg.horizon;
+        for _ in 0..n {
+            if !self.buffer.sample(h, &mut self.rng, &mut self.seq) {
+                return Err(TrainError::Config(format!(
+                    "tdmpc: no subsequence of {h} steps inside one episode among {} real \
+                     transitions: lower tdmpc.horizon or raise tdmpc.seed_steps",
+                    self.buffer.len()
+                )));
+            }
+            self.last = Some(self.learner.update(&self.seq, &mut self.rng));
+            self.updates += 1;
+        }
+        Ok(())
+    }
+    /// Updates done: the version of the parameters.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+    /// The current parameters.
+    pub fn params(&self) -> &[f32] {
+        &self.learner.params
+    }
+    /// The state a checkpoint keeps.
+    pub fn checkpoint(&self) -> WorldModelLearnerState {
+        WorldModelLearnerState {
+            learner: self.learner.state(),
+            buffer: self.buffer.clone(),
+            rng: self.rng.clone(),
+            updates: self.updates,
+        }
+    }
+    /// Continue from [`WorldModelLearner::checkpoint`].
+    pub fn restore(&mut self, s: WorldModelLearnerState) -> Result<(), TrainError> {
+        let refuse = |e: String| TrainError::Config(format!("tdmpc checkpoint: {e}"));
+        if !s.buffer.same_widths(&self.buffer) {
+            return Err(refuse("its buffer is of another task's widths".into()));
+        }
+        self.learner.restore(s.learner).map_err(refuse)?;
+        // A run extended past its planned steps (`--resume --steps N`) keeps more of them.
+        self.buffer = s.buffer.resized(self.buffer.capacity());
+        self.rng = s.rng;
+        self.updates = s.updates;
+        Ok(())
+    }
+}
+
+/// What a checkpoint keeps of the [`TdmpcActor`] (its parameters are the learner's).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TdmpcActorState {
+    /// The env actor (episode in progress, streams, counters).
+    pub actor: EnvActorState,
+    /// The planner's warm start.
+    pub plan: Vec<f32>,
+}
+
+/// Acting in the real environment by planning in the latent space.
+pub struct TdmpcActor {
+    actor: EnvActor,
+    planner: LatentPlanner,
+    staged: LastTransition,
+}
+
+impl TdmpcActor {
+    /// Actor `index` of the run.
+    pub fn new(cfg: &ExperimentConfig, index: u64) -> Result<Self, TrainError> {
+        let actor = EnvActor::new(cfg.make_env()?, cfg.seed, index)?;
+        let env = cfg.make_env()?;
+        Ok(Self {
+            planner: LatentPlanner::new(cfg, env.as_ref(), true),
+            staged: LastTransition::new(env.obs_dim(), env.act_dim()),
+            actor,
+        })
+    }
+    /// The planner (to give it parameters).
+    pub fn planner(&mut self) -> &mut LatentPlanner {
+        &mut self.planner
+    }
+    /// The env actor (episode counters).
+    pub fn env_actor(&self) -> &EnvActor {
+        &self.actor
+    }
+    /// One real env step (uniform, or the planner's action); returns the transition and
+    /// whether it ended its episode. The warm start is dropped at every episode end.
+    pub fn act(&mut self, behaviour: Behaviour) -> Result<(&Batch, bool), TrainError> {
+        let episodes = self.actor.episodes;
+        self.actor
+            .step(behaviour, &mut self.planner, &mut self.staged)?;
+        let ended = self.actor.episodes > episodes;
+        if ended {
+            self.planner.reset();
+        }
+        Ok((self.staged.batch(), ended))
+    }
+    /// The state a checkpoint keeps.
+    pub fn checkpoint(&self) -> TdmpcActorState {
+        TdmpcActorState {
+            actor: self.actor.checkpoint(),
+            plan: self.planner.mppi.mean().to_vec(),
+        }
+    }
+    /// Continue from [`TdmpcActor::checkpoint`] (then give it the learner's parameters).
+    pub fn restore(&mut self, s: TdmpcActorState) -> Result<(), TrainError> {
+        self.actor.restore(s.actor)?;
+        self.planner
+            .mppi
+            .set_mean(&s.plan)
+            .map_err(|e| TrainError::Config(format!("tdmpc checkpoint: {e}")))
+    }
+}
+
+/// What a checkpoint keeps of the [`TdmpcEvaluator`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TdmpcEvaluatorState {
+    /// The `eval.env` stream.
+    pub env_rng: Rng,
+    /// The `eval.plan` stream.
+    pub plan_rng: Rng,
+}
+
+/// Evaluation episodes: planning without exploration noise, own env and streams.
+pub struct TdmpcEvaluator {
+    env: Box<dyn Env>,
+    scale: ActionScale,
+    env_rng: Rng,
+    plan_rng: Rng,
+    planner: LatentPlanner,
+}
+
+impl TdmpcEvaluator {
+    /// The evaluator of the run.
+    pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
+        let env = cfg.make_env()?;
+        let space = env.action_space();
+        Ok(Self {
+            scale: ActionScale::new(&space.low, &space.high),
+            planner: LatentPlanner::new(cfg, env.as_ref(), false),
+            env,
+            env_rng: stream(cfg.seed, "eval.env", 0),
+            plan_rng: stream(cfg.seed, "eval.plan", 0),
+        })
+    }
+    /// The planner (to give it parameters).
+    pub fn planner(&mut self) -> &mut LatentPlanner {
+        &mut self.planner
+    }
+    /// The state a checkpoint keeps.
+    pub fn checkpoint(&self) -> TdmpcEvaluatorState {
+        TdmpcEvaluatorState {
+            env_rng: self.env_rng.clone(),
+            plan_rng: self.plan_rng.clone(),
+        }
+    }
+    /// Continue from [`TdmpcEvaluator::checkpoint`].
+    pub fn restore(&mut self, s: TdmpcEvaluatorState) {
+        self.env_rng = s.env_rng;
+        self.plan_rng = s.plan_rng;
+    }
+    /// Mean undiscounted return of `episodes` planning episodes.
+    pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
+        let (o, a) = (self.env.obs_dim(), self.env.act_dim());
+        let (mut obs, mut action, mut env_action) = (vec![0.0; o], vec![0.0; a], vec![0.0; a]);
+        let mut total = 0.0;
+        for _ in 0..episodes {
+            self.env.reset(&mut self.env_rng, &mut obs)?;
+            self.planner.reset();
+            loop {
+                let rng = &mut self.plan_rng;
+                self.planner.act_batch(&obs, 1, &mut action, rng);
+                self.scale.to_env(&action, &mut env_action);
+                let step = self.env.step(&env_action, &mut obs)?;
+                total += step.reward;
+                if step.terminated || step.truncated {
+                    break;
+                }
+            }
+        }
+        Ok(total / episodes.max(1) as f64)
+    }
+}

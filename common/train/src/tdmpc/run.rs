@@ -1,0 +1,254 @@
+//! A TD-MPC2 run under the shared single-process driver: each env step acts and learns, eval
+//! points evaluate the planner, checkpoints hold every part's state so a resumed run plans and
+//! learns exactly as an uninterrupted one.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use mbpo_model::EpochProgress;
+use serde::{Deserialize, Serialize};
+
+use super::roles::{
+    TdmpcActor, TdmpcActorState, TdmpcEvaluator, TdmpcEvaluatorState, WorldModelLearner,
+    WorldModelLearnerState,
+};
+use crate::actor::Behaviour;
+use crate::checkpoint::{self, CheckpointError};
+use crate::config::ExperimentConfig;
+use crate::driver::{drive, SequentialRun};
+use crate::error::TrainError;
+use crate::run_control::RunOptions;
+use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::run_files::{actor_file, file, RunBook};
+use crate::schedule::Schedule;
+
+/// The checkpoint files of a TD-MPC run besides the run book, and their kinds.
+mod tdmpc_file {
+    pub const LEARNER: &str = "world-model-learner";
+    pub const LEARNER_KIND: &str = "mbpo.world-model-learner";
+    pub const ACTOR_KIND: &str = "mbpo.tdmpc-actor";
+    pub const EVALUATOR_KIND: &str = "mbpo.tdmpc-evaluator";
+}
+
+/// The actor's file: its state and its env steps.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct ActorFile {
+    role: TdmpcActorState,
+    steps: u64,
+}
+
+/// Run TD-MPC2 per `cfg` into the run directory `out`; returns the summary.
+pub fn train_tdmpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
+    train_tdmpc_with(cfg, out, RunOptions::default())
+}
+
+/// [`train_tdmpc`] with resume and stop control: checkpoints every `checkpoint.every` env
+/// steps, at the end and when stopped. `summary.json`'s `policy_sha256` is the SHA-256 of the
+/// final parameters, `sac_updates` the world model's updates and `median_seconds_per_env_step`
+/// the median wall time of a step after the seed steps (plan and update).
+pub fn train_tdmpc_with(
+    cfg: &ExperimentConfig,
+    out: &Path,
+    opts: RunOptions,
+) -> Result<Summary, TrainError> {
+    let env = cfg.make_env()?;
+    let mut run = TdmpcRun {
+        cfg,
+        out,
+        schedule: Schedule::of(cfg),
+        learner: WorldModelLearner::new(cfg, env.as_ref()),
+        actor: TdmpcActor::new(cfg, 0)?,
+        evaluator: TdmpcEvaluator::new(cfg)?,
+        book: RunBook::start(),
+        started: Instant::now(),
+    };
+    run.hand_out_params();
+    drive(&mut run, cfg, out, opts)
+}
+
+/// Every part of one run, its book and its clock.
+struct TdmpcRun<'a> {
+    cfg: &'a ExperimentConfig,
+    out: &'a Path,
+    schedule: Schedule,
+    learner: WorldModelLearner,
+    actor: TdmpcActor,
+    evaluator: TdmpcEvaluator,
+    book: RunBook,
+    started: Instant,
+}
+
+impl TdmpcRun<'_> {
+    /// Give the planners the learner's current parameters.
+    fn hand_out_params(&mut self) {
+        let (params, version) = (self.learner.params(), self.learner.updates());
+        self.actor.planner().set_params(params, version);
+        self.evaluator.planner().set_params(params, version);
+    }
+
+    /// Updates owed after env step `t`: the burst after the seed steps, then the schedule's.
+    fn updates_after(&self, t: u64) -> u64 {
+        let seed = self.schedule.init_random_steps;
+        match t {
+            t if t < seed => 0,
+            t if t == seed => seed,
+            _ => self.schedule.updates_per_step,
+        }
+    }
+
+    fn write_checkpoint(&self, dir: &Path, t: u64) -> Result<(), CheckpointError> {
+        std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let actor = ActorFile {
+            role: self.actor.checkpoint(),
+            steps: t,
+        };
+        let learner = self.learner.checkpoint();
+        let evaluator = self.evaluator.checkpoint();
+        checkpoint::write(&dir.join(actor_file(0)), tdmpc_file::ACTOR_KIND, &actor)?;
+        let learner_path = dir.join(tdmpc_file::LEARNER);
+        checkpoint::write(&learner_path, tdmpc_file::LEARNER_KIND, &learner)?;
+        let evaluator_path = dir.join(file::EVALUATOR);
+        checkpoint::write(&evaluator_path, tdmpc_file::EVALUATOR_KIND, &evaluator)?;
+        checkpoint::write(
+            &dir.join(file::RUN_BOOK),
+            checkpoint::kind::RUN_BOOK,
+            &self.book,
+        )?;
+        let files = [
+            tdmpc_file::LEARNER.to_string(),
+            file::EVALUATOR.into(),
+            actor_file(0),
+            file::RUN_BOOK.into(),
+        ];
+        let names: Vec<&str> = files.iter().map(String::as_str).collect();
+        checkpoint::mark_complete(dir, t, &names)
+    }
+}
+
+impl SequentialRun for TdmpcRun<'_> {
+    const COUNTING: Option<&'static str> = Some("updates");
+
+    fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
+        let actor: ActorFile = checkpoint::read(&dir.join(actor_file(0)), tdmpc_file::ACTOR_KIND)?;
+        let learner: WorldModelLearnerState =
+            checkpoint::read(&dir.join(tdmpc_file::LEARNER), tdmpc_file::LEARNER_KIND)?;
+        let evaluator: TdmpcEvaluatorState =
+            checkpoint::read(&dir.join(file::EVALUATOR), tdmpc_file::EVALUATOR_KIND)?;
+        if actor.steps != t {
+            return Err(TrainError::Config(format!(
+                "{}: the actor's file is at env step {}, the checkpoint at {t}",
+                dir.display(),
+                actor.steps
+            )));
+        }
+        self.book = checkpoint::read(&dir.join(file::RUN_BOOK), checkpoint::kind::RUN_BOOK)?;
+        self.learner.restore(learner)?;
+        self.actor.restore(actor.role)?;
+        self.evaluator.restore(evaluator);
+        self.hand_out_params();
+        Ok(())
+    }
+
+    /// The clock continues from the checkpoint's.
+    fn begin(&mut self) {
+        let elapsed = Duration::from_secs_f64(self.book.elapsed_seconds.max(0.0));
+        self.started = Instant::now()
+            .checked_sub(elapsed)
+            .unwrap_or_else(Instant::now);
+    }
+
+    fn step(
+        &mut self,
+        t: u64,
+        _stop: &mut dyn FnMut(&EpochProgress) -> bool,
+    ) -> Result<bool, TrainError> {
+        let start = Instant::now();
+        let behaviour = match self.schedule.is_warm_up(t) {
+            true => Behaviour::Uniform,
+            false => Behaviour::Policy,
+        };
+        let episodes = self.actor.env_actor().episodes;
+        let (row, ended) = self.actor.act(behaviour)?;
+        self.learner.add(row, ended);
+        let updates = self.updates_after(t);
+        if updates > 0 {
+            self.learner.update(updates)?;
+            self.hand_out_params();
+        }
+        self.book.note_episode_end(self.actor.env_actor(), episodes);
+        if t > self.schedule.init_random_steps {
+            self.book.step_seconds.push(start.elapsed().as_secs_f64());
+        }
+        Ok(true)
+    }
+
+    fn evaluate(&mut self, t: u64) -> Result<MetricsRow, TrainError> {
+        let ret = self.evaluator.evaluate(self.cfg.eval.episodes)?;
+        let now = self.started.elapsed().as_secs_f64();
+        let (last_time, last_steps) = self.book.last_row;
+        let updates = self.learner.updates();
+        let span = (now - last_time).max(1e-9);
+        let actor = self.actor.env_actor();
+        let row = MetricsRow {
+            env_steps: t,
+            episodes: actor.episodes,
+            eval_return: ret,
+            train_return: actor.last_return,
+            sac_updates: updates,
+            wall_seconds: now,
+            env_steps_per_sec: (t - last_steps) as f64 / span,
+            updates_per_sec: (updates - self.book.last_row_updates) as f64 / span,
+            ..Default::default()
+        };
+        self.book.wrote_row(t, ret, now, updates);
+        let losses = self.learner.last.map(|s| s.model);
+        tracing::info!(
+            "tdmpc {} seed {}: step {t} eval {ret:.1} best {:.1} train episode {:.1} \
+             updates {updates} losses {losses:?}",
+            self.cfg.env,
+            self.cfg.seed,
+            self.book.best_return,
+            row.train_return.unwrap_or(f64::NAN),
+        );
+        Ok(row)
+    }
+
+    fn progress(&self) -> (u64, Option<u64>) {
+        (self.learner.updates(), None)
+    }
+
+    fn save(&mut self, t: u64, _wait: bool) -> Result<(), TrainError> {
+        self.book.elapsed_seconds = self.started.elapsed().as_secs_f64();
+        self.book.progress = (t, self.learner.updates(), 0);
+        self.write_checkpoint(&checkpoint::dir_for(self.out, t), t)?;
+        let keep = &self.cfg.checkpoint;
+        Ok(checkpoint::prune(self.out, keep.keep, keep.keep_every)?)
+    }
+
+    fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
+        let target_return = self.cfg.target_return();
+        let actor = self.actor.env_actor();
+        Ok(Summary {
+            algo: self.cfg.algo.name().into(),
+            env: self.cfg.env.clone(),
+            seed: self.cfg.seed,
+            env_steps: actor.steps,
+            sac_updates: self.learner.updates(),
+            final_eval_return: self.book.final_return,
+            best_eval_return: self.book.best_return,
+            target_return,
+            env_steps_to_target: run.env_steps_to_target(target_return)?,
+            policy_sha256: policy_sha256(self.learner.params()),
+            wall_seconds: self.started.elapsed().as_secs_f64(),
+            median_seconds_per_env_step: mbpo_core::stats::median(
+                &mut self.book.step_seconds.clone(),
+            ),
+            status: status.into(),
+            episodes_cut_by_resume: actor.episodes_cut,
+            episodes_lost_to_env_exit: actor.episodes_lost,
+        })
+    }
+}
