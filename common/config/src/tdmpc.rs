@@ -117,6 +117,11 @@ pub struct LatentPlannerConfig {
     pub max_std: f32,
     /// Temperature of the elites' weights.
     pub temperature: f32,
+    /// Wall milliseconds one plan may take (0: no budget): iterations stop before one that
+    /// would overrun it (the first always runs; at most `iterations`), so an actor on a clock
+    /// plans within its period; the log reports the iterations per plan. A budget makes plans
+    /// depend on the machine's speed, so two runs differ.
+    pub budget_ms: f64,
 }
 
 impl Default for LatentPlannerConfig {
@@ -129,7 +134,15 @@ impl Default for LatentPlannerConfig {
             min_std: 0.05,
             max_std: 2.0,
             temperature: 0.5,
+            budget_ms: 0.0,
         }
+    }
+}
+
+impl LatentPlannerConfig {
+    /// The time budget of one plan (`budget_ms`), if any.
+    pub fn budget(&self) -> Option<std::time::Duration> {
+        (self.budget_ms > 0.0).then(|| std::time::Duration::from_secs_f64(self.budget_ms / 1e3))
     }
 }
 
@@ -203,6 +216,10 @@ impl TdmpcConfig {
         ];
         if let Some((key, v)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return err(key, "a positive number", v.to_string());
+        }
+        if !(p.budget_ms >= 0.0 && p.budget_ms.is_finite()) {
+            let expected = "0 (no budget) or a positive number of milliseconds";
+            return err("planner.budget_ms", expected, p.budget_ms.to_string());
         }
         if let Some(g) = self.discount.filter(|g| !(*g > 0.0 && *g < 1.0)) {
             return err("discount", "a number in (0, 1)", g.to_string());

@@ -10,10 +10,12 @@
 //! * [`state_box`]: the box of the real states seen, which imagined states can be clipped to.
 //! * [`roles`]: the one table of roles (names, binaries, checkpoint kinds, channels).
 //! * [`stats`]: the median every report uses.
+//! * [`budget`]: a plan's wall-clock budget (how many iterations fit).
 //! * [`alloc_count`]: the counting allocator of the no-allocation tests.
 #![warn(missing_docs)]
 
 pub mod alloc_count;
+pub mod budget;
 pub mod policy;
 pub mod rate_limit;
 pub mod replay;

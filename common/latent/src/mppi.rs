@@ -6,6 +6,7 @@
 //! `iterations` rounds. The action taken is the first of one elite drawn by weight, plus
 //! N(0, σ₀²) noise when exploring. μ is kept, shifted by a step, to start the next plan.
 
+use mbpo_core::budget::Budget;
 use mbpo_core::rng::{normal_f32, uniform_f64, Rng};
 
 use crate::normed_mlp::NormedCache;
@@ -29,6 +30,9 @@ pub struct MppiConfig {
     pub max_std: f32,
     /// τ of the elites' weights.
     pub temperature: f32,
+    /// Wall-clock budget of one plan: iterations stop before one that would overrun it (the
+    /// first always runs; at most `iterations`). `None`: every iteration runs.
+    pub budget: Option<std::time::Duration>,
 }
 
 impl Default for MppiConfig {
@@ -41,6 +45,7 @@ impl Default for MppiConfig {
             min_std: 0.05,
             max_std: 2.0,
             temperature: 0.5,
+            budget: None,
         }
     }
 }
@@ -66,6 +71,7 @@ pub struct LatentMppi {
     policy: PolicyWorkspace,
     order: Vec<usize>,
     weights: Vec<f32>,
+    iterations_done: usize,
 }
 
 impl LatentMppi {
@@ -99,6 +105,7 @@ impl LatentMppi {
             policy: PolicyWorkspace::new(model, n),
             order: (0..n).collect(),
             weights: vec![0.0; cfg.elites],
+            iterations_done: 0,
         }
     }
 
@@ -123,11 +130,14 @@ impl LatentMppi {
         self.mean.copy_within(a.., 0);
         self.mean[(h - 1) * a..].fill(0.0);
         self.std.fill(self.cfg.max_std);
+        let budget = Budget::start(self.cfg.budget);
         self.policy_rollouts(model, params, z0, rng);
-        for _ in 0..self.cfg.iterations {
+        self.iterations_done = 0;
+        while self.iterations_done < self.cfg.iterations && budget.allows(self.iterations_done) {
             self.sample_around_mean(rng);
             self.estimate_values(model, params, z0, rng);
             self.refit(h * a);
+            self.iterations_done += 1;
         }
         // The first action of one elite drawn by weight.
         let mut u = uniform_f64(rng) as f32;
@@ -271,6 +281,11 @@ impl LatentMppi {
         }
     }
 
+    /// Iterations the last plan ran: `iterations` unless its budget cut it short.
+    pub fn iterations_done(&self) -> usize {
+        self.iterations_done
+    }
+
     /// The plan's current mean action sequence (H x act).
     pub fn mean(&self) -> &[f32] {
         &self.mean
@@ -350,6 +365,31 @@ mod tests {
             six > one,
             "mean candidate value after 6 iterations {six}, after 1 {one}"
         );
+    }
+
+    #[test]
+    fn a_budget_cuts_the_iterations_and_none_runs_them_all() {
+        let (model, params, z0) = model();
+        let plan = |budget: Option<std::time::Duration>| {
+            let cfg = MppiConfig {
+                samples: 64,
+                policy_samples: 4,
+                elites: 8,
+                iterations: 50,
+                budget,
+                ..Default::default()
+            };
+            let mut mppi = LatentMppi::new(&model, cfg);
+            let mut action = [0.0; 2];
+            let rng = &mut stream(11, "test.mppi.budget", 0);
+            mppi.plan(&model, &params, &z0, false, rng, &mut action);
+            mppi.iterations_done()
+        };
+        assert_eq!(plan(None), 50);
+        // A budget spent before the first iteration still runs one.
+        assert_eq!(plan(Some(std::time::Duration::from_nanos(1))), 1);
+        let some = plan(Some(std::time::Duration::from_micros(300)));
+        assert!((1..50).contains(&some), "{some} iterations in 0.3 ms");
     }
 
     #[test]

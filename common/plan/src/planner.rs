@@ -3,7 +3,6 @@
 use crate::error::PlanError;
 use crate::model::PlanningModel;
 use mbpo_core::Rng;
-use std::time::{Duration, Instant};
 
 /// An optimiser of action sequences `a_0 … a_{H−1}` (`H x A`, row-major, in [−1, 1]) that
 /// maximise the model's predicted return from an observation.
@@ -50,36 +49,7 @@ pub trait Planner: Send {
     }
 }
 
-/// A plan's time budget (`[mpc.planner] budget_ms`): an iterative planner stops before an
-/// iteration that would overrun it, predicting the next iteration's time as the mean of those
-/// it ran; the first always runs. Without a budget every configured iteration runs (and the
-/// plan is the same whatever the machine's speed: a budget makes it depend on timing).
-#[derive(Debug, Clone, Copy)]
-pub struct Budget {
-    limit: Option<Duration>,
-    started: Instant,
-}
-
-impl Budget {
-    /// A plan starting now with `limit`.
-    pub fn start(limit: Option<Duration>) -> Self {
-        Self {
-            limit,
-            started: Instant::now(),
-        }
-    }
-    /// Whether another iteration fits after `done` of them.
-    pub fn allows(&self, done: usize) -> bool {
-        let Some(limit) = self.limit else {
-            return true;
-        };
-        if done == 0 {
-            return true;
-        }
-        let spent = self.started.elapsed();
-        spent + spent / done as u32 <= limit
-    }
-}
+pub use mbpo_core::budget::Budget;
 
 /// Copy a restored warm start `src` into `dst`, which must be as long.
 pub(crate) fn restore_sequence(dst: &mut [f32], src: Option<&[f32]>) -> Result<(), PlanError> {

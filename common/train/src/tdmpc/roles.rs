@@ -50,6 +50,7 @@ fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
         min_std: p.min_std,
         max_std: p.max_std,
         temperature: p.temperature,
+        budget: p.budget(),
     }
 }
 
@@ -63,6 +64,29 @@ pub struct LatentPlanner {
     encoder: NormedCache,
     /// Add the plan's σ as exploration noise (the actor, not the evaluator).
     explore: bool,
+    iterations: IterationCount,
+}
+
+/// Iterations per plan since the planner was made: fewest, total, most, plans.
+#[derive(Debug, Clone, Copy, Default)]
+struct IterationCount {
+    fewest: usize,
+    total: u64,
+    most: usize,
+    plans: u64,
+}
+
+impl IterationCount {
+    fn add(&mut self, n: usize) {
+        self.fewest = if self.plans == 0 {
+            n
+        } else {
+            self.fewest.min(n)
+        };
+        self.most = self.most.max(n);
+        self.total += n as u64;
+        self.plans += 1;
+    }
 }
 
 impl LatentPlanner {
@@ -75,6 +99,7 @@ impl LatentPlanner {
             encoder: NormedCache::new(&model.encoder, 1),
             model,
             explore,
+            iterations: IterationCount::default(),
         }
     }
     /// Take parameters `version` (the learner's updates so far).
@@ -90,6 +115,12 @@ impl LatentPlanner {
     pub fn reset(&mut self) {
         self.mppi.reset();
     }
+    /// Plans made and their iterations (fewest, mean, most), `None` before the first: what a
+    /// time budget let each plan do.
+    pub fn iterations_per_plan(&self) -> Option<(u64, usize, f64, usize)> {
+        let c = self.iterations;
+        (c.plans > 0).then(|| (c.plans, c.fewest, c.total as f64 / c.plans as f64, c.most))
+    }
 }
 
 impl BatchPolicy for LatentPlanner {
@@ -99,6 +130,7 @@ impl BatchPolicy for LatentPlanner {
         let z = self.model.encoder.forward(p, obs, 1, &mut self.encoder);
         let (model, params) = (&self.model, &self.params);
         self.mppi.plan(model, params, z, self.explore, rng, actions);
+        self.iterations.add(self.mppi.iterations_done());
     }
 }
 

@@ -229,6 +229,11 @@ impl SequentialRun for TdmpcRun<'_> {
     }
 
     fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
+        if let Some((plans, fewest, mean, most)) = self.actor.planner().iterations_per_plan() {
+            tracing::info!(
+                "the actor planned {plans} times: iterations per plan {fewest}..{most} (mean {mean:.2})"
+            );
+        }
         let target_return = self.cfg.target_return();
         let actor = self.actor.env_actor();
         Ok(Summary {
