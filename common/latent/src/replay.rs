@@ -90,6 +90,33 @@ impl EpisodeBuffer {
         out
     }
 
+    /// The newest transition ended its episode (found out when the next one arrives: a row
+    /// carries `terminated` but not a time limit's truncation).
+    pub fn end_last(&mut self) {
+        if self.len > 0 {
+            let last = (self.next + self.capacity - 1) % self.capacity;
+            self.ended[last] = true;
+        }
+    }
+
+    /// Whether `obs` continues the newest transition: it is that transition's next
+    /// observation, bit for bit, and the transition did not end its episode.
+    pub fn continues(&self, obs: &[f32]) -> bool {
+        if self.len == 0 {
+            return false;
+        }
+        let (o, last) = (
+            self.obs_dim,
+            (self.next + self.capacity - 1) % self.capacity,
+        );
+        let next = &self.next_obs[last * o..(last + 1) * o];
+        !self.ended[last]
+            && next
+                .iter()
+                .zip(obs)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+    }
+
     /// Append a transition; `episode_ended`: terminated or truncated (the next one starts a new
     /// episode). The oldest is overwritten once the ring is full.
     pub fn push(
@@ -229,6 +256,18 @@ mod tests {
             "the newest 20 rows: episodes 5 and 6"
         );
         assert!(shrunk.sample(3, &mut stream(4, "test.replay", 0), &mut same));
+    }
+
+    #[test]
+    fn a_row_that_does_not_start_from_the_last_next_observation_starts_an_episode() {
+        let mut buf = EpisodeBuffer::new(1, 1, 10);
+        assert!(!buf.continues(&[0.0]), "nothing to continue");
+        buf.push(&[0.0], &[0.0], 0.0, &[1.0], false);
+        assert!(buf.continues(&[1.0]));
+        assert!(!buf.continues(&[5.0]), "a reset");
+        assert!(!buf.continues(&[-0.0f32 + 1.0000001]), "bit for bit");
+        buf.end_last();
+        assert!(!buf.continues(&[1.0]), "an ended episode is not continued");
     }
 
     #[test]

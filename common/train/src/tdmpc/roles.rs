@@ -8,7 +8,7 @@
 //! evaluator.
 
 use mbpo_core::rng::stream;
-use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng};
+use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng, TransitionSink};
 use mbpo_envs::Env;
 use mbpo_latent::mppi::{LatentMppi, MppiConfig};
 use mbpo_latent::update::{Learner, LearnerState, UpdateConfig, UpdateStats};
@@ -179,16 +179,6 @@ impl WorldModelLearner {
             last: None,
         }
     }
-    /// Keep one real transition; `episode_ended`: terminated or truncated.
-    pub fn add(&mut self, row: &Batch, episode_ended: bool) {
-        self.buffer.push(
-            &row.obs,
-            &row.act,
-            row.reward[0],
-            &row.next_obs,
-            episode_ended,
-        );
-    }
     /// `n` updates, each on a fresh batch of subsequences.
     pub fn update(&mut self, n: u64) -> Result<(), TrainError> {
         let h = self.learner.model.cfg.horizon;
@@ -237,6 +227,19 @@ impl WorldModelLearner {
     }
 }
 
+/// Real transitions in the order an actor took them. A row says whether it terminated but not
+/// whether a time limit cut its episode, so an episode ends where the next row does not start
+/// from the last one's next observation (bit for bit): the same rule in one process and in the
+/// pipeline's learner, which sees only rows.
+impl TransitionSink for WorldModelLearner {
+    fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
+        if !self.buffer.is_empty() && !self.buffer.continues(obs) {
+            self.buffer.end_last();
+        }
+        self.buffer.push(obs, act, reward, next_obs, terminated);
+    }
+}
+
 /// What a checkpoint keeps of the [`TdmpcActor`] (its parameters are the learner's).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TdmpcActorState {
@@ -272,17 +275,20 @@ impl TdmpcActor {
     pub fn env_actor(&self) -> &EnvActor {
         &self.actor
     }
-    /// One real env step (uniform, or the planner's action); returns the transition and
-    /// whether it ended its episode. The warm start is dropped at every episode end.
-    pub fn act(&mut self, behaviour: Behaviour) -> Result<(&Batch, bool), TrainError> {
-        let episodes = self.actor.episodes;
-        self.actor
-            .step(behaviour, &mut self.planner, &mut self.staged)?;
-        let ended = self.actor.episodes > episodes;
-        if ended {
-            self.planner.reset();
-        }
-        Ok((self.staged.batch(), ended))
+    /// One real env step (uniform, or the planner's action); returns the transition.
+    pub fn act(&mut self, behaviour: Behaviour) -> Result<&Batch, TrainError> {
+        let (actor, planner) = (&mut self.actor, &mut self.planner);
+        step_planning(actor, planner, behaviour, &mut self.staged)?;
+        Ok(self.staged.batch())
+    }
+    /// One real env step whose transition goes straight into `sink` (a pipeline actor's
+    /// loaned shared-memory sample).
+    pub fn act_into(
+        &mut self,
+        behaviour: Behaviour,
+        sink: &mut dyn TransitionSink,
+    ) -> Result<(), TrainError> {
+        step_planning(&mut self.actor, &mut self.planner, behaviour, sink)
     }
     /// The state a checkpoint keeps.
     pub fn checkpoint(&self) -> TdmpcActorState {
@@ -299,6 +305,22 @@ impl TdmpcActor {
             .set_mean(&s.plan)
             .map_err(|e| TrainError::Config(format!("tdmpc checkpoint: {e}")))
     }
+}
+
+/// One env step of `actor` with `planner` into `sink`; the warm start is dropped at every
+/// episode end.
+fn step_planning(
+    actor: &mut EnvActor,
+    planner: &mut LatentPlanner,
+    behaviour: Behaviour,
+    sink: &mut dyn TransitionSink,
+) -> Result<(), TrainError> {
+    let episodes = actor.episodes;
+    actor.step(behaviour, planner, sink)?;
+    if actor.episodes > episodes {
+        planner.reset();
+    }
+    Ok(())
 }
 
 /// What a checkpoint keeps of the [`TdmpcEvaluator`].

@@ -5,6 +5,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use mbpo_core::TransitionSink;
 use mbpo_model::EpochProgress;
 use serde::{Deserialize, Serialize};
 
@@ -171,8 +172,10 @@ impl SequentialRun for TdmpcRun<'_> {
             false => Behaviour::Policy,
         };
         let episodes = self.actor.env_actor().episodes;
-        let (row, ended) = self.actor.act(behaviour)?;
-        self.learner.add(row, ended);
+        let row = self.actor.act(behaviour)?;
+        let (obs, act, next) = (&row.obs, &row.act, &row.next_obs);
+        let terminated = row.terminated[0] > 0.5;
+        self.learner.push(obs, act, row.reward[0], next, terminated);
         let updates = self.updates_after(t);
         if updates > 0 {
             self.learner.update(updates)?;
