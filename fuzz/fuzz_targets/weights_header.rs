@@ -86,7 +86,7 @@ fuzz_target!(
         let payload = floats(rest);
         EXPECT.with_borrow_mut(|e| {
             let (hash, n) = match kind {
-                WeightsKind::Policy => e.policy,
+                WeightsKind::Policy | WeightsKind::WorldModel => e.policy,
                 WeightsKind::Model => (e.model_layout.layout_hash, e.model_layout.len()),
             };
             let result = check_weights_header(&h, payload.len(), run_hash(), kind, hash, n);
@@ -101,7 +101,7 @@ fuzz_target!(
                 return;
             }
             match kind {
-                WeightsKind::Policy => e.params.copy_from_slice(&payload),
+                WeightsKind::Policy | WeightsKind::WorldModel => e.params.copy_from_slice(&payload),
                 WeightsKind::Model => {
                     let layout = e.model_layout;
                     // Loads, or a typed error; never a panic.

@@ -172,6 +172,24 @@ impl WorldModel {
         self.ranges.policy.end
     }
 
+    /// FNV-1a of the widths the parameter vector is laid out by: two processes exchange
+    /// parameters only when theirs agree.
+    pub fn layout_hash(&self) -> u64 {
+        let c = &self.cfg;
+        let text = format!(
+            "tdmpc obs={} act={} latent={} encoder={} hidden={} q={} bins={} params={}",
+            self.obs,
+            self.act,
+            c.latent,
+            c.encoder_hidden,
+            c.hidden,
+            c.q_heads,
+            c.two_hot.bins,
+            self.num_params()
+        );
+        mbpo_core::rng::fnv1a(text.as_bytes())
+    }
+
     /// TD-MPC2's initialisation of every network (reward and Q outputs start at 0).
     pub fn init(&self, params: &mut [f32], rng: &mut Rng) {
         let r = &self.ranges;

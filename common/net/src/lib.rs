@@ -84,8 +84,7 @@ via_runtime!(
 /// The weights a run's actors act with (policy for MBPO, model for MPC): kind, layout hash
 /// and length.
 pub fn actor_weights(pipeline: &PipelineSpec, dims: &Dims) -> (WeightsKind, u64, usize) {
-    match pipeline.actor_weights() {
-        WeightsKind::Policy => (WeightsKind::Policy, dims.policy_hash, dims.policy_len),
-        WeightsKind::Model => (WeightsKind::Model, dims.model.layout_hash, dims.model.len()),
-    }
+    let kind = pipeline.actor_weights();
+    let (hash, len) = dims.weights_layout(kind);
+    (kind, hash, len)
 }

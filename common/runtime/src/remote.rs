@@ -53,10 +53,7 @@ pub fn can_run_remotely(pipeline: &PipelineSpec, kind: RoleKind) -> Result<(), S
 
 /// The weights channel a run's gateways carry: what its actors act with.
 pub fn weights_channel(pipeline: &PipelineSpec) -> Channel {
-    match pipeline.actor_weights() {
-        mbpo_wire::WeightsKind::Policy => Channel::Policy,
-        mbpo_wire::WeightsKind::Model => Channel::Model,
-    }
+    pipeline.actor_weights().channel()
 }
 
 /// The roles named `names` (`mbpo run --remote-roles`: process names such as `evaluator`) of

@@ -11,7 +11,7 @@ use mbpo_core::rng::stream;
 use mbpo_model::ProbabilisticEnsemble;
 use mbpo_sac::TanhGaussianActor;
 use mbpo_train::ExperimentConfig;
-use mbpo_wire::{ModelWireLayout, RowLayout};
+use mbpo_wire::{ModelWireLayout, RowLayout, WeightsKind};
 use serde::{Deserialize, Serialize};
 
 use mbpo_train::algorithm::{self, AlgorithmSpec};
@@ -44,6 +44,18 @@ pub struct Dims {
     pub policy_len: usize,
     /// How model snapshots are laid out.
     pub model: ModelWireLayout,
+    /// The latent world model's parameters (`algo = "tdmpc"`; every run has the figures).
+    #[serde(default)]
+    pub world_model: WeightsLayout,
+}
+
+/// The layout hash and length of one flat weight vector.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WeightsLayout {
+    /// What both ends must agree on.
+    pub hash: u64,
+    /// Floats.
+    pub len: usize,
 }
 
 impl Dims {
@@ -101,7 +113,19 @@ impl Dims {
             policy_hash: net.layout().hash(),
             policy_len: net.num_params(),
             model: ModelWireLayout::of_model(&model, cfg.model.elites),
+            world_model: {
+                let (hash, len) = mbpo_train::tdmpc::roles::world_model_layout(cfg, obs, act);
+                WeightsLayout { hash, len }
+            },
         })
+    }
+    /// The layout hash and length of the weights of `kind` in this run.
+    pub fn weights_layout(&self, kind: WeightsKind) -> (u64, usize) {
+        match kind {
+            WeightsKind::Policy => (self.policy_hash, self.policy_len),
+            WeightsKind::Model => (self.model.layout_hash, self.model.len()),
+            WeightsKind::WorldModel => (self.world_model.hash, self.world_model.len),
+        }
     }
     /// The transition row layout.
     pub fn rows(&self) -> RowLayout {
@@ -346,6 +370,7 @@ mod tests {
             policy_hash: 9,
             policy_len: 50,
             model,
+            world_model: WeightsLayout { hash: 11, len: 80 },
         };
         let mbpo = crate::pipeline::spec(mbpo_train::Algo::MBPO).unwrap();
         ResolvedRun::new(mbpo, dims, Mode::Pipelined, 3, 1, Slack::ZERO)

@@ -66,6 +66,9 @@ pub enum WeightsKind {
     Policy = 1,
     /// Dynamics ensemble parameters (with normaliser and elites, as laid out by the model crate).
     Model = 2,
+    /// A latent world model's parameters (TD-MPC2: encoder, dynamics, reward, Q heads, policy
+    /// prior; one flat vector), on the policy channel: what its planning actors act with.
+    WorldModel = 3,
 }
 
 impl WeightsKind {
@@ -74,13 +77,14 @@ impl WeightsKind {
         match v {
             1 => Some(WeightsKind::Policy),
             2 => Some(WeightsKind::Model),
+            3 => Some(WeightsKind::WorldModel),
             _ => None,
         }
     }
     /// The channel that carries this kind.
     pub fn channel(self) -> crate::Channel {
         match self {
-            WeightsKind::Policy => crate::Channel::Policy,
+            WeightsKind::Policy | WeightsKind::WorldModel => crate::Channel::Policy,
             WeightsKind::Model => crate::Channel::Model,
         }
     }

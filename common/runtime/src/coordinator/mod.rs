@@ -79,10 +79,7 @@ impl<S: Transport> CoordinatorPorts<S> {
 
 /// The layout hash and length of the weights a run's result is made of.
 fn result_layout(result: WeightsKind, dims: &Dims) -> (u64, usize) {
-    match result {
-        WeightsKind::Model => (dims.model.layout_hash, dims.model.len()),
-        WeightsKind::Policy => (dims.policy_hash, dims.policy_len),
-    }
+    dims.weights_layout(result)
 }
 
 /// Where a run stands after [`Coordinator::advance`].
@@ -149,7 +146,8 @@ impl Coordinator {
         collector.solved_rule = mbpo_train::run_control::solved_rule(cfg, out, resume_given);
         let final_wire = match plan.pipeline.result() {
             WeightsKind::Model => schedule.train_points_upto(cfg.steps),
-            WeightsKind::Policy => policy_wire_version(cfg.steps),
+            // A learner's: one version per env step consumed.
+            WeightsKind::Policy | WeightsKind::WorldModel => policy_wire_version(cfg.steps),
         };
         Self {
             dims,
@@ -500,6 +498,7 @@ impl Coordinator {
         let hashed = match result {
             WeightsKind::Model => self.dims.model.n_params,
             WeightsKind::Policy => self.dims.policy_len,
+            WeightsKind::WorldModel => self.dims.world_model.len,
         };
         let params = self
             .final_params

@@ -82,7 +82,7 @@ pub struct Finish {
 /// The versions a transition or progress record carries: the acting weights' in their field.
 fn stamp<R: ActingRole>(role: &R) -> (u64, u64) {
     match R::WEIGHTS {
-        WeightsKind::Policy => (role.version(), 0),
+        WeightsKind::Policy | WeightsKind::WorldModel => (role.version(), 0),
         WeightsKind::Model => (0, role.version()),
     }
 }
@@ -92,6 +92,7 @@ fn weights_name<R: ActingRole>() -> &'static str {
     match R::WEIGHTS {
         WeightsKind::Policy => "policy",
         WeightsKind::Model => "model",
+        WeightsKind::WorldModel => "world model",
     }
 }
 
@@ -132,10 +133,7 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
 
     fn ports(s: &Process<S>) -> Result<Ports<S>> {
         let d = s.dims;
-        let (hash, len) = match R::WEIGHTS {
-            WeightsKind::Policy => (d.policy_hash, d.policy_len),
-            WeightsKind::Model => (d.model.layout_hash, d.model.len()),
-        };
+        let (hash, len) = d.weights_layout(R::WEIGHTS);
         Ok(Ports {
             weights: WeightsSubscriber::create(&s.node, R::WEIGHTS, hash, len)?,
             real: TransitionPublisher::create(&s.node, Channel::Real, d.rows(), 1)?,

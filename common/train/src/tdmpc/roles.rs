@@ -23,8 +23,20 @@ use crate::error::TrainError;
 /// The world model `cfg` describes for `env` (its widths, horizon, loss weights, and γ from
 /// the task's episode length unless the config sets one).
 pub fn world_model(cfg: &ExperimentConfig, env: &dyn Env) -> WorldModel {
+    let model_cfg = model_config(cfg, env.max_episode_steps());
+    WorldModel::new(env.obs_dim(), env.act_dim(), model_cfg)
+}
+
+/// The layout hash and length of the parameters of `cfg`'s world model for a task of these
+/// widths (what crosses the wire; γ does not change it).
+pub fn world_model_layout(cfg: &ExperimentConfig, obs: usize, act: usize) -> (u64, usize) {
+    let model = WorldModel::new(obs, act, model_config(cfg, 1000));
+    (model.layout_hash(), model.num_params())
+}
+
+fn model_config(cfg: &ExperimentConfig, episode_length: usize) -> WorldModelConfig {
     let (t, w) = (&cfg.tdmpc, cfg.tdmpc.widths());
-    let model_cfg = WorldModelConfig {
+    WorldModelConfig {
         latent: w.latent,
         encoder_hidden: w.encoder_hidden,
         hidden: w.hidden,
@@ -34,10 +46,9 @@ pub fn world_model(cfg: &ExperimentConfig, env: &dyn Env) -> WorldModel {
         consistency_coef: t.consistency_coef,
         reward_coef: t.reward_coef,
         value_coef: t.value_coef,
-        discount: t.discount_for(env.max_episode_steps()),
+        discount: t.discount_for(episode_length),
         two_hot: TwoHot::default(),
-    };
-    WorldModel::new(env.obs_dim(), env.act_dim(), model_cfg)
+    }
 }
 
 fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
