@@ -21,6 +21,8 @@ pub struct Schedule {
     pub steps: u64,
     /// Skip eval points inside the warm-up (MPC: there is no model to plan with yet).
     pub skip_warm_up_evals: bool,
+    /// Updates owed at once by the last warm-up step (TD-MPC2: as many as its seed steps).
+    pub burst_updates: u64,
 }
 
 impl Schedule {
@@ -54,10 +56,11 @@ impl Schedule {
             eval_every: cfg.eval.every,
             steps: cfg.steps,
             skip_warm_up_evals: mpc,
+            burst_updates: 0,
         }
     }
-    /// TD-MPC2's: `seed_steps` of warm-up, then `updates_per_step` updates per step (the
-    /// burst after the warm-up is the trainer's); no model trainings or rollouts of MBPO's.
+    /// TD-MPC2's: `seed_steps` of warm-up, as many updates at its last step, then
+    /// `updates_per_step` per step; no model trainings or rollouts of MBPO's.
     fn of_tdmpc(cfg: &ExperimentConfig) -> Self {
         Self {
             init_random_steps: cfg.tdmpc.seed_steps,
@@ -67,6 +70,7 @@ impl Schedule {
             eval_every: cfg.eval.every,
             steps: cfg.steps,
             skip_warm_up_evals: false,
+            burst_updates: cfg.tdmpc.seed_steps,
         }
     }
     /// Is step `t` a warm-up step?
@@ -124,9 +128,18 @@ impl Schedule {
     pub fn eval_points_upto(&self, t: u64) -> u64 {
         (1..=t).filter(|&p| self.is_eval_point(p)).count() as u64
     }
-    /// SAC updates owed once step `t` is consumed: G per step after the warm-up.
+    /// Updates owed once step `t` is consumed: G per step after the warm-up (SAC's; TD-MPC2's
+    /// world model's after a burst of `burst_updates` at the warm-up's last step).
     pub fn updates_owed(&self, t: u64) -> u64 {
-        t.saturating_sub(self.init_random_steps) * self.updates_per_step
+        let burst = match t >= self.init_random_steps {
+            true => self.burst_updates,
+            false => 0,
+        };
+        burst + t.saturating_sub(self.init_random_steps) * self.updates_per_step
+    }
+    /// The updates owed for step `t` alone: `updates_owed(t) − updates_owed(t − 1)`.
+    pub fn updates_at(&self, t: u64) -> u64 {
+        self.updates_owed(t) - self.updates_owed(t.saturating_sub(1))
     }
 }
 
@@ -184,6 +197,17 @@ mod tests {
         assert_eq!(s.eval_points().collect::<Vec<_>>(), [50, 100, 130]);
         assert_eq!(s.updates_owed(100), 0);
         assert_eq!(s.updates_owed(103), 3 * cfg.mbpo.updates_per_step as u64);
+        let mut tdmpc = cfg.clone();
+        tdmpc.algo = Algo::TDMPC;
+        (tdmpc.tdmpc.seed_steps, tdmpc.tdmpc.updates_per_step) = (50, 2);
+        let t = Schedule::of(&tdmpc);
+        let at: Vec<u64> = [1, 49, 50, 51, 52].map(|s| t.updates_at(s)).to_vec();
+        assert_eq!(
+            at,
+            [0, 0, 50, 2, 2],
+            "the burst at the last seed step, then G"
+        );
+        assert_eq!(t.updates_owed(52), 54);
     }
 
     #[test]

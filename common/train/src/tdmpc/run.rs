@@ -87,16 +87,6 @@ impl TdmpcRun<'_> {
         self.evaluator.planner().set_params(params, version);
     }
 
-    /// Updates owed after env step `t`: the burst after the seed steps, then the schedule's.
-    fn updates_after(&self, t: u64) -> u64 {
-        let seed = self.schedule.init_random_steps;
-        match t {
-            t if t < seed => 0,
-            t if t == seed => seed,
-            _ => self.schedule.updates_per_step,
-        }
-    }
-
     fn write_checkpoint(&self, dir: &Path, t: u64) -> Result<(), CheckpointError> {
         std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
             path: dir.to_path_buf(),
@@ -176,7 +166,7 @@ impl SequentialRun for TdmpcRun<'_> {
         let (obs, act, next) = (&row.obs, &row.act, &row.next_obs);
         let terminated = row.terminated[0] > 0.5;
         self.learner.push(obs, act, row.reward[0], next, terminated);
-        let updates = self.updates_after(t);
+        let updates = self.schedule.updates_at(t);
         if updates > 0 {
             self.learner.update(updates)?;
             self.hand_out_params();
