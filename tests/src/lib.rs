@@ -107,6 +107,25 @@ pub fn tiny_config(steps: u64) -> ExperimentConfig {
     cfg
 }
 
+/// TD-MPC2 on Pendulum with tiny networks and planner: 100 seed steps and 100 updates at the
+/// last of them, then one per step; evaluations every 100 steps, checkpoints every 150.
+pub fn tiny_tdmpc_config(steps: u64) -> ExperimentConfig {
+    let mut cfg = ExperimentConfig {
+        algo: Algo::TDMPC,
+        steps,
+        ..Default::default()
+    };
+    cfg.eval.every = 100;
+    cfg.eval.episodes = 1;
+    cfg.checkpoint.every = 150;
+    let t = &mut cfg.tdmpc;
+    (t.latent, t.encoder_hidden, t.hidden) = (Some(16), Some(32), Some(32));
+    (t.seed_steps, t.batch_size) = (100, 16);
+    let p = &mut t.planner;
+    (p.samples, p.policy_samples, p.elites, p.iterations) = (32, 4, 8, 2);
+    cfg
+}
+
 /// MPC-CEM on Pendulum with a tiny model and planner: warm-up 100, a model every 100 steps,
 /// evaluations at 200, 300, 400 (the eval point 100 is still warm-up).
 pub fn tiny_mpc_config(steps: u64) -> ExperimentConfig {

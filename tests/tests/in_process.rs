@@ -7,6 +7,7 @@ use std::time::Duration;
 use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
+use mbpo_train::tdmpc::train_tdmpc;
 use mbpo_train::{train_mbpo, train_mpc, Algo, ImaginedStateClip};
 
 fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessRun {
@@ -110,6 +111,43 @@ fn in_process_lockstep_mpc_equals_sequential() {
         &dir.join("sequential"),
     );
     assert_last_step_checkpointed(&run.out, Algo::MPC, 1, cfg.steps);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// TD-MPC2 on its roles (world-model learner, a latent-planning actor, the evaluator): lockstep
+/// equals `mbpo train` (parameters and metrics rows), and a pipelined run loses nothing.
+#[test]
+fn in_process_tdmpc_lockstep_equals_sequential_and_pipelined_loses_nothing() {
+    let cfg = tiny_tdmpc_config(350);
+    let dir = scratch("in-process-tdmpc");
+    let seq = train_tdmpc(&cfg, &dir.join("sequential")).unwrap();
+    let run = how(&dir, "lockstep", Mode::Lockstep, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_lockstep_equals(
+        &s.summary.policy_sha256,
+        &seq.policy_sha256,
+        &run.out,
+        &dir.join("sequential"),
+    );
+    assert_eq!(
+        s.summary.sac_updates,
+        100 + 250,
+        "the burst, then one per step"
+    );
+    assert_last_step_checkpointed(&run.out, Algo::TDMPC, 1, cfg.steps);
+    let run = how(&dir, "pipelined", Mode::Pipelined, 1);
+    let s = run_in_process(&cfg, &run).unwrap();
+    assert_eq!(s.summary.status, "completed");
+    assert_eq!(s.real_transitions.produced, 350);
+    assert_eq!(s.real_transitions.received["learner"], 350);
+    assert_eq!(s.real_transitions.lost, 0);
+    assert_eq!(s.summary.sac_updates, 100 + 250, "every update paid");
+    let rows = metrics_without_timing(&run.out);
+    assert_eq!(
+        rows.len(),
+        5,
+        "the header, rows 100, 200, 300 and 350: {rows:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

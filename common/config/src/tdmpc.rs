@@ -224,6 +224,10 @@ impl TdmpcConfig {
         if let Some(g) = self.discount.filter(|g| !(*g > 0.0 && *g < 1.0)) {
             return err("discount", "a number in (0, 1)", g.to_string());
         }
+        if self.seed_steps < self.horizon as u64 {
+            let expected = format!("at least tdmpc.horizon ({}): the first updates learn from the seed steps' subsequences", self.horizon);
+            return err("seed_steps", &expected, self.seed_steps.to_string());
+        }
         if p.max_std < p.min_std {
             let expected = format!("at least planner.min_std ({})", p.min_std);
             return err("planner.max_std", &expected, p.max_std.to_string());

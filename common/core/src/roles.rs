@@ -162,6 +162,12 @@ pub enum RoleKind {
     PlanningEvaluator,
     /// An environment actor that plans on the model trainer's ensemble.
     PlanningActor,
+    /// TD-MPC2's learner: trains the latent world model on real episodes, publishes it.
+    WorldModelLearner,
+    /// The evaluation actor of a TD-MPC2 run (plans in the learner's latent space).
+    LatentEvaluator,
+    /// An environment actor that plans in the world-model learner's latent space.
+    LatentActor,
 }
 
 /// One row of [`ROLES`].
@@ -190,7 +196,7 @@ pub struct RoleRow {
 use Channel::{Control, Imagined, Model, Policy, Real, Stats};
 
 /// Every role, in [`RoleKind`] order.
-pub const ROLES: [RoleRow; 7] = [
+pub const ROLES: [RoleRow; 10] = [
     RoleRow {
         kind: RoleKind::Learner,
         wire: Role::Learner,
@@ -268,6 +274,40 @@ pub const ROLES: [RoleRow; 7] = [
         publishes: &[Real, Stats],
         pauses: true,
     },
+    // TD-MPC2: the world model's parameters travel on the policy channel.
+    RoleRow {
+        kind: RoleKind::WorldModelLearner,
+        wire: Role::Learner,
+        numbered: false,
+        binary: "mbpo-sac-learner",
+        binary_flags: &["--world-model"],
+        checkpoint_kind: "mbpo.role.world-model-learner",
+        subscribes: &[Real, Control],
+        publishes: &[Policy, Stats],
+        pauses: false,
+    },
+    RoleRow {
+        kind: RoleKind::LatentEvaluator,
+        wire: Role::Evaluator,
+        numbered: false,
+        binary: "mbpo-actor",
+        binary_flags: &["--eval", "--latent"],
+        checkpoint_kind: "mbpo.role.latent-evaluator",
+        subscribes: &[Policy, Control],
+        publishes: &[Stats, Control],
+        pauses: false,
+    },
+    RoleRow {
+        kind: RoleKind::LatentActor,
+        wire: Role::Actor,
+        numbered: true,
+        binary: "mbpo-actor",
+        binary_flags: &["--latent"],
+        checkpoint_kind: "mbpo.role.latent-actor",
+        subscribes: &[Policy, Control],
+        publishes: &[Real, Stats],
+        pauses: true,
+    },
 ];
 
 /// The roles an algorithm runs as under `mbpo run`: its column of the algorithm table
@@ -282,7 +322,7 @@ pub struct PipelineRoles {
 
 impl RoleKind {
     /// Every role kind.
-    pub const ALL: [RoleKind; 7] = [
+    pub const ALL: [RoleKind; 10] = [
         RoleKind::Learner,
         RoleKind::ModelTrainer,
         RoleKind::RolloutGenerator,
@@ -290,6 +330,9 @@ impl RoleKind {
         RoleKind::Actor,
         RoleKind::PlanningEvaluator,
         RoleKind::PlanningActor,
+        RoleKind::WorldModelLearner,
+        RoleKind::LatentEvaluator,
+        RoleKind::LatentActor,
     ];
 
     /// Its row of [`ROLES`].
@@ -406,7 +449,14 @@ mod tests {
             assert_eq!(row.kind.row().kind, row.kind);
         }
         let numbered: Vec<RoleKind> = RoleKind::ALL.into_iter().filter(|k| k.is_actor()).collect();
-        assert_eq!(numbered, [RoleKind::Actor, RoleKind::PlanningActor]);
+        assert_eq!(
+            numbered,
+            [
+                RoleKind::Actor,
+                RoleKind::PlanningActor,
+                RoleKind::LatentActor
+            ]
+        );
         assert_eq!(RoleKind::Actor.name(3), "actor-3");
         assert_eq!(RoleKind::PlanningEvaluator.name(0), "evaluator");
         assert_eq!(RoleKind::RolloutGenerator.name(0), "rollout-generator");

@@ -67,6 +67,12 @@ pub mod kind {
     pub const PLANNING_ACTOR: &str = RoleKind::PlanningActor.checkpoint_kind();
     /// `run_files::PlanningEvaluatorCheckpoint` (MPC runs).
     pub const PLANNING_EVALUATOR: &str = RoleKind::PlanningEvaluator.checkpoint_kind();
+    /// `run_files::WorldModelLearnerCheckpoint` (TD-MPC2 runs).
+    pub const WORLD_MODEL_LEARNER: &str = RoleKind::WorldModelLearner.checkpoint_kind();
+    /// `run_files::LatentActorCheckpoint` (TD-MPC2 runs).
+    pub const LATENT_ACTOR: &str = RoleKind::LatentActor.checkpoint_kind();
+    /// `run_files::LatentEvaluatorCheckpoint` (TD-MPC2 runs).
+    pub const LATENT_EVALUATOR: &str = RoleKind::LatentEvaluator.checkpoint_kind();
     /// `run_files::RunBook`.
     pub const RUN_BOOK: &str = "mbpo.run-book";
 }

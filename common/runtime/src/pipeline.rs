@@ -133,10 +133,10 @@ impl PipelineSpec {
     }
     /// The weights its actors act with: the learner's policy, or the model they plan on.
     pub fn actor_weights(&self) -> WeightsKind {
-        if self.plans() {
-            WeightsKind::Model
-        } else {
-            WeightsKind::Policy
+        match self.actor {
+            RoleKind::PlanningActor => WeightsKind::Model,
+            RoleKind::LatentActor => WeightsKind::WorldModel,
+            _ => WeightsKind::Policy,
         }
     }
     /// How many of its roles receive every real transition (an actor's first send waits for
@@ -252,7 +252,7 @@ mod tests {
     #[test]
     fn an_algorithm_without_a_pipeline_is_refused_by_name() {
         let err = spec(Algo::SAC).unwrap_err().to_string();
-        assert!(err.contains("mbpo or mpc, not sac"), "{err}");
+        assert!(err.contains("mbpo or mpc or tdmpc, not sac"), "{err}");
     }
 }
 

@@ -47,6 +47,9 @@ pub struct Dims {
     /// The latent world model's parameters (`algo = "tdmpc"`; every run has the figures).
     #[serde(default)]
     pub world_model: WeightsLayout,
+    /// The task's time limit in env steps (TD-MPC2's discount follows from it).
+    #[serde(default)]
+    pub episode_length: usize,
 }
 
 /// The layout hash and length of one flat weight vector.
@@ -62,7 +65,8 @@ impl Dims {
     /// The dimensions of the run configured by `cfg` (makes its environment once).
     pub fn of(cfg: &ExperimentConfig) -> Result<Self> {
         let env = cfg.make_env()?;
-        Self::with_env_dims(cfg, env.obs_dim(), env.act_dim())
+        let widths = (env.obs_dim(), env.act_dim());
+        Self::with_env_dims(cfg, widths, env.max_episode_steps())
     }
 
     /// [`Dims::of`] for the launcher of the run in `run_dir`: a Python env's widths come from
@@ -94,10 +98,16 @@ impl Dims {
                     ))
                 })
         };
-        Self::with_env_dims(cfg, width("obs_dim")?, width("act_dim")?)
+        let widths = (width("obs_dim")?, width("act_dim")?);
+        let episode_length = json["max_episode_steps"].as_u64().unwrap_or(0) as usize;
+        Self::with_env_dims(cfg, widths, episode_length)
     }
 
-    fn with_env_dims(cfg: &ExperimentConfig, obs: usize, act: usize) -> Result<Self> {
+    fn with_env_dims(
+        cfg: &ExperimentConfig,
+        (obs, act): (usize, usize),
+        episode_length: usize,
+    ) -> Result<Self> {
         let net = actor_net(cfg, obs, act);
         // Architecture only; the stream is never used for anything else.
         let model = ProbabilisticEnsemble::new(
@@ -117,6 +127,7 @@ impl Dims {
                 let (hash, len) = mbpo_train::tdmpc::roles::world_model_layout(cfg, obs, act);
                 WeightsLayout { hash, len }
             },
+            episode_length,
         })
     }
     /// The layout hash and length of the weights of `kind` in this run.
@@ -371,6 +382,7 @@ mod tests {
             policy_len: 50,
             model,
             world_model: WeightsLayout { hash: 11, len: 80 },
+            episode_length: 200,
         };
         let mbpo = crate::pipeline::spec(mbpo_train::Algo::MBPO).unwrap();
         ResolvedRun::new(mbpo, dims, Mode::Pipelined, 3, 1, Slack::ZERO)

@@ -64,11 +64,15 @@ const BUILT_IN: [AlgorithmSpec; 4] = [
             actor: RoleKind::PlanningActor,
         }),
     },
-    // A world model learned in a latent space, planned on by MPPI (`mbpo train` only so far).
+    // A world model learned in a latent space, planned on by MPPI: its learner, actors that
+    // plan on its newest parameters and an evaluator that plans.
     AlgorithmSpec {
         name: Algo::TDMPC.name(),
         train: crate::tdmpc::train_tdmpc_with,
-        pipeline: None,
+        pipeline: Some(PipelineRoles {
+            services: &[RoleKind::WorldModelLearner, RoleKind::LatentEvaluator],
+            actor: RoleKind::LatentActor,
+        }),
     },
 ];
 

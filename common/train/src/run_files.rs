@@ -21,6 +21,7 @@ use crate::error::TrainError;
 use crate::mpc_roles::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
 use crate::schedule::Schedule;
+use crate::tdmpc::roles::{TdmpcActorState, TdmpcEvaluatorState, WorldModelLearnerState};
 
 /// File names in a checkpoint directory (actors: [`actor_file`]), the role table's names.
 pub mod file {
@@ -120,6 +121,38 @@ pub struct PlanningEvaluatorCheckpoint {
     /// Evaluations done.
     pub evals: u64,
     /// The checkpoint's env step T (every eval point ≤ T is done, none after it).
+    pub env_steps: u64,
+}
+
+/// TD-MPC2's world-model learner after T: it consumed and published step T.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct WorldModelLearnerCheckpoint {
+    /// The role (networks, optimisers, real episodes, stream, updates).
+    pub role: WorldModelLearnerState,
+    /// Env steps consumed and published (= T).
+    pub consumed: u64,
+}
+
+/// A TD-MPC2 actor after T.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LatentActorCheckpoint {
+    /// The role (env episode in progress, streams, the planner's warm start; not the
+    /// parameters: the learner publishes its version again when the run resumes).
+    pub role: TdmpcActorState,
+    /// Local steps done.
+    pub steps: u64,
+}
+
+/// TD-MPC2's evaluator after T.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct LatentEvaluatorCheckpoint {
+    /// The `eval.env` and `eval.plan` streams.
+    pub role: TdmpcEvaluatorState,
+    /// Parameters version last evaluated.
+    pub version: u64,
+    /// Evaluations done.
+    pub evals: u64,
+    /// The checkpoint's env step T.
     pub env_steps: u64,
 }
 

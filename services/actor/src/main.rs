@@ -28,12 +28,19 @@ struct Args {
     /// Plan on the model trainer's ensemble (MPC) instead of acting with the SAC policy.
     #[arg(long)]
     plan: bool,
+    /// Plan in the latent space of the world-model learner's parameters (TD-MPC2).
+    #[arg(long)]
+    latent: bool,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    let flags = [(args.eval, "--eval"), (args.plan, "--plan")];
+    let flags = [
+        (args.eval, "--eval"),
+        (args.plan, "--plan"),
+        (args.latent, "--latent"),
+    ];
     let flags: Vec<&str> = flags.iter().filter(|f| f.0).map(|f| f.1).collect();
     let role = RoleKind::of_binary(env!("CARGO_PKG_NAME"), &flags)
         .expect("every flag combination of mbpo-actor is a role of the role table");

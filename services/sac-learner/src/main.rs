@@ -15,7 +15,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use mbpo_runtime::services::service_loop;
-use mbpo_runtime::ServiceArgs;
+use mbpo_runtime::{RoleKind, ServiceArgs};
 use mbpo_wire::ipc;
 
 #[derive(Debug, Parser)]
@@ -24,12 +24,19 @@ use mbpo_wire::ipc;
 struct Args {
     #[command(flatten)]
     svc: ServiceArgs,
+    /// Be TD-MPC2's world-model learner instead (`mbpo_runtime::services::world_model`).
+    #[arg(long)]
+    world_model: bool,
 }
 
 fn main() -> ExitCode {
     let args = Args::parse();
     mbpo_runtime::init_service_process();
-    mbpo_runtime::exit_code(service_loop::<ipc::Service>(
-        mbpo_runtime::RoleKind::Learner,
-    )(&args.svc))
+    let flags: &[&str] = match args.world_model {
+        true => &["--world-model"],
+        false => &[],
+    };
+    let role = RoleKind::of_binary(env!("CARGO_PKG_NAME"), flags)
+        .expect("every flag combination of mbpo-sac-learner is a role of the role table");
+    mbpo_runtime::exit_code(service_loop::<ipc::Service>(role)(&args.svc))
 }

@@ -420,7 +420,8 @@ impl Collector {
             let done: Vec<&(u64, f64)> = self.book.episodes.iter().filter(|e| e.0 <= t).collect();
             let train_return = done.iter().max_by_key(|e| e.0).map(|e| e.1);
             let updated = lr.sac_updates > 0;
-            let some = |v: f32| updated.then_some(v as f64);
+            // A learner without SAC's figures (TD-MPC2's world model) sends NaN: empty cells.
+            let some = |v: f32| (updated && v.is_finite()).then_some(v as f64);
             let model = (lr.model_version > 0)
                 .then(|| self.book.models.get(&lr.model_version).copied())
                 .flatten();
@@ -445,7 +446,7 @@ impl Collector {
                 sac_updates: lr.sac_updates,
                 critic_loss: some(lr.critic_loss),
                 actor_loss: some(lr.actor_loss),
-                alpha: (!plans).then_some(lr.alpha as f64),
+                alpha: (!plans && lr.alpha.is_finite()).then_some(lr.alpha as f64),
                 entropy: some(lr.entropy),
                 q_mean: some(lr.q_mean),
                 model_holdout_mse: model,

@@ -6,10 +6,12 @@ mod acting;
 pub mod actor;
 mod data;
 mod eval_points;
+pub mod latent;
 pub mod learner;
 pub mod model_trainer;
 pub mod planning;
 pub mod rollout;
+pub mod world_model;
 
 use mbpo_wire::Transport;
 
@@ -31,5 +33,8 @@ pub fn service_loop<S: Transport>(kind: RoleKind) -> ServiceLoop {
         RoleKind::Actor => serve::<S, Acting<S, actor::PolicyActing>>,
         RoleKind::PlanningEvaluator => serve::<S, planning::ModelEvaluator>,
         RoleKind::PlanningActor => serve::<S, Acting<S, planning::ModelActing>>,
+        RoleKind::WorldModelLearner => serve::<S, world_model::WorldModelLearnerWorker<S>>,
+        RoleKind::LatentEvaluator => serve::<S, latent::LatentEvaluator>,
+        RoleKind::LatentActor => serve::<S, Acting<S, latent::LatentActing>>,
     }
 }

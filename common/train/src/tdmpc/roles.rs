@@ -76,6 +76,8 @@ pub struct LatentPlanner {
     /// Add the plan's σ as exploration noise (the actor, not the evaluator).
     explore: bool,
     iterations: IterationCount,
+    /// It holds parameters it was given (not the zeros it starts with).
+    received: bool,
 }
 
 /// Iterations per plan since the planner was made: fewest, total, most, plans.
@@ -111,12 +113,27 @@ impl LatentPlanner {
             model,
             explore,
             iterations: IterationCount::default(),
+            received: false,
         }
     }
-    /// Take parameters `version` (the learner's updates so far).
+    /// Take parameters `version` (the learner's after `version` env steps), one copy.
     pub fn set_params(&mut self, params: &[f32], version: u64) {
         self.params.copy_from_slice(params);
         self.version = version;
+        self.received = true;
+    }
+    /// The parameters, to load a snapshot into in place; then [`LatentPlanner::received`].
+    pub fn params_mut(&mut self) -> &mut [f32] {
+        &mut self.params
+    }
+    /// The parameters in place are version `version` of the learner's.
+    pub fn received(&mut self, version: u64) {
+        self.version = version;
+        self.received = true;
+    }
+    /// Whether it holds given parameters of at least `version`.
+    pub fn holds(&self, version: u64) -> bool {
+        self.received && self.version >= version
     }
     /// The version planned with.
     pub fn version(&self) -> u64 {
@@ -172,10 +189,20 @@ pub struct WorldModelLearner {
 impl WorldModelLearner {
     /// The learner of `cfg` for `env`'s sizes, its parameters drawn from `tdmpc.init`.
     pub fn new(cfg: &ExperimentConfig, env: &dyn Env) -> Self {
-        let model = world_model(cfg, env);
+        let widths = (env.obs_dim(), env.act_dim());
+        Self::with_dims(cfg, widths, env.max_episode_steps())
+    }
+    /// [`WorldModelLearner::new`] from the task's widths and time limit alone (a pipeline
+    /// learner does not make the env).
+    pub fn with_dims(
+        cfg: &ExperimentConfig,
+        (o, a): (usize, usize),
+        episode_length: usize,
+    ) -> Self {
+        let model = WorldModel::new(o, a, model_config(cfg, episode_length));
         let mut params = vec![0.0; model.num_params()];
         model.init(&mut params, &mut stream(cfg.seed, "tdmpc.init", 0));
-        let (t, o, a) = (&cfg.tdmpc, env.obs_dim(), env.act_dim());
+        let t = &cfg.tdmpc;
         let seq = Sequences::zeros(t.batch_size, t.horizon, o, a);
         let update = UpdateConfig {
             lr: t.lr,
@@ -282,6 +309,10 @@ impl TdmpcActor {
     pub fn planner(&mut self) -> &mut LatentPlanner {
         &mut self.planner
     }
+    /// The planner (its version and counters).
+    pub fn planner_ref(&self) -> &LatentPlanner {
+        &self.planner
+    }
     /// The env actor (episode counters).
     pub fn env_actor(&self) -> &EnvActor {
         &self.actor
@@ -368,6 +399,10 @@ impl TdmpcEvaluator {
     /// The planner (to give it parameters).
     pub fn planner(&mut self) -> &mut LatentPlanner {
         &mut self.planner
+    }
+    /// The planner (its version).
+    pub fn planner_ref(&self) -> &LatentPlanner {
+        &self.planner
     }
     /// The state a checkpoint keeps.
     pub fn checkpoint(&self) -> TdmpcEvaluatorState {

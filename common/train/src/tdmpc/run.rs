@@ -7,12 +7,8 @@ use std::time::{Duration, Instant};
 
 use mbpo_core::TransitionSink;
 use mbpo_model::EpochProgress;
-use serde::{Deserialize, Serialize};
 
-use super::roles::{
-    TdmpcActor, TdmpcActorState, TdmpcEvaluator, TdmpcEvaluatorState, WorldModelLearner,
-    WorldModelLearnerState,
-};
+use super::roles::{TdmpcActor, TdmpcEvaluator, WorldModelLearner};
 use crate::actor::Behaviour;
 use crate::checkpoint::{self, CheckpointError};
 use crate::config::ExperimentConfig;
@@ -20,23 +16,11 @@ use crate::driver::{drive, SequentialRun};
 use crate::error::TrainError;
 use crate::run_control::RunOptions;
 use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
-use crate::run_files::{actor_file, file, RunBook};
+use crate::run_files::{
+    actor_file, check_one_actor_cut, file, kind, LatentActorCheckpoint, LatentEvaluatorCheckpoint,
+    RunBook, WorldModelLearnerCheckpoint,
+};
 use crate::schedule::Schedule;
-
-/// The checkpoint files of a TD-MPC run besides the run book, and their kinds.
-mod tdmpc_file {
-    pub const LEARNER: &str = "world-model-learner";
-    pub const LEARNER_KIND: &str = "mbpo.world-model-learner";
-    pub const ACTOR_KIND: &str = "mbpo.tdmpc-actor";
-    pub const EVALUATOR_KIND: &str = "mbpo.tdmpc-evaluator";
-}
-
-/// The actor's file: its state and its env steps.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-struct ActorFile {
-    role: TdmpcActorState,
-    steps: u64,
-}
 
 /// Run TD-MPC2 per `cfg` into the run directory `out`; returns the summary.
 pub fn train_tdmpc(cfg: &ExperimentConfig, out: &Path) -> Result<Summary, TrainError> {
@@ -63,7 +47,7 @@ pub fn train_tdmpc_with(
         book: RunBook::start(),
         started: Instant::now(),
     };
-    run.hand_out_params();
+    run.hand_out_params(0);
     drive(&mut run, cfg, out, opts)
 }
 
@@ -80,36 +64,48 @@ struct TdmpcRun<'a> {
 }
 
 impl TdmpcRun<'_> {
-    /// Give the planners the learner's current parameters.
-    fn hand_out_params(&mut self) {
-        let (params, version) = (self.learner.params(), self.learner.updates());
+    /// Give the planners the learner's parameters after env step `version`.
+    fn hand_out_params(&mut self, version: u64) {
+        let params = self.learner.params();
         self.actor.planner().set_params(params, version);
         self.evaluator.planner().set_params(params, version);
     }
 
+    /// Write the checkpoint after env step `t` into `dir`: the files of a one-actor TD-MPC
+    /// pipeline ([`crate::run_files`]), so `mbpo run --resume` continues it too.
     fn write_checkpoint(&self, dir: &Path, t: u64) -> Result<(), CheckpointError> {
         std::fs::create_dir_all(dir).map_err(|source| CheckpointError::Io {
             path: dir.to_path_buf(),
             source,
         })?;
-        let actor = ActorFile {
+        let learner = WorldModelLearnerCheckpoint {
+            role: self.learner.checkpoint(),
+            consumed: t,
+        };
+        let actor = LatentActorCheckpoint {
             role: self.actor.checkpoint(),
             steps: t,
         };
-        let learner = self.learner.checkpoint();
-        let evaluator = self.evaluator.checkpoint();
-        checkpoint::write(&dir.join(actor_file(0)), tdmpc_file::ACTOR_KIND, &actor)?;
-        let learner_path = dir.join(tdmpc_file::LEARNER);
-        checkpoint::write(&learner_path, tdmpc_file::LEARNER_KIND, &learner)?;
-        let evaluator_path = dir.join(file::EVALUATOR);
-        checkpoint::write(&evaluator_path, tdmpc_file::EVALUATOR_KIND, &evaluator)?;
+        let evaluator = LatentEvaluatorCheckpoint {
+            role: self.evaluator.checkpoint(),
+            version: t,
+            evals: self.schedule.eval_points_upto(t),
+            env_steps: t,
+        };
         checkpoint::write(
-            &dir.join(file::RUN_BOOK),
-            checkpoint::kind::RUN_BOOK,
-            &self.book,
+            &dir.join(file::LEARNER),
+            kind::WORLD_MODEL_LEARNER,
+            &learner,
         )?;
+        checkpoint::write(&dir.join(actor_file(0)), kind::LATENT_ACTOR, &actor)?;
+        checkpoint::write(
+            &dir.join(file::EVALUATOR),
+            kind::LATENT_EVALUATOR,
+            &evaluator,
+        )?;
+        checkpoint::write(&dir.join(file::RUN_BOOK), kind::RUN_BOOK, &self.book)?;
         let files = [
-            tdmpc_file::LEARNER.to_string(),
+            file::LEARNER.to_string(),
             file::EVALUATOR.into(),
             actor_file(0),
             file::RUN_BOOK.into(),
@@ -122,24 +118,23 @@ impl TdmpcRun<'_> {
 impl SequentialRun for TdmpcRun<'_> {
     const COUNTING: Option<&'static str> = Some("updates");
 
+    /// Continue from the checkpoint in `dir` (after `t` env steps), written by this trainer or
+    /// by a one-actor `mbpo run`; the planners get the learner's parameters.
     fn restore(&mut self, dir: &Path, t: u64) -> Result<(), TrainError> {
-        let actor: ActorFile = checkpoint::read(&dir.join(actor_file(0)), tdmpc_file::ACTOR_KIND)?;
-        let learner: WorldModelLearnerState =
-            checkpoint::read(&dir.join(tdmpc_file::LEARNER), tdmpc_file::LEARNER_KIND)?;
-        let evaluator: TdmpcEvaluatorState =
-            checkpoint::read(&dir.join(file::EVALUATOR), tdmpc_file::EVALUATOR_KIND)?;
-        if actor.steps != t {
-            return Err(TrainError::Config(format!(
-                "{}: the actor's file is at env step {}, the checkpoint at {t}",
-                dir.display(),
-                actor.steps
-            )));
-        }
-        self.book = checkpoint::read(&dir.join(file::RUN_BOOK), checkpoint::kind::RUN_BOOK)?;
-        self.learner.restore(learner)?;
+        let learner: WorldModelLearnerCheckpoint =
+            checkpoint::read(&dir.join(file::LEARNER), kind::WORLD_MODEL_LEARNER)?;
+        let actor: LatentActorCheckpoint =
+            checkpoint::read(&dir.join(actor_file(0)), kind::LATENT_ACTOR)?;
+        let evaluator: LatentEvaluatorCheckpoint =
+            checkpoint::read(&dir.join(file::EVALUATOR), kind::LATENT_EVALUATOR)?;
+        let k = self.schedule.train_points_upto(t);
+        let steps = [("learner", learner.consumed), ("actor", actor.steps)];
+        check_one_actor_cut(dir, &self.schedule, t, k, &steps, &[])?;
+        self.book = checkpoint::read(&dir.join(file::RUN_BOOK), kind::RUN_BOOK)?;
+        self.learner.restore(learner.role)?;
         self.actor.restore(actor.role)?;
-        self.evaluator.restore(evaluator);
-        self.hand_out_params();
+        self.evaluator.restore(evaluator.role);
+        self.hand_out_params(t);
         Ok(())
     }
 
@@ -169,7 +164,7 @@ impl SequentialRun for TdmpcRun<'_> {
         let updates = self.schedule.updates_at(t);
         if updates > 0 {
             self.learner.update(updates)?;
-            self.hand_out_params();
+            self.hand_out_params(t);
         }
         self.book.note_episode_end(self.actor.env_actor(), episodes);
         if t > self.schedule.init_random_steps {
