@@ -7,6 +7,7 @@ use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use mbpo_integration_tests::*;
+use mbpo_train::tdmpc::train_tdmpc_with;
 use mbpo_train::{
     train_mbpo, train_mbpo_with, train_mpc, train_mpc_with, ExperimentConfig, RunOptions, Summary,
     TrainError,
@@ -283,6 +284,14 @@ fn mbpo_checkpoints_cross_between_mbpo_train_and_mbpo_run() {
 #[test]
 fn mpc_checkpoints_cross_between_mbpo_train_and_mbpo_run() {
     cross_resume(tiny_mpc_config(400), "cross-mpc", train_mpc_with);
+}
+
+/// [`mbpo_checkpoints_cross_between_mbpo_train_and_mbpo_run`] for TD-MPC2 (world-model
+/// learner, latent-planning actor and evaluator); the extension to 600 steps grows the
+/// learner's episodes as `mbpo train` would have kept them.
+#[test]
+fn tdmpc_checkpoints_cross_between_mbpo_train_and_mbpo_run() {
+    cross_resume(tiny_tdmpc_config(400), "cross-tdmpc", train_tdmpc_with);
 }
 
 type Trainer = fn(&ExperimentConfig, &Path, RunOptions) -> Result<Summary, TrainError>;
