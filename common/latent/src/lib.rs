@@ -5,6 +5,7 @@
 //! value at the horizon.
 //!
 //! This crate holds the world model's pieces, each checked against finite differences:
+//! * [`bench`]: what one env step costs (a plan and an update), for `mbpo bench tdmpc-step`.
 //! * [`elementwise`]: Mish, LayerNorm and SimNorm, forward and backward.
 //! * [`mppi`]: the planner, MPPI over latent action sequences with the value at the horizon.
 //! * [`normed_mlp`]: the network every part is made of (Linear → LayerNorm → Mish layers; a
@@ -21,6 +22,7 @@
 //! `mbpo-model` for the raw-state ensemble.
 #![warn(missing_docs)]
 
+pub mod bench;
 pub mod elementwise;
 pub mod mppi;
 pub mod normed_mlp;

@@ -89,6 +89,11 @@ fn log_std(raw: f32) -> (f32, f32) {
 
 /// The scalar of a two-hot head's `logits` and, into `d_logits`, ∂ scalar / ∂ logits.
 fn decode_with_gradient(two_hot: &TwoHot, logits: &[f32], d_logits: &mut [f32]) -> f32 {
+    mbpo_nn::simd_dispatch!(decode_with_gradient_kernel[two_hot, logits, d_logits])
+}
+
+#[inline(always)]
+fn decode_with_gradient_kernel(two_hot: &TwoHot, logits: &[f32], d_logits: &mut [f32]) -> f32 {
     let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
     let mut sum = 0.0f32;
     for (d, &l) in d_logits.iter_mut().zip(logits) {

@@ -53,8 +53,15 @@ impl TwoHot {
         out[lower + 1] = upper_weight;
     }
 
-    /// The scalar a head's `logits` stand for: symexp of the expected bin under softmax.
+    /// The scalar a head's `logits` stand for: symexp of the expected bin under softmax
+    /// (through the CPU's widest SIMD copy: the exponential's fused multiply-adds are
+    /// instructions there, a library call per operation otherwise).
     pub fn decode(&self, logits: &[f32]) -> f32 {
+        mbpo_nn::simd_dispatch!(Self::decode_kernel[self, logits])
+    }
+
+    #[inline(always)]
+    fn decode_kernel(&self, logits: &[f32]) -> f32 {
         let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         let (mut sum, mut weighted) = (0.0f32, 0.0f32);
         for (i, &l) in logits.iter().enumerate() {
@@ -68,6 +75,11 @@ impl TwoHot {
     /// Cross-entropy of `logits` against the two-hot encoding of `target`; writes
     /// ∂loss/∂logits (softmax − two-hot) into `d_logits` and returns the loss.
     pub fn cross_entropy(&self, logits: &[f32], target: f32, d_logits: &mut [f32]) -> f32 {
+        mbpo_nn::simd_dispatch!(Self::cross_entropy_kernel[self, logits, target, d_logits])
+    }
+
+    #[inline(always)]
+    fn cross_entropy_kernel(&self, logits: &[f32], target: f32, d_logits: &mut [f32]) -> f32 {
         self.encode(target, d_logits);
         let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
         let log_sum = logits

@@ -32,6 +32,9 @@ pub enum BenchCommand {
     Checkpoint(CheckpointBenchArgs),
     /// Milliseconds per MPC planning step with a randomly initialised ensemble.
     PlanLatency(PlanLatencyArgs),
+    /// Milliseconds per TD-MPC2 env step: one latent MPPI plan and one update (batch 256) at
+    /// TD-MPC2's defaults, random parameters, one thread.
+    TdmpcStep(TdmpcStepArgs),
     /// Paced actors under load: `mbpo run --mode pipelined` at a control rate, once per
     /// real-time priority (SCHED_FIFO, and 0 for the default scheduler), with busy threads on
     /// every core; their step-interval errors, missed deadlines and realised updates per env
@@ -90,6 +93,25 @@ pub struct PlanLatencyArgs {
     /// Timed plans (after two warm-up plans), at least 1.
     #[arg(long, default_value_t = 10, value_parser = clap::value_parser!(u64).range(1..).map(|n| n as usize))]
     pub plans: usize,
+}
+
+#[derive(Debug, Args)]
+pub struct TdmpcStepArgs {
+    /// Observation width (walker-walk's 24 by default).
+    #[arg(long, default_value_t = 24)]
+    pub obs: usize,
+    /// Action width.
+    #[arg(long, default_value_t = 6)]
+    pub act: usize,
+    /// Model-size preset, "1m" or "5m".
+    #[arg(long, default_value = "1m")]
+    pub size: String,
+    /// Timed plans and updates each (after two warm-up calls), at least 1.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u64).range(1..).map(|n| n as usize))]
+    pub calls: usize,
+    /// Episode length of the task (its discount; DeepMind Control's 1000).
+    #[arg(long, default_value_t = 1000)]
+    pub episode_length: usize,
 }
 
 #[derive(Debug, Args)]

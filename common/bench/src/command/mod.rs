@@ -29,6 +29,7 @@ pub fn run(cmd: BenchCommand, seed_run: SeedRun) -> anyhow::Result<()> {
         BenchCommand::Diagnose(args) => diagnose(&args),
         BenchCommand::Checkpoint(args) => checkpoint(&args),
         BenchCommand::PlanLatency(args) => plan_latency(&args),
+        BenchCommand::TdmpcStep(args) => tdmpc_step(&args),
         BenchCommand::Realtime(args) => realtime::run(&args),
         BenchCommand::Termination(args) => {
             let env = make(&args.env)?;
@@ -485,5 +486,27 @@ fn plan_latency(args: &PlanLatencyArgs) -> anyhow::Result<()> {
     };
     let report = mbpo_plan::bench::plan_latency(&cfg)?;
     out!("{}", serde_json::to_string(&report)?)?;
+    Ok(())
+}
+
+/// `mbpo bench tdmpc-step`: one plan and one update of TD-MPC2 at a preset's sizes.
+fn tdmpc_step(args: &TdmpcStepArgs) -> anyhow::Result<()> {
+    use mbpo_train::tdmpc::roles::{model_config, mppi_config};
+    let size: mbpo_train::TdmpcSize = serde_json::from_value(json!(args.size))
+        .map_err(|_| anyhow::anyhow!("--size {}: expected \"1m\" or \"5m\"", args.size))?;
+    let mut cfg = ExperimentConfig::default();
+    cfg.tdmpc.size = size;
+    let cost = mbpo_latent::bench::step_cost(
+        (args.obs, args.act),
+        model_config(&cfg, args.episode_length),
+        mppi_config(&cfg),
+        cfg.tdmpc.batch_size,
+        args.episode_length,
+        args.calls,
+    );
+    let mut line = serde_json::to_value(&cost)?;
+    line["bench"] = json!("tdmpc-step");
+    line["size"] = json!(args.size);
+    out!("{line}")?;
     Ok(())
 }

@@ -524,11 +524,17 @@ impl Collector {
         env_steps_to_target: Option<u64>,
     ) -> PipelineSummary {
         let tally = self.tally();
-        let warm_up = self.cfg.mbpo.init_random_steps;
+        // The algorithm's warm-up and ratio (TD-MPC2's burst of updates at the end of its
+        // seed steps is not per step).
+        let schedule = mbpo_train::Schedule::of(&self.cfg);
         let mut ratios = tally.ratios;
-        let after_warmup = tally.real.produced.saturating_sub(warm_up);
+        let after_warmup = tally
+            .real
+            .produced
+            .saturating_sub(schedule.init_random_steps);
         if after_warmup > 0 {
-            ratios.updates_per_env_step = tally.sac_updates as f64 / after_warmup as f64;
+            let per_step = tally.sac_updates.saturating_sub(schedule.burst_updates);
+            ratios.updates_per_env_step = per_step as f64 / after_warmup as f64;
             let acting = self.updates_when_acting_ended.filter(|_| !self.plans());
             ratios.updates_per_env_step_while_acting =
                 acting.map(|u| u as f64 / after_warmup as f64);
@@ -696,7 +702,8 @@ impl Tally {
         Self {
             real: RealCounts::default(),
             ratios: Ratios {
-                target_updates_per_env_step: cfg.mbpo.updates_per_step,
+                target_updates_per_env_step: mbpo_train::Schedule::of(cfg).updates_per_step
+                    as usize,
                 ..Default::default()
             },
             sac_updates: 0,

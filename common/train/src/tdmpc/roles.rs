@@ -34,7 +34,8 @@ pub fn world_model_layout(cfg: &ExperimentConfig, obs: usize, act: usize) -> (u6
     (model.layout_hash(), model.num_params())
 }
 
-fn model_config(cfg: &ExperimentConfig, episode_length: usize) -> WorldModelConfig {
+/// The world model's settings in `cfg` for a task of `episode_length` steps.
+pub fn model_config(cfg: &ExperimentConfig, episode_length: usize) -> WorldModelConfig {
     let (t, w) = (&cfg.tdmpc, cfg.tdmpc.widths());
     WorldModelConfig {
         latent: w.latent,
@@ -51,7 +52,8 @@ fn model_config(cfg: &ExperimentConfig, episode_length: usize) -> WorldModelConf
     }
 }
 
-fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
+/// The planner's settings in `cfg`.
+pub fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
     let p = &cfg.tdmpc.planner;
     MppiConfig {
         samples: p.samples,
