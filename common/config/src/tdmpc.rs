@@ -69,6 +69,9 @@ pub struct TdmpcConfig {
     pub reward_coef: f32,
     /// Weight of the value loss.
     pub value_coef: f32,
+    /// Dropout of the Q heads' first layer while learning (not in the TD targets' heads nor
+    /// in planning).
+    pub q_dropout: f32,
     /// Real transitions kept (a ring); 0: all of the run's steps.
     pub buffer_capacity: u64,
     /// Planning: MPPI in the latent space.
@@ -93,6 +96,7 @@ impl Default for TdmpcConfig {
             consistency_coef: 20.0,
             reward_coef: 0.1,
             value_coef: 0.1,
+            q_dropout: 0.01,
             buffer_capacity: 0,
             planner: LatentPlannerConfig::default(),
         }
@@ -216,6 +220,13 @@ impl TdmpcConfig {
         ];
         if let Some((key, v)) = positive.iter().find(|(_, v)| !(*v > 0.0 && v.is_finite())) {
             return err(key, "a positive number", v.to_string());
+        }
+        if !(0.0..1.0).contains(&self.q_dropout) {
+            return err(
+                "q_dropout",
+                "a fraction in [0, 1)",
+                self.q_dropout.to_string(),
+            );
         }
         if !(p.budget_ms >= 0.0 && p.budget_ms.is_finite()) {
             let expected = "0 (no budget) or a positive number of milliseconds";

@@ -10,7 +10,7 @@
 
 use std::ops::Range;
 
-use mbpo_core::rng::{normal_f32, Rng};
+use mbpo_core::rng::{normal_f32, uniform_f64, Rng};
 use mbpo_nn::gemm::{gemm, Op};
 use mbpo_nn::ParamLayout;
 
@@ -155,6 +155,9 @@ impl NormedMlp {
                 false,
             );
             add_bias(z, &params[p.b.clone()]);
+            if l == 0 && cache.dropout_on {
+                z.iter_mut().zip(&cache.dropout).for_each(|(z, m)| *z *= m);
+            }
             let Some((g, b)) = &p.norm else {
                 c.a[..batch * n_out].copy_from_slice(z);
                 continue;
@@ -195,7 +198,12 @@ impl NormedMlp {
             let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
             let rows = batch * n_out;
             let NormedCache {
-                layers, d_a, d_y, ..
+                layers,
+                d_a,
+                d_y,
+                dropout,
+                dropout_on,
+                ..
             } = cache;
             let c = &layers[l];
             // ∂L/∂z into d_y: through the activation and the LayerNorm, or as it is.
@@ -213,6 +221,12 @@ impl NormedMlp {
                 layer_norm_backward(x_hat, inv_std, gamma, &mut d_y[..rows], affine);
             } else {
                 d_y[..rows].copy_from_slice(&d_a[..rows]);
+            }
+            if l == 0 && *dropout_on {
+                d_y[..rows]
+                    .iter_mut()
+                    .zip(&*dropout)
+                    .for_each(|(d, m)| *d *= m);
             }
             let dz = &d_y[..rows];
             let input = match l {
@@ -285,6 +299,10 @@ pub struct NormedCache {
     d_a: Vec<f32>,
     /// ∂L/∂y, then ∂L/∂z, of that layer.
     d_y: Vec<f32>,
+    /// Dropout's mask on the first layer's Linear output (0, or 1/(1 − p) for a kept unit),
+    /// applied by the passes while `dropout_on`.
+    dropout: Vec<f32>,
+    dropout_on: bool,
 }
 
 impl NormedCache {
@@ -293,6 +311,26 @@ impl NormedCache {
         let mut c = Self::default();
         c.ensure(net, batch);
         c
+    }
+
+    /// Drop each unit of the first layer's Linear output with probability `p` in the passes
+    /// that follow (TD-MPC2's Q heads while learning: dropout before the first LayerNorm); the
+    /// kept ones are scaled by 1/(1 − p). `p` = 0 draws nothing and drops nothing.
+    pub fn draw_dropout(&mut self, net: &NormedMlp, batch: usize, p: f32, rng: &mut Rng) {
+        self.ensure(net, batch);
+        self.dropout_on = p > 0.0;
+        if !self.dropout_on {
+            return;
+        }
+        let (n, keep) = (batch * net.dims[1], 1.0 / (1.0 - p));
+        self.dropout.resize(n, 0.0);
+        for m in &mut self.dropout[..n] {
+            *m = if uniform_f64(rng) < p as f64 {
+                0.0
+            } else {
+                keep
+            };
+        }
     }
 
     fn ensure(&mut self, net: &NormedMlp, batch: usize) {
@@ -322,7 +360,8 @@ mod tests {
     use mbpo_core::rng::stream;
 
     /// ∂(Σ w·net(x))/∂θ and ∂/∂x against central differences.
-    fn check(net: &NormedMlp, batch: usize) {
+    /// (`dropout`: with that fraction of the first layer's units dropped, one mask throughout.)
+    fn check(net: &NormedMlp, batch: usize, dropout: f32) {
         let mut rng = stream(3, "test.normed", 0);
         let mut params = vec![0.0; net.num_params()];
         net.init(&mut params, false, &mut rng);
@@ -337,6 +376,7 @@ mod tests {
             .map(|i| (i as f32 * 0.29).sin())
             .collect();
         let mut cache = NormedCache::new(net, batch);
+        cache.draw_dropout(net, batch, dropout, &mut stream(4, "test.dropout", 0));
         let loss = |p: &[f32], x: &[f32], c: &mut NormedCache| -> f64 {
             let y = net.forward(p, x, batch, c);
             y.iter().zip(&w).map(|(y, w)| (y * w) as f64).sum()
@@ -381,12 +421,29 @@ mod tests {
 
     #[test]
     fn gradients_of_a_linear_head_match_finite_differences() {
-        check(&NormedMlp::new(&[5, 12, 9, 3], Head::Linear), 4);
+        check(&NormedMlp::new(&[5, 12, 9, 3], Head::Linear), 4, 0.0);
+    }
+
+    #[test]
+    fn gradients_through_dropout_match_finite_differences_and_dropped_units_carry_none() {
+        let net = NormedMlp::new(&[5, 12, 9, 3], Head::Linear);
+        check(&net, 4, 0.3);
+        let mut cache = NormedCache::new(&net, 4);
+        cache.draw_dropout(&net, 4, 0.3, &mut stream(4, "test.dropout", 0));
+        let dropped = cache.dropout[..48].iter().filter(|&&m| m == 0.0).count();
+        assert!(
+            (5..30).contains(&dropped),
+            "{dropped} of 48 units dropped at p = 0.3"
+        );
+        let kept = cache.dropout[..48].iter().find(|&&m| m > 0.0).copied();
+        assert_eq!(kept, Some(1.0 / 0.7));
+        cache.draw_dropout(&net, 4, 0.0, &mut stream(4, "test.dropout", 0));
+        assert!(!cache.dropout_on, "p = 0 drops nothing");
     }
 
     #[test]
     fn gradients_of_a_simnorm_head_match_finite_differences() {
-        check(&NormedMlp::new(&[6, 10, 16], Head::SimNorm), 3);
+        check(&NormedMlp::new(&[6, 10, 16], Head::SimNorm), 3, 0.0);
     }
 
     #[test]

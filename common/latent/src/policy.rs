@@ -12,6 +12,8 @@
 //!   (their parameters held fixed: only the action carries gradient), α = 10⁻⁴ and S the
 //!   running scale of Q (the caller's), so the loss is on the same scale on every task.
 
+use mbpo_core::rng::Rng;
+
 use crate::normed_mlp::NormedCache;
 use crate::two_hot::TwoHot;
 use crate::world_model::{concat_rows, WorldModel};
@@ -46,6 +48,13 @@ pub struct PolicyWorkspace {
 }
 
 impl PolicyWorkspace {
+    /// Fresh dropout masks of probability `p` for the two Q heads of the next policy loss.
+    pub fn draw_q_dropout(&mut self, model: &WorldModel, p: f32, rng: &mut Rng) {
+        for cache in &mut self.q {
+            cache.draw_dropout(&model.q, self.rows, p, rng);
+        }
+    }
+
     /// Buffers for `rows` latents of `model`.
     pub fn new(model: &WorldModel, rows: usize) -> Self {
         let (z, a, bins) = (model.cfg.latent, model.act_dim(), model.cfg.two_hot.bins);

@@ -195,7 +195,8 @@ impl Learner {
             &mut self.target_ws,
             &mut self.q_targets,
         );
-        // The world model's step.
+        // The world model's step (the online Q heads with dropout).
+        self.loss_ws.draw_q_dropout(m, m.cfg.q_dropout, rng);
         self.grads.fill(0.0);
         let losses = m.loss_given_targets(
             &self.params,
@@ -215,6 +216,7 @@ impl Learner {
         let zs = m.rolled_latents(&self.loss_ws);
         let heads = two_heads(m.cfg.q_heads, rng);
         self.noise.iter_mut().for_each(|e| *e = normal_f32(rng));
+        self.policy_ws.draw_q_dropout(m, m.cfg.q_dropout, rng);
         self.grads.fill(0.0);
         let pi_loss = m.policy_loss(
             &self.params,

@@ -43,6 +43,9 @@ pub struct WorldModelConfig {
     pub discount: f32,
     /// The reward and value bins.
     pub two_hot: TwoHot,
+    /// Dropout of the Q heads' first layer while learning (TD-MPC2: 1 %; not in the TD
+    /// targets' heads nor in planning).
+    pub q_dropout: f32,
 }
 
 impl Default for WorldModelConfig {
@@ -59,6 +62,7 @@ impl Default for WorldModelConfig {
             value_coef: 0.1,
             discount: 0.99,
             two_hot: TwoHot::default(),
+            q_dropout: 0.01,
         }
     }
 }
@@ -274,6 +278,13 @@ pub struct LossWorkspace {
 }
 
 impl LossWorkspace {
+    /// Fresh dropout masks of probability `p` for every Q head at every step of the next loss.
+    pub fn draw_q_dropout(&mut self, model: &WorldModel, p: f32, rng: &mut Rng) {
+        for cache in &mut self.q {
+            cache.draw_dropout(&model.q, self.batch, p, rng);
+        }
+    }
+
     /// Buffers for batches of `batch` rows of `model`.
     pub fn new(model: &WorldModel, batch: usize) -> Self {
         let (h, z, za) = (

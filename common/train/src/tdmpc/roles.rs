@@ -49,6 +49,7 @@ pub fn model_config(cfg: &ExperimentConfig, episode_length: usize) -> WorldModel
         value_coef: t.value_coef,
         discount: t.discount_for(episode_length),
         two_hot: TwoHot::default(),
+        q_dropout: t.q_dropout,
     }
 }
 
