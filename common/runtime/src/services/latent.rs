@@ -83,9 +83,9 @@ impl ActingRole for LatentActing {
     fn finish(&mut self) -> Finish {
         let log = match self.role.planner_ref().iterations_per_plan() {
             Some((plans, lo, mean, hi)) => {
-                format!("{plans} plans (iterations per plan {lo}..{hi}, mean {mean:.2})")
+                format!("{plans} plans (iterations per plan {lo}..{hi}, mean {mean:.2}), ")
             }
-            None => "no plans".into(),
+            None => "no plans, ".into(),
         };
         Finish {
             work: self.role.env_actor().episodes,
