@@ -234,21 +234,7 @@ impl NormedMlp {
                 _ => &layers[l - 1].a[..batch * n_in],
             };
             if let Some(gr) = grads.as_deref_mut() {
-                gemm(
-                    &mut gr[p.w.clone()],
-                    input,
-                    Op::T,
-                    dz,
-                    Op::N,
-                    n_in,
-                    batch,
-                    n_out,
-                    true,
-                );
-                let gb = &mut gr[p.b.clone()];
-                for row in dz.chunks_exact(n_out) {
-                    gb.iter_mut().zip(row).for_each(|(g, d)| *g += d);
-                }
+                add_linear_grads(gr, p, input, dz, (n_in, n_out));
             }
             let w = &params[p.w.clone()];
             // ∂L/∂x for the caller on the first layer, ∂L/∂a of the layer below otherwise.
@@ -261,6 +247,23 @@ impl NormedMlp {
                 gemm(out, dz, Op::N, w, Op::T, batch, n_out, n_in, false);
             }
         }
+    }
+}
+
+/// A Linear layer's ∂L/∂W (= inputᵀ·dz) and ∂L/∂b (Σ rows of dz) added into `grads`.
+fn add_linear_grads(
+    grads: &mut [f32],
+    p: &LayerParams,
+    input: &[f32],
+    dz: &[f32],
+    (n_in, n_out): (usize, usize),
+) {
+    let batch = dz.len() / n_out;
+    let w = &mut grads[p.w.clone()];
+    gemm(w, input, Op::T, dz, Op::N, n_in, batch, n_out, true);
+    let gb = &mut grads[p.b.clone()];
+    for row in dz.chunks_exact(n_out) {
+        gb.iter_mut().zip(row).for_each(|(g, d)| *g += d);
     }
 }
 

@@ -9,7 +9,7 @@ use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{Env, EnvError};
 use mbpo_sac::{ActionScale, ActorPolicy, Sac, SacStats};
 use serde::{Deserialize, Serialize};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Mean undiscounted return of `episodes` episodes with `policy` (deterministic: tanh μ(s));
 /// start states come from `rng` (the evaluation stream, separate from training's).
@@ -101,9 +101,7 @@ impl Evaluator {
     /// Continue from [`Evaluator::checkpoint`]; the wall clock continues from its time.
     pub fn restore(&mut self, s: EvaluatorState) {
         self.rng = s.rng;
-        self.start = Instant::now()
-            .checked_sub(Duration::from_secs_f64(s.elapsed_seconds.max(0.0)))
-            .unwrap_or_else(Instant::now);
+        self.start = crate::run_files::started_ago(s.elapsed_seconds);
         self.last_time = s.last_time;
         self.last_steps = s.last_steps;
         self.env_steps = s.last_steps;
@@ -131,9 +129,7 @@ impl Evaluator {
     /// continues from the book's time).
     pub fn restore_book(&mut self, rng: Rng, book: &RunBook) {
         self.rng = rng;
-        self.start = Instant::now()
-            .checked_sub(Duration::from_secs_f64(book.elapsed_seconds.max(0.0)))
-            .unwrap_or_else(Instant::now);
+        self.start = book.clock();
         (self.last_time, self.last_steps) = book.last_row;
         self.env_steps = book.last_row.1;
         self.last_updates = book.last_row_updates;

@@ -23,7 +23,7 @@ use crate::error::TrainError;
 use crate::mpc_roles::{PlanningActorRole, PlanningEvaluator};
 use crate::roles::{ModelSnapshot, ModelTrainerRole, Schedule};
 use crate::run_control::RunOptions;
-use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, ModelTrainerCheckpoint, PlanningActorCheckpoint,
     PlanningEvaluatorCheckpoint, RunBook,
@@ -31,7 +31,7 @@ use crate::run_files::{
 use mbpo_model::EpochProgress;
 use mbpo_model::TrainReport;
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Every role of one MPC run in one process.
 pub struct MpcRun {
@@ -247,10 +247,7 @@ impl SequentialRun for MpcDriven<'_> {
 
     /// The clock continues from the checkpoint's.
     fn begin(&mut self) {
-        let elapsed = Duration::from_secs_f64(self.book.elapsed_seconds.max(0.0));
-        self.started = Instant::now()
-            .checked_sub(elapsed)
-            .unwrap_or_else(Instant::now);
+        self.started = self.book.clock();
     }
 
     fn step(
@@ -301,27 +298,10 @@ impl SequentialRun for MpcDriven<'_> {
     }
 
     fn finish(&mut self, status: &str, run: &mut RunDir) -> Result<Summary, TrainError> {
-        let target_return = self.cfg.target_return();
         let actor = self.mpc.actor.env_actor();
-        Ok(Summary {
-            algo: self.cfg.algo.name().into(),
-            env: self.cfg.env.clone(),
-            seed: self.cfg.seed,
-            env_steps: actor.steps,
-            sac_updates: 0,
-            final_eval_return: self.book.final_return,
-            best_eval_return: self.book.best_return,
-            target_return,
-            env_steps_to_target: run.env_steps_to_target(target_return)?,
-            policy_sha256: policy_sha256(&self.mpc.model_params),
-            wall_seconds: self.started.elapsed().as_secs_f64(),
-            median_seconds_per_env_step: mbpo_core::stats::median(
-                &mut self.book.step_seconds.clone(),
-            ),
-            status: status.into(),
-            episodes_cut_by_resume: actor.episodes_cut,
-            episodes_lost_to_env_exit: actor.episodes_lost,
-        })
+        let model = (0, &self.mpc.model_params[..]);
+        self.book
+            .one_actor_summary(self.cfg, actor, model, self.started, status, run)
     }
 }
 

@@ -14,12 +14,15 @@ use mbpo_core::Rng;
 use serde::{Deserialize, Serialize};
 
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 use crate::actor::EnvActor;
+use crate::config::ExperimentConfig;
 use crate::d_model_branches::DModelBranches;
 use crate::error::TrainError;
 use crate::mpc_roles::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
+use crate::run_dir::{policy_sha256, RunDir, Summary};
 use crate::schedule::Schedule;
 use crate::tdmpc::roles::{TdmpcActorState, TdmpcEvaluatorState, WorldModelLearnerState};
 
@@ -193,7 +196,51 @@ pub struct RunBook {
     pub step_seconds: Vec<f64>,
 }
 
+/// A clock started `seconds` ago: a resumed run's wall clock continues from its checkpoint's.
+pub fn started_ago(seconds: f64) -> Instant {
+    let elapsed = Duration::from_secs_f64(seconds.max(0.0));
+    Instant::now()
+        .checked_sub(elapsed)
+        .unwrap_or_else(Instant::now)
+}
+
 impl RunBook {
+    /// The run's clock, continuing from the book's elapsed seconds.
+    pub fn clock(&self) -> Instant {
+        started_ago(self.elapsed_seconds)
+    }
+
+    /// The summary of a one-actor `mbpo train` run that kept this book (MPC, TD-MPC2):
+    /// `actor`'s counters, `updates`, the SHA-256 of `params`, the clock `started`.
+    pub fn one_actor_summary(
+        &self,
+        cfg: &ExperimentConfig,
+        actor: &EnvActor,
+        (updates, params): (u64, &[f32]),
+        started: Instant,
+        status: &str,
+        run: &mut RunDir,
+    ) -> Result<Summary, TrainError> {
+        let target_return = cfg.target_return();
+        Ok(Summary {
+            algo: cfg.algo.name().into(),
+            env: cfg.env.clone(),
+            seed: cfg.seed,
+            env_steps: actor.steps,
+            sac_updates: updates,
+            final_eval_return: self.final_return,
+            best_eval_return: self.best_return,
+            target_return,
+            env_steps_to_target: run.env_steps_to_target(target_return)?,
+            policy_sha256: policy_sha256(params),
+            wall_seconds: started.elapsed().as_secs_f64(),
+            median_seconds_per_env_step: mbpo_core::stats::median(&mut self.step_seconds.clone()),
+            status: status.into(),
+            episodes_cut_by_resume: actor.episodes_cut,
+            episodes_lost_to_env_exit: actor.episodes_lost,
+        })
+    }
+
     /// The book of a run that has not started.
     pub fn start() -> Self {
         Self {

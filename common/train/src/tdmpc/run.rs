@@ -3,7 +3,7 @@
 //! learns exactly as an uninterrupted one.
 
 use std::path::Path;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use mbpo_core::TransitionSink;
 use mbpo_model::EpochProgress;
@@ -15,7 +15,7 @@ use crate::config::ExperimentConfig;
 use crate::driver::{drive, SequentialRun};
 use crate::error::TrainError;
 use crate::run_control::RunOptions;
-use crate::run_dir::{policy_sha256, MetricsRow, RunDir, Summary};
+use crate::run_dir::{MetricsRow, RunDir, Summary};
 use crate::run_files::{
     actor_file, check_one_actor_cut, file, kind, LatentActorCheckpoint, LatentEvaluatorCheckpoint,
     RunBook, WorldModelLearnerCheckpoint,
@@ -140,10 +140,7 @@ impl SequentialRun for TdmpcRun<'_> {
 
     /// The clock continues from the checkpoint's.
     fn begin(&mut self) {
-        let elapsed = Duration::from_secs_f64(self.book.elapsed_seconds.max(0.0));
-        self.started = Instant::now()
-            .checked_sub(elapsed)
-            .unwrap_or_else(Instant::now);
+        self.started = self.book.clock();
     }
 
     fn step(
@@ -222,26 +219,9 @@ impl SequentialRun for TdmpcRun<'_> {
                 "the actor planned {plans} times: iterations per plan {fewest}..{most} (mean {mean:.2})"
             );
         }
-        let target_return = self.cfg.target_return();
         let actor = self.actor.env_actor();
-        Ok(Summary {
-            algo: self.cfg.algo.name().into(),
-            env: self.cfg.env.clone(),
-            seed: self.cfg.seed,
-            env_steps: actor.steps,
-            sac_updates: self.learner.updates(),
-            final_eval_return: self.book.final_return,
-            best_eval_return: self.book.best_return,
-            target_return,
-            env_steps_to_target: run.env_steps_to_target(target_return)?,
-            policy_sha256: policy_sha256(self.learner.params()),
-            wall_seconds: self.started.elapsed().as_secs_f64(),
-            median_seconds_per_env_step: mbpo_core::stats::median(
-                &mut self.book.step_seconds.clone(),
-            ),
-            status: status.into(),
-            episodes_cut_by_resume: actor.episodes_cut,
-            episodes_lost_to_env_exit: actor.episodes_lost,
-        })
+        let learned = (self.learner.updates(), self.learner.params());
+        self.book
+            .one_actor_summary(self.cfg, actor, learned, self.started, status, run)
     }
 }
