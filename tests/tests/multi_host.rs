@@ -277,11 +277,32 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
 /// Lockstep with its one actor on the worker equals `mbpo train --mode sequential`.
 #[test]
 fn lockstep_with_a_remote_actor_equals_sequential() {
-    let Some(hosts) = hosts("lockstep_with_a_remote_actor_equals_sequential") else {
+    let test = "lockstep_with_a_remote_actor_equals_sequential";
+    lockstep_with_a_remote_actor(test, tiny_config(400), |cfg, out| train_mbpo(cfg, out));
+}
+
+/// [`lockstep_with_a_remote_actor_equals_sequential`] for TD-MPC2: its latent-planning actor
+/// on the worker receives the world model's parameters over the link.
+#[test]
+fn tdmpc_lockstep_with_a_remote_actor_equals_sequential() {
+    let test = "tdmpc_lockstep_with_a_remote_actor_equals_sequential";
+    let cfg = tiny_tdmpc_config(300);
+    lockstep_with_a_remote_actor(test, cfg, mbpo_train::tdmpc::train_tdmpc);
+}
+
+/// `cfg` in lockstep with its one actor on a worker host ends as `train` does in one process.
+fn lockstep_with_a_remote_actor(
+    test: &str,
+    cfg: mbpo_train::ExperimentConfig,
+    train: fn(
+        &mbpo_train::ExperimentConfig,
+        &Path,
+    ) -> Result<mbpo_train::Summary, mbpo_train::TrainError>,
+) {
+    let Some(hosts) = hosts(test) else {
         return;
     };
-    let dir = scratch("net-lockstep");
-    let cfg = tiny_config(400);
+    let dir = scratch(&format!("net-{}", &test[..12]));
     let input = write_config(&cfg, &dir);
     let creds = credentials(&dir, "right");
     bin_dir();
@@ -299,7 +320,7 @@ fn lockstep_with_a_remote_actor_equals_sequential() {
         },
     );
     let worker = start_worker(&hosts, &dir, "w1", Some(&creds), 1);
-    let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
+    let seq = train(&cfg, &dir.join("sequential")).unwrap();
     completed_as(head, &seq, "remote lockstep");
     assert!(wait_output(worker, TIMEOUT).status.success());
     let _ = std::fs::remove_dir_all(dir);
