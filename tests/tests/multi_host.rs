@@ -278,7 +278,7 @@ fn pipelined_run_with_remote_actors_loses_nothing() {
 #[test]
 fn lockstep_with_a_remote_actor_equals_sequential() {
     let test = "lockstep_with_a_remote_actor_equals_sequential";
-    lockstep_with_a_remote_actor(test, tiny_config(400), |cfg, out| train_mbpo(cfg, out));
+    lockstep_with_a_remote_actor(test, tiny_config(400), train_mbpo);
 }
 
 /// [`lockstep_with_a_remote_actor_equals_sequential`] for TD-MPC2: its latent-planning actor
