@@ -649,6 +649,20 @@ pub fn plot_runs(
     Ok(report(out, &curves, &[(column, &curves)]))
 }
 
+/// [`plot_losses`], or `None` when no run has any of the [`LOSS_PANELS`]' columns (a TD-MPC2 or
+/// MPC run has none of SAC's losses): nothing to draw is not an error there.
+pub fn plot_losses_if_any(
+    runs: &[PathBuf],
+    title: &str,
+    out: &Path,
+) -> Result<Option<PlotReport>, PlotError> {
+    match plot_losses(runs, title, out) {
+        Ok(report) => Ok(Some(report)),
+        Err(PlotError::Empty) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
 /// Plot the [`LOSS_PANELS`] of `runs` (2 x 2 panels, one legend on top) to a PNG. A panel no
 /// run has values for (the model's MSE of SAC runs) says so instead of failing.
 pub fn plot_losses(runs: &[PathBuf], title: &str, out: &Path) -> Result<PlotReport, PlotError> {
@@ -943,10 +957,13 @@ mod tests {
         )
         .unwrap();
         assert!(matches!(
-            plot_losses(&[old], "t", &out).unwrap_err(),
+            plot_losses(std::slice::from_ref(&old), "t", &out).unwrap_err(),
             PlotError::Empty
         ));
         assert!(!out.exists(), "no file is written when the plot fails");
+        // ... which `mbpo plot` and a run's own report take as no loss panels (TD-MPC2, MPC).
+        assert!(plot_losses_if_any(&[old], "t", &out).unwrap().is_none());
+        assert!(!out.exists());
         std::fs::remove_dir_all(dir).unwrap();
     }
 

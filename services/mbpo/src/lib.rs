@@ -76,7 +76,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             )?;
             let losses = mbpo_report::companion_path(&args.out, "losses");
             let title = format!("{}: training losses", args.title);
-            let losses = mbpo_report::plot_losses(&args.runs, &title, &losses)?;
+            let losses = mbpo_report::plot_losses_if_any(&args.runs, &title, &losses)?;
             let table = args.out.with_extension("md");
             let text =
                 mbpo_report::learning_table(&args.runs, args.table_every, reference.as_ref())?;
@@ -85,12 +85,12 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
                 "{}",
                 serde_json::json!({
                     "plot": curves.out,
-                    "losses": losses.out,
+                    "losses": losses.as_ref().map(|l| &l.out),
                     "table": table,
                     "reference": reference.map(|r| r.label),
                     "runs": args.runs.len(),
                     "groups": curves.groups,
-                    "loss_panels_with_data": losses.panels_with_data,
+                    "loss_panels_with_data": losses.map(|l| l.panels_with_data).unwrap_or_default(),
                 })
             )?;
             Ok(())

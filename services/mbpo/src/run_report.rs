@@ -21,14 +21,15 @@ pub fn plot_and_point(out: &Path) {
     let plotted = mbpo_report::plot_runs(&runs, "eval_return", &title, &curve, reference.as_ref())
         .and_then(|_| {
             let title = format!("{title}: training losses");
-            mbpo_report::plot_losses(&runs, &title, &losses)
+            mbpo_report::plot_losses_if_any(&runs, &title, &losses)
         });
     match plotted {
-        Ok(_) => tracing::info!(
+        Ok(Some(_)) => tracing::info!(
             "learning curve: {}; losses: {}",
             curve.display(),
             losses.display()
         ),
+        Ok(None) => tracing::info!("learning curve: {}", curve.display()),
         Err(e) => tracing::warn!("no plot of {}: {e}", out.display()),
     }
     if let Some(pacing) = plot_pacing(out) {
