@@ -273,6 +273,10 @@ fn paced_actors_step_on_the_clock_and_lose_nothing() {
     for consumer in ["model-trainer", "rollout-generator", "learner"] {
         assert_eq!(s.real_transitions.received[consumer], 400, "{consumer}");
     }
+    // Inside an episode a paced actor acts with whatever it holds: its lag has no slack bound.
+    let lag = s.ratios.actor_policy_lag;
+    assert_eq!(lag.highest_allowed, None, "{lag:?}");
+    assert!(lag.max >= lag.mean && lag.mean >= lag.min, "{lag:?}");
     // `catch_up = "never"`: after its first policy the actor never rests; the learner does the
     // updates it owes after the actor finished, and the summary says how many it had done.
     cfg.actor.catch_up = mbpo_train::CatchUp::Never;

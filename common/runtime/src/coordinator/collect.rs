@@ -633,7 +633,10 @@ impl Collector {
             }
         }
         if t.actor_lag.min.is_finite() {
-            let highest = (!self.plans()).then_some(self.slack.policy_lag);
+            // A paced actor never waits inside an episode (docs/src/real-time.md): `--policy-lag`
+            // bounds its lag only at an episode's first step, so no bound is claimed for it.
+            let paced = self.cfg.actor.control_hz > 0.0;
+            let highest = (!self.plans() && !paced).then_some(self.slack.policy_lag);
             t.ratios.actor_policy_lag = t.actor_lag.allowed(None, highest);
         }
         t
