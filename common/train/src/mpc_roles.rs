@@ -16,7 +16,6 @@ use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng, TransitionSink};
 use mbpo_envs::Env;
 use mbpo_model::ProbabilisticEnsemble;
 use mbpo_plan::{build, EnsembleModel, Mpc, MpcState, PlanError, RewardSource};
-use mbpo_sac::ActionScale;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -250,7 +249,6 @@ pub struct PlanningEvaluatorState {
 /// (`eval.plan`), own copy of the model.
 pub struct PlanningEvaluator {
     env: Box<dyn Env>,
-    scale: ActionScale,
     env_rng: Rng,
     plan_rng: Rng,
     mpc: Mpc,
@@ -262,7 +260,6 @@ impl PlanningEvaluator {
     pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
         let env = cfg.make_env()?;
         Ok(Self {
-            scale: ActionScale::new(&env.action_space().low, &env.action_space().high),
             model: VersionedModel::new(cfg, env.as_ref())?,
             mpc: controller(cfg, env.act_dim())?,
             env,
@@ -312,30 +309,20 @@ impl PlanningEvaluator {
     pub fn evaluate_unless(
         &mut self,
         episodes: usize,
-        mut abandon: impl FnMut() -> bool,
+        abandon: impl FnMut() -> bool,
     ) -> Result<Option<f64>, TrainError> {
-        let (o, a) = (self.env.obs_dim(), self.env.act_dim());
-        let (mut obs, mut action, mut env_action) =
-            (vec![0.0f32; o], vec![0.0f32; a], vec![0.0f32; a]);
-        let mut total = 0.0;
-        for _ in 0..episodes {
-            self.env.reset(&mut self.env_rng, &mut obs)?;
-            self.mpc.reset();
-            loop {
-                if abandon() {
-                    return Ok(None);
-                }
-                self.mpc
-                    .act(&mut self.model.model, &obs, &mut self.plan_rng, &mut action)
-                    .map_err(plan_err)?;
-                self.scale.to_env(&action, &mut env_action);
-                let step = self.env.step(&env_action, &mut obs)?;
-                total += step.reward;
-                if step.terminated || step.truncated {
-                    break;
-                }
-            }
-        }
-        Ok(Some(total / episodes.max(1) as f64))
+        let (model, plan_rng) = (&mut self.model.model, &mut self.plan_rng);
+        crate::eval::planning_episodes(
+            self.env.as_mut(),
+            episodes,
+            &mut self.env_rng,
+            &mut self.mpc,
+            |mpc| mpc.reset(),
+            |mpc, obs, action| {
+                mpc.act(model, obs, plan_rng, action).map_err(plan_err)?;
+                Ok(())
+            },
+            abandon,
+        )
     }
 }

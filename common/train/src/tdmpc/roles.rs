@@ -13,7 +13,6 @@ use mbpo_envs::Env;
 use mbpo_latent::mppi::{LatentMppi, MppiConfig};
 use mbpo_latent::update::{Learner, LearnerState, UpdateConfig, UpdateStats};
 use mbpo_latent::{EpisodeBuffer, NormedCache, Sequences, TwoHot, WorldModel, WorldModelConfig};
-use mbpo_sac::ActionScale;
 use serde::{Deserialize, Serialize};
 
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
@@ -380,7 +379,6 @@ pub struct TdmpcEvaluatorState {
 /// Evaluation episodes: planning without exploration noise, own env and streams.
 pub struct TdmpcEvaluator {
     env: Box<dyn Env>,
-    scale: ActionScale,
     env_rng: Rng,
     plan_rng: Rng,
     planner: LatentPlanner,
@@ -390,9 +388,7 @@ impl TdmpcEvaluator {
     /// The evaluator of the run.
     pub fn new(cfg: &ExperimentConfig) -> Result<Self, TrainError> {
         let env = cfg.make_env()?;
-        let space = env.action_space();
         Ok(Self {
-            scale: ActionScale::new(&space.low, &space.high),
             planner: LatentPlanner::new(cfg, env.as_ref(), false),
             env,
             env_rng: stream(cfg.seed, "eval.env", 0),
@@ -421,23 +417,19 @@ impl TdmpcEvaluator {
     }
     /// Mean undiscounted return of `episodes` planning episodes.
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
-        let (o, a) = (self.env.obs_dim(), self.env.act_dim());
-        let (mut obs, mut action, mut env_action) = (vec![0.0; o], vec![0.0; a], vec![0.0; a]);
-        let mut total = 0.0;
-        for _ in 0..episodes {
-            self.env.reset(&mut self.env_rng, &mut obs)?;
-            self.planner.reset();
-            loop {
-                let rng = &mut self.plan_rng;
-                self.planner.act_batch(&obs, 1, &mut action, rng);
-                self.scale.to_env(&action, &mut env_action);
-                let step = self.env.step(&env_action, &mut obs)?;
-                total += step.reward;
-                if step.terminated || step.truncated {
-                    break;
-                }
-            }
-        }
-        Ok(total / episodes.max(1) as f64)
+        let plan_rng = &mut self.plan_rng;
+        let ret = crate::eval::planning_episodes(
+            self.env.as_mut(),
+            episodes,
+            &mut self.env_rng,
+            &mut self.planner,
+            |planner| planner.reset(),
+            |planner, obs, action| {
+                planner.act_batch(obs, 1, action, plan_rng);
+                Ok(())
+            },
+            || false,
+        )?;
+        Ok(ret.expect("an evaluation nobody abandons completes"))
     }
 }
