@@ -2,7 +2,6 @@
 
 use crate::actor::EnvActor;
 use crate::config::ExperimentConfig;
-use crate::error::TrainError;
 use crate::run_dir::{policy_sha256, MetricsRow, Summary};
 use crate::run_files::RunBook;
 use mbpo_core::rng::stream;
@@ -51,42 +50,6 @@ pub fn evaluate(
         };
     }
     Ok(total / episodes as f64)
-}
-
-/// Mean undiscounted return of `episodes` episodes of `planner` (MPC's, TD-MPC2's): each
-/// starts from a reset drawn from `env_rng` and `begin(planner)` (it forgets its warm start);
-/// every step asks `abandon()` first (`Ok(None)`: abandoned, the streams moved on), then `act`
-/// writes the action in [−1, 1] for the observation, rescaled to the env's box.
-pub fn planning_episodes<P>(
-    env: &mut dyn Env,
-    episodes: usize,
-    env_rng: &mut Rng,
-    planner: &mut P,
-    mut begin: impl FnMut(&mut P),
-    mut act: impl FnMut(&mut P, &[f32], &mut [f32]) -> Result<(), TrainError>,
-    mut abandon: impl FnMut() -> bool,
-) -> Result<Option<f64>, TrainError> {
-    let scale = ActionScale::new(&env.action_space().low, &env.action_space().high);
-    let (o, a) = (env.obs_dim(), env.act_dim());
-    let (mut obs, mut action, mut env_action) = (vec![0.0f32; o], vec![0.0f32; a], vec![0.0f32; a]);
-    let mut total = 0.0;
-    for _ in 0..episodes {
-        env.reset(env_rng, &mut obs)?;
-        begin(planner);
-        loop {
-            if abandon() {
-                return Ok(None);
-            }
-            act(planner, &obs, &mut action)?;
-            scale.to_env(&action, &mut env_action);
-            let step = env.step(&env_action, &mut obs)?;
-            total += step.reward;
-            if step.terminated || step.truncated {
-                break;
-            }
-        }
-    }
-    Ok(Some(total / episodes.max(1) as f64))
 }
 
 /// Periodic evaluation and the bookkeeping around it (best return, rates).

@@ -16,6 +16,7 @@
 //! * [`sac_checkpoint`]: the checkpoint file of a SAC run.
 //! * [`sac_trainer`]: SAC alone on a real environment (the model-free baseline).
 //! * [`eval`]: deterministic evaluation episodes.
+//! * [`episodes`]: a planner's evaluation episodes (MPC, TD-MPC2).
 //! * [`policy_file`]: a run's trained policy (the final one, or the newest checkpoint's).
 //! * [`phase_times`]: seconds per phase of an MBPO run (model training, rollouts, SAC, acting).
 //! * [`mpc_roles`]: the planning actor and evaluator of model predictive control.
@@ -29,6 +30,7 @@ pub mod algorithm;
 pub mod cpu;
 pub mod d_model_branches;
 mod driver;
+pub mod episodes;
 pub mod error;
 pub mod eval;
 pub mod mbpo_trainer;

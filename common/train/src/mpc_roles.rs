@@ -312,7 +312,7 @@ impl PlanningEvaluator {
         abandon: impl FnMut() -> bool,
     ) -> Result<Option<f64>, TrainError> {
         let (model, plan_rng) = (&mut self.model.model, &mut self.plan_rng);
-        crate::eval::planning_episodes(
+        crate::episodes::planning_episodes(
             self.env.as_mut(),
             episodes,
             &mut self.env_rng,

@@ -418,7 +418,7 @@ impl TdmpcEvaluator {
     /// Mean undiscounted return of `episodes` planning episodes.
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
         let plan_rng = &mut self.plan_rng;
-        let ret = crate::eval::planning_episodes(
+        let ret = crate::episodes::planning_episodes(
             self.env.as_mut(),
             episodes,
             &mut self.env_rng,
