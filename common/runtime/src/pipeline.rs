@@ -9,7 +9,7 @@
 use std::sync::RwLock;
 
 use mbpo_train::{algorithm, Algo};
-use mbpo_wire::{Channel, WeightsKind};
+use mbpo_wire::{Channel, Role, WeightsKind};
 
 use crate::barrier::{file, kind};
 use crate::{Mode, Result, RuntimeError};
@@ -121,10 +121,17 @@ impl PipelineSpec {
     pub fn has(&self, kind: RoleKind) -> bool {
         self.actor == kind || self.services.contains(&kind)
     }
-    /// Its actors plan on the model trainer's ensemble: the model versions are what they act
-    /// with (metrics rows come from model versions, there is no learner).
-    pub fn plans(&self) -> bool {
-        self.actor == RoleKind::PlanningActor
+    /// It has a learner (a role on the wire as `Role::Learner`: SAC's, TD-MPC2's world-model
+    /// learner), which reports the learning rows and the run's progress. Without one (MPC) the
+    /// rows come from the evaluations of model versions and the progress from the actors.
+    pub fn has_learner(&self) -> bool {
+        let roles = self.services.iter().chain([&self.actor]);
+        roles.into_iter().any(|k| k.row().wire == Role::Learner)
+    }
+    /// Its actors act with the model trainer's models (they subscribe the model channel): a
+    /// model version is what an evaluation and the run's result are of.
+    pub fn acts_on_models(&self) -> bool {
+        self.actor.subscribes(Channel::Model)
     }
     /// The weights whose final version is the run's result, hashed into `policy_sha256`: the
     /// SAC policy, or the model the planners plan on (what its actors act with).
@@ -155,7 +162,7 @@ impl PipelineSpec {
     /// again). A planning run's evaluator needs the model of every eval point before the cut,
     /// and lockstep equals the sequential run, so those finish it.
     pub fn abandons_training_on_stop(&self, mode: Mode) -> bool {
-        mode == Mode::Pipelined && !self.plans()
+        mode == Mode::Pipelined && !self.acts_on_models()
     }
 }
 
@@ -224,7 +231,10 @@ mod tests {
         );
         assert_eq!(mbpo.roles(3).iter().filter(|r| r.pauses()).count(), 5);
         assert_eq!(mpc.roles(3).iter().filter(|r| r.pauses()).count(), 4);
-        assert!(!mbpo.plans() && mpc.plans());
+        assert!(mbpo.has_learner() && !mbpo.acts_on_models());
+        assert!(!mpc.has_learner() && mpc.acts_on_models());
+        let tdmpc = spec(Algo::TDMPC).unwrap();
+        assert!(tdmpc.has_learner() && !tdmpc.acts_on_models());
     }
 
     #[test]

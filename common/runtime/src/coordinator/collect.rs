@@ -279,7 +279,7 @@ impl Collector {
     /// and pipelined actors can be behind the cut's step: those rows come after the resume).
     pub fn missing_at_cut(&self, t: u64) -> usize {
         let unwritten = self.rows_unwritten_upto(t);
-        if self.plans() {
+        if self.rows_from_evaluations() {
             unwritten.filter(|p| !self.evals.contains_key(p)).count()
         } else {
             unwritten.count()
@@ -314,7 +314,7 @@ impl Collector {
         book.step_seconds.clear();
         for &(t, ret, version) in &book.unwritten_evals {
             self.evals.insert(t, ret);
-            if self.plans() {
+            if self.rows_from_evaluations() {
                 self.learner.insert(t, planning_row(t, version));
             }
         }
@@ -328,7 +328,7 @@ impl Collector {
             Stats::Episode(e) => self.book.episodes.push((e.env_steps, e.episode_return)),
             Stats::Eval(e) => {
                 self.evals.insert(e.env_steps, e.mean_return);
-                if self.plans() {
+                if self.rows_from_evaluations() {
                     let row = planning_row(e.env_steps, e.model_version);
                     self.learner.insert(e.env_steps, row);
                 }
@@ -366,7 +366,9 @@ impl Collector {
                 self.book.progress = (p.env_steps, p.sac_updates, p.model_version)
             }
             // MPC has no learner: the actors' progress is the run's.
-            Stats::Progress(p) if self.plans() && from.role() == Some(Role::Actor) => {
+            Stats::Progress(p)
+                if self.rows_from_evaluations() && from.role() == Some(Role::Actor) =>
+            {
                 self.actor_steps.insert(from, p.env_steps);
                 if p.env_steps > self.book.progress.0 {
                     self.book.progress = (p.env_steps, 0, p.model_version)
@@ -406,9 +408,10 @@ impl Collector {
         self.done.len() == self.pipeline.roles(actors).len()
     }
 
-    /// The actors plan on the model: rows come from model versions, there is no learner.
-    fn plans(&self) -> bool {
-        self.pipeline.plans()
+    /// The run has no learner (MPC): its rows come from the evaluations of model versions and
+    /// its progress from the actors.
+    fn rows_from_evaluations(&self) -> bool {
+        !self.pipeline.has_learner()
     }
 
     /// Write the rows whose records are all in.
@@ -425,15 +428,15 @@ impl Collector {
             let model = (lr.model_version > 0)
                 .then(|| self.book.models.get(&lr.model_version).copied())
                 .flatten();
-            if self.plans() && model.is_none() && lr.model_version > 0 {
+            if self.rows_from_evaluations() && model.is_none() && lr.model_version > 0 {
                 break; // the model record arrives before its weights; wait for it
             }
-            if self.plans() && !self.actors_past(t) {
+            if self.rows_from_evaluations() && !self.actors_past(t) {
                 // The evaluator may plan for t before the actors get there (the model of t
                 // is older than step t): the row waits for their episodes up to t.
                 break;
             }
-            let plans = self.plans();
+            let no_learner = self.rows_from_evaluations();
             let now = started.elapsed().as_secs_f64();
             let dt = (now - self.book.last_row.0).max(1e-9);
             let sps = (t - self.book.last_row.1) as f64 / dt;
@@ -446,12 +449,16 @@ impl Collector {
                 sac_updates: lr.sac_updates,
                 critic_loss: some(lr.critic_loss),
                 actor_loss: some(lr.actor_loss),
-                alpha: (!plans && lr.alpha.is_finite()).then_some(lr.alpha as f64),
+                alpha: (!no_learner && lr.alpha.is_finite()).then_some(lr.alpha as f64),
                 entropy: some(lr.entropy),
                 q_mean: some(lr.q_mean),
                 model_holdout_mse: model,
-                rollout_length: model.filter(|_| !plans).map(|_| lr.rollout_length as f64),
-                model_buffer: model.filter(|_| !plans).map(|_| lr.model_buffer as f64),
+                rollout_length: model
+                    .filter(|_| !no_learner)
+                    .map(|_| lr.rollout_length as f64),
+                model_buffer: model
+                    .filter(|_| !no_learner)
+                    .map(|_| lr.model_buffer as f64),
                 wall_seconds: now,
                 env_steps_per_sec: sps,
                 updates_per_sec: ups,
@@ -507,7 +514,7 @@ impl Collector {
         let (m, _, stalled) = self.training?;
         let seconds = m.seconds as f64;
         let mut note = training_note(m.version, m.epoch as usize, m.holdout_mse, seconds);
-        if stalled && !self.plans() {
+        if stalled && !self.rows_from_evaluations() {
             note.push_str("; the learner waits for it");
         }
         Some(note)
@@ -535,7 +542,9 @@ impl Collector {
         if after_warmup > 0 {
             let per_step = tally.sac_updates.saturating_sub(schedule.burst_updates);
             ratios.updates_per_env_step = per_step as f64 / after_warmup as f64;
-            let acting = self.updates_when_acting_ended.filter(|_| !self.plans());
+            let acting = self
+                .updates_when_acting_ended
+                .filter(|_| !self.rows_from_evaluations());
             ratios.updates_per_env_step_while_acting =
                 acting.map(|u| u as f64 / after_warmup as f64);
         }
@@ -636,7 +645,8 @@ impl Collector {
             // A paced actor never waits inside an episode (docs/src/real-time.md): `--policy-lag`
             // bounds its lag only at an episode's first step, so no bound is claimed for it.
             let paced = self.cfg.actor.control_hz > 0.0;
-            let highest = (!self.plans() && !paced).then_some(self.slack.policy_lag);
+            let highest =
+                (!self.rows_from_evaluations() && !paced).then_some(self.slack.policy_lag);
             t.ratios.actor_policy_lag = t.actor_lag.allowed(None, highest);
         }
         t
@@ -645,7 +655,7 @@ impl Collector {
     /// A finished actor's planning time (MPC) and policy lag; the lag's mean is over the
     /// `finished` actors.
     fn add_actor_timing(&self, t: &mut Tally, d: &Done, finished: usize) {
-        if self.plans() && d.median_step_seconds > 0.0 {
+        if self.rows_from_evaluations() && d.median_step_seconds > 0.0 {
             // Median planning time of an MPC step (the slowest actor's).
             let m = d.median_step_seconds as f64;
             t.median = Some(t.median.map_or(m, |x: f64| x.max(m)));

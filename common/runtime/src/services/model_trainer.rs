@@ -73,7 +73,7 @@ impl<S: Transport> Worker<S> for ModelTrainer<S> {
         // Planners act on the models: the planners' checkpoints hold no model, so they plan on
         // this version again. (MBPO: no republish, the rollout generator's checkpoint holds
         // this model version.)
-        if cx.s.pipeline.plans() && self.role.version() > 0 {
+        if cx.s.pipeline.acts_on_models() && self.role.version() > 0 {
             let snapshot = self.role.snapshot();
             self.publish(cx, &snapshot)?;
             // The evaluator acknowledged every eval point ≤ T before the cut (those messages
@@ -200,7 +200,7 @@ impl<S: Transport> ModelTrainer<S> {
             epochs: report.epochs as u32,
             seconds: seconds as f32,
         })?;
-        if cx.s.pipeline.plans() && cx.s.mode == Mode::Lockstep {
+        if cx.s.pipeline.acts_on_models() && cx.s.mode == Mode::Lockstep {
             let from = self.prev_train_point;
             if !wait_for_mpc_eval_acks(&cx.s.schedule, cx.waiter, cx.control, from, t, version)? {
                 // Stopped: the loop sees it next.
