@@ -76,6 +76,33 @@ impl ExperimentConfig {
         })
     }
 
+    /// What the environment of this config is, in words (its spaces and episode length), from
+    /// making it once: the check that `env` exists (a `gym:` id is only known to Python).
+    pub fn describe_env(&self) -> Result<String, EnvError> {
+        let env = self.make_env()?;
+        let (act, obs) = (env.action_space(), env.observation_space());
+        let range = |v: &[f32]| {
+            let (lo, hi) = v
+                .iter()
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &x| {
+                    (lo.min(x), hi.max(x))
+                });
+            if lo == hi {
+                format!("{lo}")
+            } else {
+                format!("{lo}..{hi}")
+            }
+        };
+        Ok(format!(
+            "observation {} wide, action {} wide (low {}, high {}), episodes of at most {} steps",
+            obs.low.len(),
+            act.low.len(),
+            range(&act.low),
+            range(&act.high),
+            env.max_episode_steps()
+        ))
+    }
+
     /// The termination rule of model rollouts: `termination` if set, else the task's own, and
     /// learned for a Python env. An error says what is expected (the caller names what it
     /// found: validation reports both, once).

@@ -127,8 +127,19 @@ pub struct ChaosArgs {
 
 #[derive(Debug, Subcommand)]
 pub enum ConfigCommand {
-    /// Print the config a run would use (file, then every --set, validated) as TOML.
-    Show(ConfigSource),
+    /// Print the config a run would use (file, then every --set, validated) as TOML. The
+    /// environment is made once to check it exists (a `gym:` id starts its Python process);
+    /// what it is goes to the log on stderr.
+    Show(ConfigShowArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ConfigShowArgs {
+    #[command(flatten)]
+    pub source: ConfigSource,
+    /// Do not make the environment (print the config without checking that `env` exists).
+    #[arg(long)]
+    pub no_env_check: bool,
 }
 
 /// Where a config comes from: a file (or the defaults) and `--set` overrides.

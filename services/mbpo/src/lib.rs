@@ -52,9 +52,17 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
         cli::Command::Join(_) => supervisor::gateway("join", &arguments_after("join")),
         cli::Command::Certs(_) => supervisor::gateway("certs", &arguments_after("certs")),
         cli::Command::Env(cmd) => env_cmd::run(cmd),
-        cli::Command::Config(cli::ConfigCommand::Show(source)) => {
+        cli::Command::Config(cli::ConfigCommand::Show(args)) => {
+            let source = &args.source;
             let cfg =
                 mbpo_train::ExperimentConfig::resolve(source.config.as_deref(), &source.overrides)?;
+            if !args.no_env_check {
+                let env = cfg.describe_env()?;
+                tracing::info!(
+                    "env {}: {env} (made once to check it; --no-env-check skips this)",
+                    cfg.env
+                );
+            }
             write_stdout(format_args!("{}", cfg.to_toml()))
         }
         cli::Command::Eval(args) => {

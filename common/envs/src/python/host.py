@@ -139,9 +139,13 @@ def make(spec):
         extra = {} if steps is None else {"max_episode_steps": steps}
         try:
             env = gym.make(target, **kwargs, **extra)
-        except gym.error.NameNotFound as e:
+        except (gym.error.NameNotFound, gym.error.VersionNotFound, gym.error.DeprecatedEnv) as e:
             if ":" not in target:
-                raise
+                raise SpecError(
+                    f"Gymnasium has no environment {target}: {e} (the ids it has: "
+                    "python -c 'import gymnasium; gymnasium.pprint_registry()'; "
+                    "an env of your own: gym:module:Class)"
+                ) from None
             module, _, name = target.partition(":")
             raise SpecError(
                 f"module {module} has no class or function {name}, and Gymnasium has no env "
