@@ -271,6 +271,35 @@ fn an_interpreter_that_exits_is_restarted_and_the_lost_episode_counted() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
+/// An evaluation whose Python env process exits mid-episode plays that episode again in a new
+/// process and the run goes on (MPC's evaluator here; SAC's and TD-MPC2's run the same loop,
+/// `mbpo_train::episodes`). The training env's process takes 100 steps; the evaluator's reaches
+/// its 130th in the third of its three 50-step episodes at step 100, and exits there once.
+#[test]
+fn an_evaluation_whose_python_env_exits_plays_the_episode_again() {
+    let dir = scratch("gym-eval-exit");
+    let marker = dir.join("exited-once");
+    let mut cfg = tiny_mpc_config(100);
+    cfg.env = "gym:mbpo_test_envs:Drift".into();
+    cfg.termination = Some("never".into());
+    cfg.gym.path = vec![test_envs_dir()];
+    cfg.gym.max_episode_steps = Some(50);
+    cfg.gym.kwargs.insert("exit_at".into(), 130.into());
+    let marker_text = marker.to_str().unwrap().into();
+    cfg.gym.kwargs.insert("exit_marker".into(), marker_text);
+    cfg.mpc.reward = mbpo_train::PlanReward::Model;
+    cfg.mpc.init_random_steps = 50;
+    cfg.mpc.model_train_freq = 50;
+    cfg.eval.episodes = 3;
+    let run = dir.join("run");
+    let summary = train_mpc(&cfg, &run).unwrap();
+    assert!(marker.exists(), "the evaluator's env never exited");
+    assert!(summary.final_eval_return.is_finite(), "{summary:?}");
+    let rows = metrics_without_timing(&run);
+    assert_eq!(rows.len(), 2, "a header and the row of step 100: {rows:?}");
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// The Python process dies with the process that started it, even by SIGKILL, also when it is
 /// stuck in `step` and so never reads its closed pipe (the env here hangs in its 10th step).
 #[test]

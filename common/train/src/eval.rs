@@ -7,7 +7,7 @@ use crate::run_files::RunBook;
 use mbpo_core::rng::stream;
 use mbpo_core::{BatchPolicy, Rng};
 use mbpo_envs::{Env, EnvError};
-use mbpo_sac::{ActionScale, ActorPolicy, Sac, SacStats};
+use mbpo_sac::{ActorPolicy, Sac, SacStats};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
@@ -22,34 +22,19 @@ pub fn evaluate(
     episodes: usize,
     rng: &mut Rng,
 ) -> Result<f64, EnvError> {
-    let scale = ActionScale::new(&env.action_space().low, &env.action_space().high);
-    let mut obs = vec![0.0f32; env.obs_dim()];
-    let mut action = vec![0.0f32; env.act_dim()];
-    let mut env_action = vec![0.0f32; env.act_dim()];
-    let mut total = 0.0;
-    let mut episode = || -> Result<f64, EnvError> {
-        let mut ret = 0.0;
-        env.reset(rng, &mut obs)?;
-        loop {
-            policy.act_batch(&obs, 1, &mut action, rng);
-            scale.to_env(&action, &mut env_action);
-            let step = env.step(&env_action, &mut obs)?;
-            ret += step.reward;
-            if step.terminated || step.truncated {
-                return Ok(ret);
-            }
-        }
-    };
-    for _ in 0..episodes {
-        total += match episode() {
-            Err(e @ EnvError::PythonExited { .. }) => {
-                tracing::warn!("{e}; evaluating the episode again in a new process");
-                episode()?
-            }
-            other => other?,
-        };
-    }
-    Ok(total / episodes as f64)
+    let ret = crate::episodes::evaluation_episodes(
+        env,
+        episodes,
+        rng,
+        policy,
+        |_| {},
+        |policy, rng, obs, action| {
+            policy.act_batch(obs, 1, action, rng);
+            Ok::<(), EnvError>(())
+        },
+        || false,
+    )?;
+    Ok(ret.expect("an evaluation nobody abandons completes"))
 }
 
 /// Periodic evaluation and the bookkeeping around it (best return, rates).

@@ -312,13 +312,13 @@ impl PlanningEvaluator {
         abandon: impl FnMut() -> bool,
     ) -> Result<Option<f64>, TrainError> {
         let (model, plan_rng) = (&mut self.model.model, &mut self.plan_rng);
-        crate::episodes::planning_episodes(
+        crate::episodes::evaluation_episodes(
             self.env.as_mut(),
             episodes,
             &mut self.env_rng,
             &mut self.mpc,
             |mpc| mpc.reset(),
-            |mpc, obs, action| {
+            |mpc, _, obs, action| {
                 mpc.act(model, obs, plan_rng, action).map_err(plan_err)?;
                 Ok(())
             },

@@ -418,15 +418,15 @@ impl TdmpcEvaluator {
     /// Mean undiscounted return of `episodes` planning episodes.
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
         let plan_rng = &mut self.plan_rng;
-        let ret = crate::episodes::planning_episodes(
+        let ret = crate::episodes::evaluation_episodes(
             self.env.as_mut(),
             episodes,
             &mut self.env_rng,
             &mut self.planner,
             |planner| planner.reset(),
-            |planner, obs, action| {
+            |planner, _, obs, action| {
                 planner.act_batch(obs, 1, action, plan_rng);
-                Ok(())
+                Ok::<(), TrainError>(())
             },
             || false,
         )?;
