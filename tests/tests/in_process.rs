@@ -135,7 +135,8 @@ fn in_process_tdmpc_lockstep_equals_sequential_and_pipelined_loses_nothing() {
         "the burst, then one per step"
     );
     assert_last_step_checkpointed(&run.out, Algo::TDMPC, 1, cfg.steps);
-    let run = how(&dir, "pipelined", Mode::Pipelined, 1);
+    // Two actors: their rows reach the learner interleaved, and it keeps them as episodes.
+    let run = how(&dir, "pipelined", Mode::Pipelined, 2);
     let s = run_in_process(&cfg, &run).unwrap();
     assert_eq!(s.summary.status, "completed");
     assert_eq!(s.real_transitions.produced, 350);
@@ -147,6 +148,26 @@ fn in_process_tdmpc_lockstep_equals_sequential_and_pipelined_loses_nothing() {
         rows.len(),
         5,
         "the header, rows 100, 200, 300 and 350: {rows:?}"
+    );
+    assert_last_step_checkpointed(&run.out, Algo::TDMPC, 2, cfg.steps);
+    let (last, _) = mbpo_train::checkpoint::latest(&run.out).unwrap().unwrap();
+    let learner: mbpo_train::run_files::WorldModelLearnerCheckpoint = mbpo_train::checkpoint::read(
+        &last.join("learner"),
+        mbpo_train::checkpoint::kind::WORLD_MODEL_LEARNER,
+    )
+    .unwrap();
+    let buffer = learner
+        .role
+        .buffer
+        .with_links(learner.episode_links)
+        .unwrap();
+    // 350 steps of 200-step Pendulum episodes: each actor's first, and at most one second
+    // (rows joined by arrival order would break at every switch between the actors).
+    assert_eq!(buffer.len(), 350);
+    assert!(
+        (2..=3).contains(&buffer.episodes()),
+        "{}",
+        buffer.episodes()
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -33,6 +33,6 @@ pub mod update;
 pub mod world_model;
 
 pub use normed_mlp::{Head, NormedCache, NormedMlp};
-pub use replay::EpisodeBuffer;
+pub use replay::{EpisodeBuffer, EpisodeLinks};
 pub use two_hot::{symexp, symlog, TwoHot};
 pub use world_model::{LossWorkspace, Losses, Sequences, WorldModel, WorldModelConfig};

@@ -1,8 +1,13 @@
 //! Real transitions kept as the world model learns from them: TD-MPC2 trains on subsequences of
 //! H + 1 observations, H actions and H rewards from one episode, drawn uniformly. A ring of
-//! transitions (obs, act, reward, next obs) with a flag saying whether the next row continues
-//! the same episode; a subsequence starting at row t is valid when rows t..t+H−1 are stored,
-//! each but the last continued by the next, and none but the last ends its episode.
+//! transitions (obs, act, reward, next obs), each linked to the row that continues its
+//! episode; a subsequence starting at row t is valid when t and the H − 1 rows its links lead
+//! to are stored.
+//!
+//! Several actors' rows arrive interleaved, and a row names neither its actor nor its episode,
+//! so a row continues the episode whose open tail's next observation it starts from, bit for
+//! bit (a tail is open until it is continued, ends or is overwritten); a row that continues
+//! none starts an episode. With one actor the links join consecutive rows.
 
 use mbpo_core::rng::{index, Rng};
 use serde::{Deserialize, Serialize};
@@ -12,6 +17,13 @@ use crate::world_model::Sequences;
 /// Attempts to draw a valid start before sampling gives up (a buffer whose episodes are all
 /// shorter than H has none).
 const MAX_DRAWS: usize = 10_000;
+
+/// Episodes open at once at most (about one per actor; a tail a time limit cut stays open, as
+/// a row does not say it was truncated, until newer ones push it out).
+const MAX_OPEN: usize = 1024;
+
+/// A row no link leads from.
+const NONE: u32 = u32::MAX;
 
 /// The transitions, oldest first within a ring of `capacity` rows.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -23,12 +35,25 @@ pub struct EpisodeBuffer {
     act: Vec<f32>,
     reward: Vec<f32>,
     next_obs: Vec<f32>,
-    /// Row i + 1 continues row i's episode (written when row i + 1 arrives).
+    /// Row i has a row continuing its episode (`links.next[i]`). Kept in this layout for
+    /// checkpoints written before the links (format 5: one actor, so the next row).
     continued: Vec<bool>,
-    /// Row i ended its episode (terminated or truncated).
+    /// Row i ended its episode (terminated).
     ended: Vec<bool>,
     len: usize,
     next: usize,
+    /// The links; checkpoints carry them beside the buffer ([`EpisodeBuffer::links`]).
+    #[serde(skip)]
+    links: EpisodeLinks,
+}
+
+/// How the rows of an [`EpisodeBuffer`] join into episodes.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct EpisodeLinks {
+    /// The row continuing row i's episode, or none (`u32::MAX`).
+    next: Vec<u32>,
+    /// Rows whose episode may go on (not ended, not continued yet), oldest first.
+    open: Vec<u32>,
 }
 
 impl EpisodeBuffer {
@@ -46,6 +71,10 @@ impl EpisodeBuffer {
             ended: vec![false; capacity],
             len: 0,
             next: 0,
+            links: EpisodeLinks {
+                next: vec![NONE; capacity],
+                open: Vec::new(),
+            },
         }
     }
 
@@ -70,85 +99,155 @@ impl EpisodeBuffer {
         (self.obs_dim, self.act_dim) == (other.obs_dim, other.act_dim)
     }
 
+    /// Episodes (or their stored ends) it holds: rows no stored row links to.
+    pub fn episodes(&self) -> usize {
+        let oldest = (self.next + self.capacity - self.len) % self.capacity;
+        let mut continued = vec![false; self.capacity];
+        for k in 0..self.len {
+            match self.links.next[(oldest + k) % self.capacity] {
+                NONE => {}
+                n => continued[n as usize] = true,
+            }
+        }
+        (0..self.len)
+            .filter(|k| !continued[(oldest + k) % self.capacity])
+            .count()
+    }
+
+    /// The links between its rows, for a checkpoint (the buffer's own serialized form keeps
+    /// the layout of checkpoints written before them).
+    pub fn links(&self) -> &EpisodeLinks {
+        &self.links
+    }
+
+    /// The buffer of a checkpoint with its links; `None` (a checkpoint written before them, by
+    /// one actor): row i is continued by the next row where `continued` says so, and the newest
+    /// row is open unless it ended.
+    pub fn with_links(mut self, links: Option<EpisodeLinks>) -> Result<Self, String> {
+        let cap = self.capacity;
+        let links = match links {
+            Some(l) => l,
+            None => {
+                let next = (0..cap)
+                    .map(|i| {
+                        if self.continued[i] {
+                            ((i + 1) % cap) as u32
+                        } else {
+                            NONE
+                        }
+                    })
+                    .collect();
+                let newest = (self.next + cap - 1) % cap;
+                let open_newest = self.len > 0 && !self.ended[newest] && !self.continued[newest];
+                let open = if open_newest {
+                    vec![newest as u32]
+                } else {
+                    Vec::new()
+                };
+                EpisodeLinks { next, open }
+            }
+        };
+        let in_ring = |&r: &u32| r == NONE || (r as usize) < cap;
+        if links.next.len() != cap
+            || !links.next.iter().all(in_ring)
+            || !links.open.iter().all(in_ring)
+        {
+            return Err(format!("its episode links do not fit its {cap} rows"));
+        }
+        self.links = links;
+        Ok(self)
+    }
+
     /// The same transitions in a ring of `capacity` rows (a run extended past its planned
     /// steps keeps more), oldest first from row 0, so a draw of the k-th oldest row picks the
-    /// same transition; the newest `capacity` are kept when there are more.
+    /// same transition; the newest `capacity` are kept when there are more, with their links.
     pub fn resized(&self, capacity: usize) -> EpisodeBuffer {
         let mut out = EpisodeBuffer::new(self.obs_dim, self.act_dim, capacity);
         let (o, a) = (self.obs_dim, self.act_dim);
         let oldest = (self.next + self.capacity - self.len) % self.capacity;
-        for k in self.len.saturating_sub(capacity)..self.len {
+        let dropped = self.len.saturating_sub(capacity);
+        // Ring row -> its row in `out`, for rows kept.
+        let moved = |r: u32| -> Option<u32> {
+            let k = (r as usize + self.capacity - oldest) % self.capacity;
+            (r != NONE && k >= dropped && k < self.len).then(|| (k - dropped) as u32)
+        };
+        for k in dropped..self.len {
             let r = (oldest + k) % self.capacity;
-            out.push(
-                &self.obs[r * o..(r + 1) * o],
-                &self.act[r * a..(r + 1) * a],
-                self.reward[r],
-                &self.next_obs[r * o..(r + 1) * o],
-                self.ended[r],
-            );
+            let i = k - dropped;
+            out.obs[i * o..(i + 1) * o].copy_from_slice(&self.obs[r * o..(r + 1) * o]);
+            out.act[i * a..(i + 1) * a].copy_from_slice(&self.act[r * a..(r + 1) * a]);
+            out.reward[i] = self.reward[r];
+            out.next_obs[i * o..(i + 1) * o].copy_from_slice(&self.next_obs[r * o..(r + 1) * o]);
+            out.ended[i] = self.ended[r];
+            out.links.next[i] = moved(self.links.next[r]).unwrap_or(NONE);
+            out.continued[i] = out.links.next[i] != NONE;
         }
+        out.links.open = self.links.open.iter().filter_map(|&r| moved(r)).collect();
+        out.len = self.len - dropped;
+        out.next = out.len % capacity;
         out
     }
 
-    /// The newest transition ended its episode (found out when the next one arrives: a row
-    /// carries `terminated` but not a time limit's truncation).
-    pub fn end_last(&mut self) {
-        if self.len > 0 {
-            let last = (self.next + self.capacity - 1) % self.capacity;
-            self.ended[last] = true;
-        }
-    }
-
-    /// Whether `obs` continues the newest transition: it is that transition's next
-    /// observation, bit for bit, and the transition did not end its episode.
-    pub fn continues(&self, obs: &[f32]) -> bool {
-        if self.len == 0 {
-            return false;
-        }
-        let (o, last) = (
-            self.obs_dim,
-            (self.next + self.capacity - 1) % self.capacity,
-        );
-        let next = &self.next_obs[last * o..(last + 1) * o];
-        !self.ended[last]
-            && next
-                .iter()
+    /// The open tail whose next observation `obs` is, bit for bit (newest first: an actor's
+    /// tail is among the newest).
+    fn open_tail_of(&self, obs: &[f32]) -> Option<usize> {
+        let o = self.obs_dim;
+        self.links.open.iter().rposition(|&r| {
+            let r = r as usize;
+            let next = &self.next_obs[r * o..(r + 1) * o];
+            next.iter()
                 .zip(obs)
                 .all(|(a, b)| a.to_bits() == b.to_bits())
+        })
     }
 
-    /// Append a transition; `episode_ended`: terminated or truncated (the next one starts a new
-    /// episode). The oldest is overwritten once the ring is full.
+    /// Append a transition; `terminated`: its episode ended (no row continues it). The oldest
+    /// is overwritten once the ring is full.
     pub fn push(
         &mut self,
         obs: &[f32],
         act: &[f32],
         reward: f32,
         next_obs: &[f32],
-        episode_ended: bool,
+        terminated: bool,
     ) {
         let (o, a, i) = (self.obs_dim, self.act_dim, self.next);
-        if self.len > 0 {
-            let prev = (i + self.capacity - 1) % self.capacity;
-            self.continued[prev] = !self.ended[prev];
+        if self.len == self.capacity {
+            // Row i is the oldest: no stored row links to it, and it leaves the open tails.
+            self.links.open.retain(|&r| r as usize != i);
+        }
+        if let Some(k) = self.open_tail_of(obs) {
+            let tail = self.links.open.remove(k) as usize;
+            self.links.next[tail] = i as u32;
+            self.continued[tail] = true;
         }
         self.obs[i * o..(i + 1) * o].copy_from_slice(obs);
         self.act[i * a..(i + 1) * a].copy_from_slice(act);
         self.reward[i] = reward;
         self.next_obs[i * o..(i + 1) * o].copy_from_slice(next_obs);
         self.continued[i] = false;
-        self.ended[i] = episode_ended;
+        self.links.next[i] = NONE;
+        self.ended[i] = terminated;
+        if !terminated {
+            if self.links.open.len() == MAX_OPEN {
+                self.links.open.remove(0);
+            }
+            self.links.open.push(i as u32);
+        }
         self.next = (i + 1) % self.capacity;
         self.len = (self.len + 1).min(self.capacity);
     }
 
-    /// Whether a subsequence of `horizon` transitions starts at ring row `row`.
+    /// The row `horizon − 1` links after ring row `row`, if its episode has that many stored.
     fn valid_start(&self, row: usize, horizon: usize) -> bool {
-        // Oldest-first position of `row`: the last `horizon - 1` rows cannot start one.
-        let oldest = (self.next + self.capacity - self.len) % self.capacity;
-        let pos = (row + self.capacity - oldest) % self.capacity;
-        pos + horizon <= self.len
-            && (0..horizon - 1).all(|k| self.continued[(row + k) % self.capacity])
+        let mut r = row;
+        for _ in 1..horizon {
+            match self.links.next[r] {
+                NONE => return false,
+                n => r = n as usize,
+            }
+        }
+        true
     }
 
     /// Fill `out` (its `batch` set) with subsequences of `horizon` transitions drawn uniformly
@@ -166,16 +265,18 @@ impl EpisodeBuffer {
             else {
                 return false;
             };
+            let mut r = row;
             for t in 0..horizon {
-                let r = (row + t) % self.capacity;
                 let at = t * b + j;
                 out.obs[at * o..(at + 1) * o].copy_from_slice(&self.obs[r * o..(r + 1) * o]);
                 out.act[at * a..(at + 1) * a].copy_from_slice(&self.act[r * a..(r + 1) * a]);
                 out.reward[at] = self.reward[r];
+                if t + 1 < horizon {
+                    r = self.links.next[r] as usize;
+                }
             }
-            let last = (row + horizon - 1) % self.capacity;
             let at = horizon * b + j;
-            out.obs[at * o..(at + 1) * o].copy_from_slice(&self.next_obs[last * o..(last + 1) * o]);
+            out.obs[at * o..(at + 1) * o].copy_from_slice(&self.next_obs[r * o..(r + 1) * o]);
         }
         true
     }
@@ -259,15 +360,77 @@ mod tests {
     }
 
     #[test]
-    fn a_row_that_does_not_start_from_the_last_next_observation_starts_an_episode() {
+    fn a_row_continues_the_open_episode_it_starts_from_bit_for_bit() {
         let mut buf = EpisodeBuffer::new(1, 1, 10);
-        assert!(!buf.continues(&[0.0]), "nothing to continue");
         buf.push(&[0.0], &[0.0], 0.0, &[1.0], false);
-        assert!(buf.continues(&[1.0]));
-        assert!(!buf.continues(&[5.0]), "a reset");
-        assert!(!buf.continues(&[-0.0f32 + 1.0000001]), "bit for bit");
-        buf.end_last();
-        assert!(!buf.continues(&[1.0]), "an ended episode is not continued");
+        buf.push(&[1.0], &[0.0], 0.0, &[2.0], false);
+        assert_eq!(buf.links().next[..2], [1, NONE]);
+        buf.push(&[5.0], &[0.0], 0.0, &[6.0], true); // a reset: starts an episode, ends it
+        buf.push(&[6.0], &[0.0], 0.0, &[7.0], false); // an ended episode is not continued
+        buf.push(&[2.0000002], &[0.0], 0.0, &[3.0], false); // bit for bit, or a new episode
+        assert_eq!(buf.links().next[..5], [1, NONE, NONE, NONE, NONE]);
+        assert_eq!(buf.links().open, [1, 3, 4]);
+    }
+
+    /// Three actors' episodes arriving interleaved (rows in turn, episodes of different
+    /// lengths) are drawn as if each had arrived alone.
+    #[test]
+    fn interleaved_episodes_of_several_actors_are_kept_apart() {
+        let (h, b) = (3, 256);
+        let mut buf = EpisodeBuffer::new(2, 1, 200);
+        // Actor k's episode e: observation (10 k + e, step), 6 + k steps, time limit only.
+        let mut steps = [0usize; 3];
+        let mut episode = [0usize; 3];
+        for _ in 0..60 {
+            for k in 0..3 {
+                let (e, s) = ((10 * k + episode[k]) as f32, steps[k] as f32);
+                buf.push(&[e, s], &[s], s, &[e, s + 1.0], false);
+                steps[k] += 1;
+                if steps[k] == 6 + k {
+                    (steps[k], episode[k]) = (0, episode[k] + 1);
+                }
+            }
+        }
+        let mut out = sequences(b, h);
+        assert!(buf.sample(h, &mut stream(2, "test.replay", 0), &mut out));
+        let mut seen = std::collections::BTreeSet::new();
+        for j in 0..b {
+            let (e, s) = (out.obs[j * 2], out.obs[j * 2 + 1]);
+            let k = (e / 10.0).floor() as usize;
+            assert!(
+                s as usize + h <= 6 + k,
+                "actor {k}: starts at {s}, past its episode"
+            );
+            for t in 0..=h {
+                let at = t * b + j;
+                assert_eq!(out.obs[at * 2..at * 2 + 2], [e, s + t as f32]);
+            }
+            seen.insert(k);
+        }
+        assert_eq!(seen.len(), 3, "every actor's episodes are drawn");
+        // 60 rows each: actor 0 has 10 episodes of 6, actor 1 9 of 7 (the last cut), actor 2
+        // 8 of 8 (the last cut); the ring holds the newest 180 rows, all of them.
+        assert_eq!(buf.episodes(), 10 + 9 + 8);
+        // Regrown, the links move with the rows.
+        let mut again = sequences(b, h);
+        let grown = buf.resized(300);
+        assert!(grown.sample(h, &mut stream(2, "test.replay", 0), &mut again));
+        assert_eq!(out.obs, again.obs);
+    }
+
+    /// A checkpoint written before the links (one actor): `continued` says which rows the next
+    /// one continues, and the newest row is open.
+    #[test]
+    fn a_buffer_without_links_joins_consecutive_rows() {
+        let buf = filled(50, 7, 10);
+        let mut old = buf.clone();
+        old.links = EpisodeLinks::default();
+        let restored = old.with_links(None).unwrap();
+        assert_eq!(restored.links(), buf.links());
+        let mut short = buf.clone();
+        short.links.next.pop();
+        let err = buf.clone().with_links(Some(short.links)).unwrap_err();
+        assert!(err.contains("50 rows"), "{err}");
     }
 
     #[test]

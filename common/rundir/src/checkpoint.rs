@@ -30,17 +30,23 @@ const MAGIC: &[u8; 8] = b"MBPOCKPT";
 /// actor's episode in progress is optional, for environments that cannot save their state, and
 /// the role files are one format for both commands, `run_files`; 4: an actor counts the episodes
 /// lost to an environment process that exited; 5: the learner's file may store D_model as the
-/// branches that made it, a field after all others, `mbpo_train::d_model_branches`).
-pub const FORMAT_VERSION: u32 = 5;
+/// branches that made it, a field after all others, `mbpo_train::d_model_branches`; 6: TD-MPC2's
+/// world-model learner keeps how its buffer's rows join into episodes, so that several actors'
+/// rows can interleave, a field after all others).
+pub const FORMAT_VERSION: u32 = 6;
 
-/// The oldest format this build still reads: every file of format 4 is its format-5 payload
-/// but for the learner's last field, absent ([`upgraded_payload`]).
+/// The oldest format this build still reads: every file of format 4 or 5 is its format-6
+/// payload but for a last field of the learner's (format 4) or the world-model learner's
+/// (format 4 and 5), absent ([`upgraded_payload`]).
 const OLDEST_READABLE: u32 = 4;
 
 /// A payload of format `version` as this build's format reads it.
 fn upgraded_payload<'a>(version: u32, kind: &str, payload: &'a [u8]) -> std::borrow::Cow<'a, [u8]> {
-    if version == 4 && kind == kind::LEARNER {
-        // `d_model_branches: None`: bincode writes `None` as one zero byte.
+    // `d_model_branches: None` (4 -> 5), `episode_links: None` (5 -> 6): bincode writes `None`
+    // as one zero byte.
+    let absent_last_field = (version == 4 && kind == kind::LEARNER)
+        || (version <= 5 && kind == kind::WORLD_MODEL_LEARNER);
+    if absent_last_field {
         let mut upgraded = payload.to_vec();
         upgraded.push(0);
         return upgraded.into();
@@ -486,11 +492,12 @@ pub(crate) mod tests {
     }
 
     /// A learner file of format 4 (lanes of long runs started by the build before) reads as
-    /// format 5 without D_model's branches; another role's format-4 file reads as it is, and
-    /// format 3 is refused by name.
+    /// format 5 without D_model's branches, a world-model learner's of format 4 or 5 without
+    /// its episode links; another role's older file reads as it is, and format 3 is refused by
+    /// name.
     #[test]
-    fn format_4_files_read_with_the_learner_s_new_field_absent() {
-        use super::kind::{LEARNER, ROLLOUT};
+    fn older_files_read_with_the_learners_new_fields_absent() {
+        use super::kind::{LEARNER, ROLLOUT, WORLD_MODEL_LEARNER};
         let dir = tmp("format-4");
         let path = dir.join("learner");
         let as_format = |version: u32, kind: &str, value: &(u64, Vec<f32>)| {
@@ -502,6 +509,15 @@ pub(crate) mod tests {
         as_format(4, LEARNER, &before);
         let now: (u64, Vec<f32>, Option<u32>) = read(&path, LEARNER).unwrap();
         assert_eq!(now, (7, vec![1.5, -2.0], None));
+        as_format(5, LEARNER, &before);
+        assert!(read::<(u64, Vec<f32>, Option<u32>)>(&path, LEARNER).is_err());
+        for version in [4, 5] {
+            as_format(version, WORLD_MODEL_LEARNER, &before);
+            let now: (u64, Vec<f32>, Option<u32>) = read(&path, WORLD_MODEL_LEARNER).unwrap();
+            assert_eq!(now, (7, vec![1.5, -2.0], None));
+        }
+        as_format(6, WORLD_MODEL_LEARNER, &before);
+        assert!(read::<(u64, Vec<f32>, Option<u32>)>(&path, WORLD_MODEL_LEARNER).is_err());
         as_format(4, ROLLOUT, &before);
         assert_eq!(read::<(u64, Vec<f32>)>(&path, ROLLOUT).unwrap(), before);
         as_format(3, ROLLOUT, &before);
@@ -509,7 +525,7 @@ pub(crate) mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            err.contains("format version 3, this build reads versions 4 to 5"),
+            err.contains("format version 3, this build reads versions 4 to 6"),
             "{err}"
         );
         std::fs::remove_dir_all(dir).unwrap();

@@ -24,7 +24,10 @@ use crate::mpc_roles::{PlanningActorState, PlanningEvaluatorState};
 use crate::roles::{ActorState, LearnerState, ModelTrainerState, RolloutState};
 use crate::run_dir::{policy_sha256, RunDir, Summary};
 use crate::schedule::Schedule;
-use crate::tdmpc::roles::{TdmpcActorState, TdmpcEvaluatorState, WorldModelLearnerState};
+use crate::tdmpc::roles::{
+    TdmpcActorState, TdmpcEvaluatorState, WorldModelLearner, WorldModelLearnerState,
+};
+use mbpo_latent::EpisodeLinks;
 
 /// File names in a checkpoint directory (actors: [`actor_file`]), the role table's names.
 pub mod file {
@@ -134,6 +137,24 @@ pub struct WorldModelLearnerCheckpoint {
     pub role: WorldModelLearnerState,
     /// Env steps consumed and published (= T).
     pub consumed: u64,
+    /// How the buffer's rows join into episodes (format 6, last so that a format-5 file reads
+    /// as `None`: one actor's rows in order, `checkpoint::upgraded_payload`).
+    pub episode_links: Option<EpisodeLinks>,
+}
+
+impl WorldModelLearnerCheckpoint {
+    /// `learner` after it consumed and published step `consumed`.
+    pub fn of(learner: &WorldModelLearner, consumed: u64) -> Self {
+        Self {
+            role: learner.checkpoint(),
+            consumed,
+            episode_links: Some(learner.episode_links()),
+        }
+    }
+    /// Give `learner` the state of this checkpoint.
+    pub fn restore_into(self, learner: &mut WorldModelLearner) -> Result<(), TrainError> {
+        learner.restore(self.role, self.episode_links)
+    }
 }
 
 /// A TD-MPC2 actor after T.

@@ -81,8 +81,9 @@ impl<S: Transport> Worker<S> for WorldModelLearnerWorker<S> {
         })
     }
     fn restore(&mut self, state: WorldModelLearnerCheckpoint, cx: &LearnerCx<'_, S>) -> Result<()> {
-        self.role.restore(state.role)?;
-        (self.consumed, self.published) = (state.consumed, state.consumed);
+        let consumed = state.consumed;
+        state.restore_into(&mut self.role)?;
+        (self.consumed, self.published) = (consumed, consumed);
         self.inbox.resume_at(self.consumed);
         // The evaluator acknowledged this eval point before the checkpoint was written.
         cx.control.assume_ack(self.consumed);
@@ -134,10 +135,10 @@ impl<S: Transport> Worker<S> for WorldModelLearnerWorker<S> {
         if (self.consumed, self.published) != (cut.env_steps, cut.env_steps) {
             return Ok(AtCut::Work);
         }
-        Ok(AtCut::Write(WorldModelLearnerCheckpoint {
-            role: self.role.checkpoint(),
-            consumed: cut.env_steps,
-        }))
+        Ok(AtCut::Write(WorldModelLearnerCheckpoint::of(
+            &self.role,
+            cut.env_steps,
+        )))
     }
     fn finish(&mut self, cx: &LearnerCx<'_, S>) -> Result<()> {
         let median = mbpo_core::stats::median(&mut self.step_seconds).unwrap_or(0.0);

@@ -12,7 +12,9 @@ use mbpo_core::{Batch, BatchPolicy, LastTransition, Rng, TransitionSink};
 use mbpo_envs::Env;
 use mbpo_latent::mppi::{LatentMppi, MppiConfig};
 use mbpo_latent::update::{Learner, LearnerState, UpdateConfig, UpdateStats};
-use mbpo_latent::{EpisodeBuffer, NormedCache, Sequences, TwoHot, WorldModel, WorldModelConfig};
+use mbpo_latent::{
+    EpisodeBuffer, EpisodeLinks, NormedCache, Sequences, TwoHot, WorldModel, WorldModelConfig,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
@@ -253,29 +255,36 @@ impl WorldModelLearner {
         }
     }
     /// Continue from [`WorldModelLearner::checkpoint`].
-    pub fn restore(&mut self, s: WorldModelLearnerState) -> Result<(), TrainError> {
+    /// How its buffer's rows join into episodes (a checkpoint keeps them beside the state).
+    pub fn episode_links(&self) -> EpisodeLinks {
+        self.buffer.links().clone()
+    }
+    /// Continue from [`WorldModelLearner::checkpoint`] and its [`Self::episode_links`] (`None`:
+    /// a checkpoint written before them, by one actor).
+    pub fn restore(
+        &mut self,
+        s: WorldModelLearnerState,
+        links: Option<EpisodeLinks>,
+    ) -> Result<(), TrainError> {
         let refuse = |e: String| TrainError::Config(format!("tdmpc checkpoint: {e}"));
         if !s.buffer.same_widths(&self.buffer) {
             return Err(refuse("its buffer is of another task's widths".into()));
         }
+        let buffer = s.buffer.with_links(links).map_err(refuse)?;
         self.learner.restore(s.learner).map_err(refuse)?;
         // A run extended past its planned steps (`--resume --steps N`) keeps more of them.
-        self.buffer = s.buffer.resized(self.buffer.capacity());
+        self.buffer = buffer.resized(self.buffer.capacity());
         self.rng = s.rng;
         self.updates = s.updates;
         Ok(())
     }
 }
 
-/// Real transitions in the order an actor took them. A row says whether it terminated but not
-/// whether a time limit cut its episode, so an episode ends where the next row does not start
-/// from the last one's next observation (bit for bit): the same rule in one process and in the
-/// pipeline's learner, which sees only rows.
+/// Real transitions in the order they arrive (the actors' rows interleaved in a pipeline): the
+/// buffer joins each row to the open episode it starts from (`mbpo_latent::replay`), the same
+/// rule in one process and in the pipeline's learner, which sees only rows.
 impl TransitionSink for WorldModelLearner {
     fn push(&mut self, obs: &[f32], act: &[f32], reward: f32, next_obs: &[f32], terminated: bool) {
-        if !self.buffer.is_empty() && !self.buffer.continues(obs) {
-            self.buffer.end_last();
-        }
         self.buffer.push(obs, act, reward, next_obs, terminated);
     }
 }

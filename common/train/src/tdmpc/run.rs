@@ -78,10 +78,7 @@ impl TdmpcRun<'_> {
             path: dir.to_path_buf(),
             source,
         })?;
-        let learner = WorldModelLearnerCheckpoint {
-            role: self.learner.checkpoint(),
-            consumed: t,
-        };
+        let learner = WorldModelLearnerCheckpoint::of(&self.learner, t);
         let actor = LatentActorCheckpoint {
             role: self.actor.checkpoint(),
             steps: t,
@@ -131,7 +128,7 @@ impl SequentialRun for TdmpcRun<'_> {
         let steps = [("learner", learner.consumed), ("actor", actor.steps)];
         check_one_actor_cut(dir, &self.schedule, t, k, &steps, &[])?;
         self.book = checkpoint::read(&dir.join(file::RUN_BOOK), kind::RUN_BOOK)?;
-        self.learner.restore(learner.role)?;
+        learner.restore_into(&mut self.learner)?;
         self.actor.restore(actor.role)?;
         self.evaluator.restore(evaluator.role);
         self.hand_out_params(t);

@@ -870,9 +870,6 @@ fn check_run_args(args: &RunArgs, cfg: &mbpo_train::ExperimentConfig) -> anyhow:
     if args.mode == Mode::Lockstep && cfg.algo == mbpo_train::Algo::TDMPC && budget > 0.0 {
         bail!("tdmpc.planner.budget_ms = {budget} makes each plan depend on the machine's speed, and lockstep equals the sequential run bit for bit: use --mode pipelined, or budget_ms = 0");
     }
-    if cfg.algo == mbpo_train::Algo::TDMPC && args.actors != 1 {
-        bail!("a tdmpc run has one actor for now: the world-model learner keeps real transitions as episodes, and rows of several actors would interleave them; use --actors 1");
-    }
     if args.mode == Mode::Lockstep && args.actors != 1 {
         bail!("lockstep mode equals the sequential algorithm, which has exactly one actor: use --actors 1 or --mode pipelined");
     }
