@@ -130,6 +130,23 @@ impl IntervalErrors {
     }
 }
 
+/// Late steps the pacer keeps for the log (the first ones of a run).
+pub const LATE_STEPS_KEPT: usize = 16;
+
+/// A step that started after its deadline, or whose interval since the step before was off by
+/// more than a tenth of the period: when (so that it can be set beside the other roles' logs).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LateStep {
+    /// The step's number among the paced steps.
+    pub step: u64,
+    /// When it started, CLOCK_MONOTONIC ns.
+    pub at_ns: u64,
+    /// Its interval's error, ns.
+    pub error_ns: u64,
+    /// It started after its deadline (the step before overran).
+    pub missed: bool,
+}
+
 /// Deadlines every `period`, and what happened at them.
 #[derive(Debug, Clone)]
 pub struct Pacer {
@@ -148,6 +165,10 @@ pub struct Pacer {
     pub worst_late_ns: u64,
     /// Rests outside the grid ([`Pacer::rest`]).
     pub rests: u64,
+    /// The first [`LATE_STEPS_KEPT`] late steps (a fixed array: nothing allocates per step).
+    late: [LateStep; LATE_STEPS_KEPT],
+    /// Late steps seen (those past the array are only counted).
+    late_seen: usize,
 }
 
 impl Pacer {
@@ -162,6 +183,8 @@ impl Pacer {
             steps: 0,
             worst_late_ns: 0,
             rests: 0,
+            late: [LateStep::default(); LATE_STEPS_KEPT],
+            late_seen: 0,
         })
     }
     /// The time between deadlines.
@@ -179,11 +202,12 @@ impl Pacer {
     pub fn wait(&mut self) {
         let now = monotonic_ns();
         let deadline = *self.next.get_or_insert(now);
-        if now <= deadline {
-            sleep_until(deadline);
-        } else {
+        let missed = now > deadline;
+        if missed {
             self.missed += 1;
             self.worst_late_ns = self.worst_late_ns.max(now - deadline);
+        } else {
+            sleep_until(deadline);
         }
         // The next deadline on the grid after this step's start.
         let start = now.max(deadline);
@@ -192,11 +216,61 @@ impl Pacer {
         self.steps += 1;
         // The step starts now: when the sleep ended (the scheduler's latency included).
         let started = monotonic_ns();
-        if let Some(last) = self.last_start.replace(started) {
-            self.intervals
-                .add((started - last).abs_diff(self.period_ns));
+        let last = self.last_start.replace(started);
+        let error_ns = last.map_or(0, |last| (started - last).abs_diff(self.period_ns));
+        if last.is_some() {
+            self.intervals.add(error_ns);
+        }
+        if missed || error_ns > self.period_ns / 10 {
+            self.note_late(LateStep {
+                step: self.steps,
+                at_ns: started,
+                error_ns,
+                missed,
+            });
         }
     }
+    fn note_late(&mut self, late: LateStep) {
+        if let Some(slot) = self.late.get_mut(self.late_seen) {
+            *slot = late;
+        }
+        self.late_seen += 1;
+    }
+    /// The first late steps (at most [`LATE_STEPS_KEPT`]) and how many there were in all.
+    pub fn late_steps(&self) -> (&[LateStep], usize) {
+        (
+            &self.late[..self.late_seen.min(LATE_STEPS_KEPT)],
+            self.late_seen,
+        )
+    }
+}
+
+/// `late` in words for the log: each step's number, UTC time of day (as the logs print it) and
+/// error, e.g. `step 25001 at 22:31:05.123 (1.97 ms off, missed)`.
+pub fn describe_late_steps(late: &[LateStep]) -> String {
+    let (mono_now, unix_now) = (monotonic_ns(), unix_ns());
+    let words: Vec<String> = late
+        .iter()
+        .map(|l| {
+            let unix = unix_now.saturating_sub(mono_now.saturating_sub(l.at_ns));
+            let ms_of_day = unix / 1_000_000 % 86_400_000;
+            let (h, m) = (ms_of_day / 3_600_000, ms_of_day / 60_000 % 60);
+            let (sec, ms) = (ms_of_day / 1000 % 60, ms_of_day % 1000);
+            let missed = if l.missed { ", missed" } else { "" };
+            let off = l.error_ns as f64 / 1e6;
+            format!(
+                "step {} at {h:02}:{m:02}:{sec:02}.{ms:03} ({off:.2} ms off{missed})",
+                l.step
+            )
+        })
+        .collect();
+    words.join(", ")
+}
+
+/// CLOCK_REALTIME in ns since the Unix epoch.
+fn unix_ns() -> u64 {
+    let since = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH);
+    since.map_or(0, |d| d.as_nanos() as u64)
 }
 
 /// CLOCK_MONOTONIC in ns.
@@ -252,6 +326,17 @@ mod tests {
         p.wait();
         assert_eq!(p.missed, before + 1);
         assert!(p.worst_late_ns >= 5_000_000, "{}", p.worst_late_ns);
+        // The late step is kept with its number and error, and said with its time of day.
+        let (late, all) = p.late_steps();
+        let missed_step = late.iter().find(|l| l.missed).expect("the overrun is kept");
+        assert_eq!(missed_step.step, 11);
+        assert!(missed_step.error_ns >= 5_000_000, "{missed_step:?}");
+        assert!(all >= 1 && late.len() == all.min(LATE_STEPS_KEPT));
+        let words = describe_late_steps(&[*missed_step]);
+        assert!(
+            words.starts_with("step 11 at ") && words.ends_with("ms off, missed)"),
+            "{words}"
+        );
         // The next deadline is on the grid after that start, not a burst of missed ones.
         let t = monotonic_ns();
         p.wait();
@@ -268,6 +353,13 @@ mod tests {
         p.wait();
         assert_eq!((p.missed, p.rests), (missed, 1));
         assert!(Pacer::new(0.0).is_none());
+        // Past the kept ones, late steps are only counted.
+        let mut q = Pacer::new(1e6).unwrap();
+        for _ in 0..LATE_STEPS_KEPT + 5 {
+            q.note_late(LateStep::default());
+        }
+        assert_eq!(q.late_steps().0.len(), LATE_STEPS_KEPT);
+        assert_eq!(q.late_steps().1, LATE_STEPS_KEPT + 5);
         // Every interval on a grid is counted (the rest started a new one).
         assert_eq!(p.intervals.total(), p.steps - 2);
         assert!(

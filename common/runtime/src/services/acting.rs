@@ -235,6 +235,11 @@ impl<S: Transport, R: ActingRole> Worker<S> for Acting<S, R> {
                 e.quantile_us(0.99),
                 e.max_ns as f64 / 1e3
             );
+            let (late, all) = p.late_steps();
+            if all > 0 {
+                let first = crate::pacer::describe_late_steps(late);
+                tracing::info!("{all} late steps (missed, or off by more than a tenth of the period); the first: {first}");
+            }
         }
         Ok(())
     }
