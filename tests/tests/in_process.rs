@@ -143,6 +143,10 @@ fn in_process_tdmpc_lockstep_equals_sequential_and_pipelined_loses_nothing() {
     assert_eq!(s.real_transitions.received["learner"], 350);
     assert_eq!(s.real_transitions.lost, 0);
     assert_eq!(s.summary.sac_updates, 100 + 250, "every update paid");
+    // Per env step after the seed steps, the burst of 100 left out (1 per step).
+    assert_eq!(s.ratios.updates_per_env_step, 1.0);
+    let while_acting = s.ratios.updates_per_env_step_while_acting.unwrap();
+    assert!(while_acting <= 1.0, "{while_acting}");
     let rows = metrics_without_timing(&run.out);
     assert_eq!(
         rows.len(),

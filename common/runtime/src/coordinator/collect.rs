@@ -545,8 +545,9 @@ impl Collector {
             let acting = self
                 .updates_when_acting_ended
                 .filter(|_| !self.rows_from_evaluations());
+            let per_step_while_acting = |u: u64| u.saturating_sub(schedule.burst_updates);
             ratios.updates_per_env_step_while_acting =
-                acting.map(|u| u as f64 / after_warmup as f64);
+                acting.map(|u| per_step_while_acting(u) as f64 / after_warmup as f64);
         }
         PipelineSummary {
             summary: Summary {
