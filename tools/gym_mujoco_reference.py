@@ -6,8 +6,8 @@ Regenerate (from the repository root):
     bash deploy/setup_mujoco.sh && .venv/bin/python tools/gym_mujoco_reference.py
 
 This writes common/envs/tests/fixtures/<EnvId>.json for InvertedPendulum-v5, HalfCheetah-v5,
-Hopper-v5, Walker2d-v5 and Ant-v5 (with include_cfrc_ext_in_observation=False, MBPO's truncated
-observation), which common/envs/tests/gymnasium_mujoco.rs replays with `reset_to` + `step`
+Hopper-v5, Walker2d-v5, Ant-v5 and Humanoid-v5 (the last two with MBPO's truncated observations:
+see MAKE_KWARGS), which common/envs/tests/gymnasium_mujoco.rs replays with `reset_to` + `step`
 (cargo feature `mujoco`). Versions are pinned in tools/requirements*.txt and recorded in every
 fixture.
 
@@ -145,16 +145,35 @@ def episodes(env_id):
             # Dropped from z = 1.3 (> 1, unhealthy): terminated on the first step.
             ("dropped_from_high", 3, uniform(), [0, 0, 1.3, 1, 0, 0, 0] + [0] * 8 + [0] * 14, 1000),
         ]
+    if env_id == "Humanoid-v5":
+        return [
+            ("reset_seed0_uniform", 0, uniform(), None, 300),
+            ("reset_seed1_wide", 1, uniform(1.5), None, 200),
+            ("reset_seed2_bang_bang", 2, bang_bang, None, 200),
+            ("reset_seed3_zero_action", 3, lambda *a: np.zeros(17), None, 300),
+            # Dropped from z = 2.2 (> 2, unhealthy): terminated on the first step.
+            ("dropped_from_high", 4, uniform(), [0, 0, 2.2, 1, 0, 0, 0] + [0] * 17 + [0] * 23, 1000),
+        ]
     raise ValueError(env_id)
 
 
-MAKE_KWARGS = {"Ant-v5": {"include_cfrc_ext_in_observation": False}}
+MAKE_KWARGS = {
+    "Ant-v5": {"include_cfrc_ext_in_observation": False},
+    # MBPO's HumanoidTruncatedObs: positions without the root's x and y, then velocities.
+    "Humanoid-v5": {
+        "include_cinert_in_observation": False,
+        "include_cvel_in_observation": False,
+        "include_qfrc_actuator_in_observation": False,
+        "include_cfrc_ext_in_observation": False,
+    },
+}
 
 
 def main() -> None:
     warnings.filterwarnings("ignore")
     FIXTURES.mkdir(parents=True, exist_ok=True)
-    for env_id in ["InvertedPendulum-v5", "HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Ant-v5"]:
+    for env_id in ["InvertedPendulum-v5", "HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Ant-v5",
+                   "Humanoid-v5"]:
         kwargs = MAKE_KWARGS.get(env_id, {})
         eps = [
             run_episode(env_id, kwargs, name, seed, policy, state, max_steps)

@@ -73,7 +73,8 @@ macro_rules! mujoco_task {
     }};
 }
 
-/// The built-in tasks. (Ant-v5 has MBPO's truncated observation: 27 values, no contact forces.)
+/// The built-in tasks. (Ant-v5 and Humanoid-v5 have MBPO's truncated observations: 27 and 45
+/// values, positions without the root's x and y, then velocities.)
 pub const BUILTIN: &[TaskSpec] = &[
     TaskSpec {
         id: "Pendulum-v1",
@@ -106,6 +107,7 @@ pub const BUILTIN: &[TaskSpec] = &[
     mujoco_task!("Hopper-v5", termination::hopper, Some(3800.0)),
     mujoco_task!("Walker2d-v5", termination::walker2d, None),
     mujoco_task!("Ant-v5", termination::ant, Some(6000.0)),
+    mujoco_task!("Humanoid-v5", termination::humanoid, None),
 ];
 
 /// Tasks added at run time with [`register`].
@@ -255,10 +257,11 @@ mod tests {
                 "HalfCheetah-v5",
                 "Hopper-v5",
                 "Walker2d-v5",
-                "Ant-v5"
+                "Ant-v5",
+                "Humanoid-v5"
             ]
         );
-        let built = if cfg!(feature = "mujoco") { 7 } else { 2 };
+        let built = if cfg!(feature = "mujoco") { 8 } else { 2 };
         assert_eq!(ENV_IDS.len(), built);
         for id in ENV_IDS {
             assert_eq!(make(id).unwrap().id(), *id);

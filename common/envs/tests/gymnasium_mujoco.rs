@@ -167,6 +167,11 @@ fn ant_matches_gymnasium() {
 }
 
 #[test]
+fn humanoid_matches_gymnasium() {
+    assert!(replay("Humanoid-v5").steps >= 100);
+}
+
+#[test]
 fn fixtures_exercise_termination_truncation_and_clamped_actions() {
     for id in MUJOCO_ENV_IDS {
         let f = load(id);
@@ -234,6 +239,7 @@ fn spaces_dims_and_state_layout() {
         ("Hopper-v5", 11, 3, 12, 1.0),
         ("Walker2d-v5", 17, 6, 18, 1.0),
         ("Ant-v5", 27, 8, 29, 1.0),
+        ("Humanoid-v5", 45, 17, 47, 0.4),
     ];
     for (id, obs, act, state, high) in want {
         let env = make(id).unwrap();
@@ -330,6 +336,7 @@ fn reset_draws_from_gymnasiums_start_distribution() {
             Task::HalfCheetah | Task::Walker2d => 9,
             Task::Hopper => 6,
             Task::Ant => 15,
+            Task::Humanoid => 24,
         };
         let normal_velocity = matches!(task, Task::HalfCheetah | Task::Ant);
         for (k, d) in draws.iter().enumerate() {

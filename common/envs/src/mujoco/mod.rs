@@ -109,10 +109,12 @@ impl MujocoEnv {
     }
 
     /// The forward coordinate whose change is rewarded: Ant's torso body x (`data.body(1).xpos`,
-    /// which `mj_step` computed before its last integration), otherwise qpos[0].
+    /// which `mj_step` computed before its last integration), Humanoid's centre of mass (from
+    /// `xipos`, the same), otherwise qpos[0].
     fn x_position(&self) -> f64 {
         match self.task {
             Task::Ant => self.data.xpos()[1][0],
+            Task::Humanoid => task::mass_center_x(self.data.model().body_mass(), self.data.xipos()),
             _ => self.data.qpos()[0],
         }
     }
@@ -197,7 +199,7 @@ impl Env for MujocoEnv {
         self.write_obs(obs);
         let x_velocity = (self.x_position() - x_before) / self.dt;
         let cfrc_ext: &[f64] = match self.task {
-            Task::Ant => self.data.cfrc_ext().as_flattened(),
+            Task::Ant | Task::Humanoid => self.data.cfrc_ext().as_flattened(),
             _ => &[],
         };
         let (reward, terminated) = self.task.reward(&mut StepState {
@@ -263,10 +265,10 @@ impl RestorableEnv for MujocoEnv {
     }
 
     /// MuJoCo's integration state (`mjSTATE_INTEGRATION`, with the solver's warm start) and the
-    /// x position the next step's forward velocity starts from: Ant reads it from `xpos`, which
-    /// after a step holds the last sub-step's kinematics, not those of `qpos`. (MuJoCo keeps a
-    /// little state outside `mjtState` -- sleeping trees, flex contacts -- which none of these
-    /// five models uses; a model that does would need it here too.)
+    /// x position the next step's forward velocity starts from: Ant and Humanoid read it from
+    /// `xpos` and `xipos`, which after a step hold the last sub-step's kinematics, not those of
+    /// `qpos`. (MuJoCo keeps a little state outside `mjtState` -- sleeping trees, flex contacts
+    /// -- which none of these six models uses; a model that does would need it here too.)
     fn resume_state(&self) -> Vec<f64> {
         let mut extra = self.data.state(INTEGRATION_STATE).into_vec();
         extra.push(self.restored_x_before.unwrap_or_else(|| self.x_position()));

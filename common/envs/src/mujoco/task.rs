@@ -1,7 +1,10 @@
-//! What differs between the five Gymnasium v5 MuJoCo tasks: model file, frame skip, reset noise,
+//! What differs between the six Gymnasium v5 MuJoCo tasks: model file, frame skip, reset noise,
 //! observation, reward terms and health rule, each transcribed from Gymnasium 1.4's
-//! `gymnasium/envs/mujoco/<task>_v5.py` with its default constructor arguments (Ant with
-//! `include_cfrc_ext_in_observation=False`, MBPO's truncated observation).
+//! `gymnasium/envs/mujoco/<task>_v5.py` with its default constructor arguments but MBPO's
+//! truncated observations (Ant with `include_cfrc_ext_in_observation=False`; Humanoid with
+//! `include_cinert_in_observation`, `include_cvel_in_observation`,
+//! `include_qfrc_actuator_in_observation` and `include_cfrc_ext_in_observation` all False: the
+//! paper's HumanoidTruncatedObs, positions without the root's x and y, then velocities).
 //!
 //! Arithmetic follows NumPy's types so rewards round as Gymnasium's do: the control cost
 //! `w * np.sum(np.square(action))` is float32 (the action is a float32 array and a Python float
@@ -23,6 +26,8 @@ pub enum Task {
     Walker2d,
     /// Quadruped; terminates when the torso leaves 0.2 ≤ z ≤ 1 or the state is not finite.
     Ant,
+    /// 3D biped; terminates when the torso leaves 1 < z < 2.
+    Humanoid,
 }
 
 /// How Gymnasium perturbs the initial velocities at reset (positions always get uniform noise).
@@ -39,12 +44,13 @@ pub const MAX_EPISODE_STEPS: usize = 1000;
 
 impl Task {
     /// Every task, in the order `make` lists them.
-    pub const ALL: [Task; 5] = [
+    pub const ALL: [Task; 6] = [
         Task::InvertedPendulum,
         Task::HalfCheetah,
         Task::Hopper,
         Task::Walker2d,
         Task::Ant,
+        Task::Humanoid,
     ];
 
     /// The task of a Gymnasium id.
@@ -60,6 +66,7 @@ impl Task {
             Task::Hopper => "Hopper-v5",
             Task::Walker2d => "Walker2d-v5",
             Task::Ant => "Ant-v5",
+            Task::Humanoid => "Humanoid-v5",
         }
     }
 
@@ -71,6 +78,7 @@ impl Task {
             Task::Hopper => "hopper.xml",
             Task::Walker2d => "walker2d_v5.xml",
             Task::Ant => "ant.xml",
+            Task::Humanoid => "humanoid.xml",
         }
     }
 
@@ -78,7 +86,7 @@ impl Task {
     pub fn frame_skip(self) -> usize {
         match self {
             Task::InvertedPendulum => 2,
-            Task::HalfCheetah | Task::Ant => 5,
+            Task::HalfCheetah | Task::Ant | Task::Humanoid => 5,
             Task::Hopper | Task::Walker2d => 4,
         }
     }
@@ -89,6 +97,7 @@ impl Task {
             Task::InvertedPendulum => (0.01, VelocityNoise::Uniform),
             Task::HalfCheetah | Task::Ant => (0.1, VelocityNoise::Normal),
             Task::Hopper | Task::Walker2d => (0.005, VelocityNoise::Uniform),
+            Task::Humanoid => (0.01, VelocityNoise::Uniform),
         }
     }
 
@@ -97,7 +106,7 @@ impl Task {
         match self {
             Task::InvertedPendulum => 0,
             Task::HalfCheetah | Task::Hopper | Task::Walker2d => 1,
-            Task::Ant => 2,
+            Task::Ant | Task::Humanoid => 2,
         }
     }
 
@@ -114,6 +123,7 @@ impl Task {
             Task::Hopper => "qpos[6] (rootx, rootz, rooty, 3 joints), qvel[6]",
             Task::Walker2d => "qpos[9] (rootx, rootz, rooty, 6 joints), qvel[9]",
             Task::Ant => "qpos[15] (x, y, z, quaternion w x y z, 8 joints), qvel[14]",
+            Task::Humanoid => "qpos[24] (x, y, z, quaternion w x y z, 17 joints), qvel[23]",
         }
     }
 
@@ -140,6 +150,7 @@ impl Task {
             Task::Hopper => healthy_forward_reward(s, 0.001, hopper_is_healthy(s.qpos, s.qvel)),
             Task::Walker2d => healthy_forward_reward(s, 0.001, walker2d_is_healthy(s.qpos)),
             Task::Ant => ant(s),
+            Task::Humanoid => humanoid(s),
         }
     }
 }
@@ -156,7 +167,7 @@ pub struct StepState<'a> {
     pub x_velocity: f64,
     /// The action as given (MuJoCo clamps the control; the cost uses the unclamped action).
     pub action: &'a [f32],
-    /// `data.cfrc_ext` flattened (nbody × 6; Ant only, empty otherwise).
+    /// `data.cfrc_ext` flattened (nbody × 6; Ant and Humanoid, empty otherwise).
     pub cfrc_ext: &'a [f64],
     /// Scratch space of `cfrc_ext.len()` values for the contact cost.
     pub scratch: &'a mut [f64],
@@ -226,4 +237,44 @@ fn ant(s: &mut StepState<'_>) -> (f64, bool) {
     let contact_cost = 5e-4 * pairwise_sum(&s.scratch[..s.cfrc_ext.len()]);
     let costs = control_cost(0.5, s.action) as f64 + contact_cost;
     (rewards - costs, !healthy)
+}
+
+/// Humanoid-v5 `is_healthy`: 1 < z = qpos[2] < 2 (NaN fails both comparisons).
+pub fn humanoid_is_healthy(qpos: &[f64]) -> bool {
+    1.0 < qpos[2] && qpos[2] < 2.0
+}
+
+/// Humanoid-v5: `(1.25 * x_velocity + 5 * healthy) - (0.1 * sum(ctrl²) + clip(5e-7 *
+/// sum(cfrc_ext²), −inf, 10))`, all float64: the control cost reads `data.ctrl` (the action as
+/// float64), the contact cost the whole nbody × 6 `cfrc_ext`; x_velocity is that of the centre of
+/// mass ([`mass_center_x`]).
+fn humanoid(s: &mut StepState<'_>) -> (f64, bool) {
+    let healthy = humanoid_is_healthy(s.qpos);
+    let rewards = 1.25 * s.x_velocity + if healthy { 5.0 } else { 0.0 };
+    let n = s.action.len();
+    for (d, &a) in s.scratch.iter_mut().zip(s.action) {
+        let c = a as f64;
+        *d = c * c;
+    }
+    let ctrl_cost = 0.1 * pairwise_sum(&s.scratch[..n]);
+    for (d, &f) in s.scratch.iter_mut().zip(s.cfrc_ext) {
+        *d = f * f;
+    }
+    // np.clip(cost, -inf, 10): NaN stays NaN.
+    let contact_cost = match 5e-7 * pairwise_sum(&s.scratch[..s.cfrc_ext.len()]) {
+        c if c > 10.0 => 10.0,
+        c => c,
+    };
+    (rewards - (ctrl_cost + contact_cost), !healthy)
+}
+
+/// The x of the centre of mass, as Gymnasium's `mass_center`: `np.einsum("b,bj->j", body_mass,
+/// xipos)` adds `mass · x` body by body in order (checked against NumPy 2.4 bit for bit), over
+/// `body_mass.sum()`, a pairwise sum.
+pub fn mass_center_x(body_mass: &[f64], xipos: &[[f64; 3]]) -> f64 {
+    let num = body_mass
+        .iter()
+        .zip(xipos)
+        .fold(0.0, |acc, (&m, p)| acc + m * p[0]);
+    num / pairwise_sum(body_mass)
 }
