@@ -66,6 +66,22 @@ pub fn evaluation_episodes<P: ?Sized, E: From<EnvError>>(
     Ok(Some(total / episodes.max(1) as f64))
 }
 
+/// Why an evaluation nobody abandons has a return.
+pub(crate) const NEVER_ABANDONED: &str = "an evaluation nobody abandons completes";
+
+/// [`evaluation_episodes`] played to the end: their mean undiscounted return.
+pub fn mean_return<P: ?Sized, E: From<EnvError>>(
+    env: &mut dyn Env,
+    episodes: usize,
+    env_rng: &mut Rng,
+    agent: &mut P,
+    begin: impl FnMut(&mut P),
+    act: impl FnMut(&mut P, &mut Rng, &[f32], &mut [f32]) -> Result<(), E>,
+) -> Result<f64, E> {
+    let ret = evaluation_episodes(env, episodes, env_rng, agent, begin, act, || false)?;
+    Ok(ret.expect(NEVER_ABANDONED))
+}
+
 /// One episode of [`evaluation_episodes`]: its return, or `None` once abandoned.
 fn episode<P: ?Sized, E>(
     env: &mut dyn Env,

@@ -22,7 +22,7 @@ pub fn evaluate(
     episodes: usize,
     rng: &mut Rng,
 ) -> Result<f64, EnvError> {
-    let ret = crate::episodes::evaluation_episodes(
+    crate::episodes::mean_return(
         env,
         episodes,
         rng,
@@ -32,9 +32,7 @@ pub fn evaluate(
             policy.act_batch(obs, 1, action, rng);
             Ok::<(), EnvError>(())
         },
-        || false,
-    )?;
-    Ok(ret.expect("an evaluation nobody abandons completes"))
+    )
 }
 
 /// Periodic evaluation and the bookkeeping around it (best return, rates).

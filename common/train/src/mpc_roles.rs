@@ -299,7 +299,7 @@ impl PlanningEvaluator {
     /// Mean undiscounted return of `episodes` MPC episodes (the warm start reset per episode).
     pub fn evaluate(&mut self, episodes: usize) -> Result<f64, TrainError> {
         let ret = self.evaluate_unless(episodes, || false)?;
-        Ok(ret.expect("an evaluation nobody abandons completes"))
+        Ok(ret.expect(crate::episodes::NEVER_ABANDONED))
     }
 
     /// [`PlanningEvaluator::evaluate`], abandoned (`Ok(None)`) as soon as `abandon()` says so;
