@@ -6,6 +6,7 @@
 #
 #   bash deploy/learning_mujoco.sh [--steps 50000] [--tasks "hopper walker2d halfcheetah ant"]
 #                                  [--seeds 3] [--out results] [--set KEY=VALUE]...
+#                                  [--peer [LABEL=]FILE]...
 #
 # --seeds N runs seeds 0..N-1 of each task; raising it later adds seeds to a task whose first ones
 # are done (they are reused), and the results file and plot then cover all N.
@@ -24,6 +25,11 @@
 #       --set mbpo.clip_imagined_states=real_box
 # or is a config of its own whose env id differs, e.g. walker2d-v2-feet (gym:Walker2d-v5 with
 # v2's feet): its runs and results files are named by that id beside the others.
+#
+# --peer puts a published curve file beside each task's results (`mbpo bench learning --peer`,
+# `mbpo plot --peer`: mean ± std over its seeds in the results file, the table and the plot),
+# e.g. the SimbaV2 authors' collection of Gym v4 baselines (dojeon-ai/SimbaV2 results/baseline):
+#   --peer CrossQ=$DIR/crossq.csv --peer REDQ=$DIR/redq_utd20.csv
 #
 # Hours per seed: it is meant to run in the background across sessions, as a session of its own,
 # which lets it lower its own share of the CPU (below):
@@ -46,6 +52,7 @@ seeds=3
 tasks="hopper walker2d halfcheetah ant"
 out=results
 sets=()
+peers=()
 while [ $# -gt 0 ]; do
     case "$1" in
         --steps) steps=$2 ;;
@@ -53,8 +60,9 @@ while [ $# -gt 0 ]; do
         --seeds) seeds=$2 ;;
         --out) out=$2 ;;
         --set) sets+=(--set "$2") ;;
+        --peer) peers+=(--peer "$2") ;;
         *)
-            echo "unknown argument $1: expected --steps N, --tasks \"a b\", --seeds N, --out DIR or --set KEY=VALUE" >&2
+            echo "unknown argument $1: expected --steps N, --tasks \"a b\", --seeds N, --out DIR, --set KEY=VALUE or --peer [LABEL=]FILE" >&2
             exit 2
             ;;
     esac
@@ -101,9 +109,14 @@ bench() {
         --out "$out" "$@"
 }
 
-# The env id as run directories and results files spell it (`mbpo` turns `:` and `/` into `-`:
-# gym:Walker2d-v5 -> gym-Walker2d-v5).
-env_id() { sed -n 's/^env = "\(.*\)"/\1/p' "deploy/configs/$1.toml" | tr ':/' '--'; }
+# The env as run directories and results files spell it: the config's `[gym] name` where it
+# has one, else its id with `:` and `/` as `-` (gym:Walker2d-v5 -> gym-Walker2d-v5).
+env_id() {
+    local name
+    name=$(sed -n 's/^name = "\(.*\)"/\1/p' "deploy/configs/$1.toml")
+    if [ -n "$name" ]; then echo "$name"; return; fi
+    sed -n 's/^env = "\(.*\)"/\1/p' "deploy/configs/$1.toml" | tr ':/' '--'
+}
 run_of() { echo "$out/runs/mbpo-$(env_id "$1")-s$2"; }
 completed() { [ -f "$1/summary.json" ] && grep -q '"status": *"completed"' "$1/summary.json"; }
 under_way() { compgen -G "$1/checkpoints/*/COMPLETE" >/dev/null; }
@@ -145,9 +158,9 @@ lane() {
             completed "$(run_of "$task" "$s")" || continue 2
             runs+=("$(run_of "$task" "$s")")
         done
-        bench "$task"
+        bench "$task" "${peers[@]}"
         id=$(env_id "$task")
-        "$mbpo" plot "${runs[@]}" --out "$out/learning-$id.png" \
+        "$mbpo" plot "${runs[@]}" --out "$out/learning-$id.png" "${peers[@]}" \
             --title "MBPO $id, $seeds seeds (mean, min..max)"
     done < "$claims/jobs"
 }

@@ -170,6 +170,10 @@ pub struct AlgoResult {
     pub budgets: Vec<BudgetSummary>,
     /// Per-seed results.
     pub seeds: Vec<SeedResult>,
+    /// Published curves to compare with: the MBPO authors', peers' given with `--peer`
+    /// ([`crate::published`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub published: Vec<crate::published::PublishedCurve>,
 }
 
 /// The target of entries written before targets were per task.
@@ -235,7 +239,7 @@ fn one_core_per_seed(cfg: &ExperimentConfig, parallel: usize) -> ExperimentConfi
 
 /// The name of `cfg`'s entry in its results file and of its run directories' prefix: the
 /// algorithm's, per planner for MPC (mpc-cem, mpc-mppi, ...), so each keeps its own results.
-fn entry_name(cfg: &ExperimentConfig) -> String {
+pub fn entry_name(cfg: &ExperimentConfig) -> String {
     match cfg.algo {
         Algo::MPC => format!("mpc-{}", cfg.mpc.planner.kind.name()),
         other => other.name().to_string(),
@@ -329,16 +333,51 @@ pub fn learning_benchmark_at(
         ),
         budgets: summarize_budgets(&per_seed, budgets),
         seeds: per_seed,
+        published: Vec::new(),
     };
     // Read again just before writing: another benchmark (another algorithm on this task) may
     // have written its entry while these seeds ran.
     let mut all = read_results(&file)?;
-    all.insert(algo.clone(), entry.clone());
-    std::fs::create_dir_all(out)?;
-    let tmp = file.with_extension("json.tmp");
-    std::fs::write(&tmp, serde_json::to_string_pretty(&all)? + "\n")?;
-    std::fs::rename(&tmp, &file)?;
+    let earlier = all.insert(algo.clone(), entry.clone());
+    // The published curves stay until `published::attach` sets them again.
+    let entry = all.get_mut(&algo).expect("just inserted");
+    entry.published = earlier.map(|e| e.published).unwrap_or_default();
+    let entry = entry.clone();
+    write_results(&file, &all)?;
     Ok(entry)
+}
+
+/// Set the published curves of `cfg`'s entry in its results file under `out` (written by the
+/// benchmark just run; [`crate::published::curves_for`]).
+pub fn attach_published(
+    out: &Path,
+    cfg: &ExperimentConfig,
+    peers: &[(String, mbpo_report::PaperCurve)],
+    budgets: &[u64],
+) -> Result<(), TrainError> {
+    let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
+    let mut all = read_results(&file)?;
+    let key = entry_name(cfg);
+    let entry = all.get_mut(&key).ok_or_else(|| {
+        TrainError::Config(format!(
+            "{}: no entry {key:?} to attach published curves to",
+            file.display()
+        ))
+    })?;
+    let earlier = std::mem::take(&mut entry.published);
+    entry.published = crate::published::curves_for(cfg, peers, budgets, earlier);
+    write_results(&file, &all)
+}
+
+/// Write a results file's entries, atomically (a reader never sees half a file).
+fn write_results(file: &Path, all: &BTreeMap<String, AlgoResult>) -> Result<(), TrainError> {
+    if let Some(dir) = file.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    let tmp = file.with_extension("json.tmp");
+    std::fs::write(&tmp, serde_json::to_string_pretty(all)? + "\n")?;
+    std::fs::rename(&tmp, file)?;
+    Ok(())
 }
 
 #[cfg(test)]
@@ -529,6 +568,71 @@ mod tests {
         let r = learning_benchmark(&high, "c.toml", &[2], 1, &out, fake_run).unwrap();
         assert_eq!(r.target_return, Some(500.0));
         assert_eq!(r.seeds[0].env_steps_to_target, Some(300));
+        std::fs::remove_dir_all(out).unwrap();
+    }
+
+    #[test]
+    fn published_curves_sit_beside_the_entry_and_outlive_a_rerun_without_peers() {
+        let out = temp_out("published");
+        let peer_file = out.join("tdmpc2").join("pendulum.csv");
+        std::fs::create_dir_all(peer_file.parent().unwrap()).unwrap();
+        std::fs::write(&peer_file, "step,reward,seed\n0,-1200,1\n200,-900,1\n400,-150,1\n0,-1000,2\n200,-700,2\n400,-170,2\n").unwrap();
+        let cfg = ExperimentConfig {
+            algo: Algo::SAC,
+            ..Default::default()
+        };
+        let spec = format!("TD-MPC2={}", peer_file.display());
+        let peers = crate::published::read_peers(&cfg, &[spec]).unwrap();
+        let read = |out: &Path| -> AlgoResult {
+            let text = std::fs::read_to_string(out.join("learning-Pendulum-v1.json")).unwrap();
+            let all: BTreeMap<String, AlgoResult> = serde_json::from_str(&text).unwrap();
+            all["sac"].clone()
+        };
+        learning_benchmark_at(&cfg, "c.toml", &[0], 1, &out, fake_run, &[200, 300]).unwrap();
+        attach_published(&out, &cfg, &peers, &[200, 300]).unwrap();
+        let entry = read(&out);
+        assert_eq!(
+            entry.published.len(),
+            1,
+            "SAC on Pendulum: the peer only, no MBPO paper"
+        );
+        let p = &entry.published[0];
+        assert_eq!(p.label, "TD-MPC2 (2 seeds, mean ± std)");
+        assert_eq!(p.source, peer_file.display().to_string());
+        // Its points up to the run's 400 steps, and at the budgets only where it has a point.
+        let at: Vec<_> = p.at_budgets.iter().map(|b| (b.env_steps, b.mean)).collect();
+        assert_eq!(at, [(200, -800.0)]);
+        assert_eq!(p.points.len(), 3);
+        assert!(
+            (p.points[1].std - 141.421356).abs() < 1e-5,
+            "{:?}",
+            p.points[1]
+        );
+        // A rerun without --peer keeps them.
+        learning_benchmark_at(&cfg, "c.toml", &[0, 1], 1, &out, fake_run, &[200]).unwrap();
+        attach_published(&out, &cfg, &[], &[200]).unwrap();
+        let again = read(&out);
+        assert_eq!(again.seeds.len(), 2);
+        assert_eq!(again.published, entry.published);
+        // An MBPO entry of a task the authors ran gets their curve first.
+        let mbpo = ExperimentConfig {
+            algo: Algo::MBPO,
+            env: "Hopper-v5".into(),
+            steps: 60_000,
+            ..Default::default()
+        };
+        let with = crate::published::curves_for(&mbpo, &peers, &[50_000], Vec::new());
+        assert_eq!(with[0].source, crate::published::MBPO_AUTHORS_SOURCE);
+        assert!(
+            (with[0].at_budgets[0].mean - 1699.9).abs() < 0.2,
+            "{:?}",
+            with[0].at_budgets
+        );
+        assert!(with[0]
+            .points
+            .windows(2)
+            .all(|w| w[1].env_steps >= w[0].env_steps + 1000));
+        assert_eq!(with.len(), 2);
         std::fs::remove_dir_all(out).unwrap();
     }
 

@@ -1,7 +1,8 @@
 //! Benchmarks and diagnoses of runs (`mbpo bench ...`): what a user measures a run or a build
 //! with, on top of the experiments of `mbpo-train`.
 //!
-//! Holds: [`learning_bench`] (seeds of a config to a budget, against the paper's curves),
+//! Holds: [`learning_bench`] (seeds of a config to a budget, against the paper's curves and
+//! peers' ones, [`published`]),
 //! [`breakdown`] (where an MBPO run's time goes, from a kept checkpoint), [`diagnose`] (a run's
 //! critic and model held against the real environment, from a kept checkpoint),
 //! [`checkpoint_bench`] (what checkpointing costs the training loop), [`termination_bench`]
@@ -21,5 +22,6 @@ pub mod checkpoint_bench;
 pub mod command;
 pub mod diagnose;
 pub mod learning_bench;
+pub mod published;
 pub mod stdout;
 pub mod termination_bench;

@@ -120,6 +120,13 @@ pub struct GymConfig {
     /// Keyword arguments of `gymnasium.make` or of the entry point.
     #[schemars(with = "std::collections::BTreeMap<String, serde_json::Value>")]
     pub kwargs: toml::Table,
+    /// The env's name in file and folder names (`runs/<algo>-<name>-s0`, `learning-<name>.json`)
+    /// instead of its id with `:` and `/` as `-`: for an entry point that makes several tasks
+    /// from its kwargs (e.g. `dmc-walker-walk` for `gym:dmc_env:make` with `task =
+    /// "walker-walk"`), so their runs and results files do not share a name. Letters, digits,
+    /// `.`, `_` and `-`. It changes no bit of a run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
 }
 
 /// Evaluation schedule.
@@ -878,13 +885,6 @@ impl ExperimentConfig {
                 bad("termination", &expected, found)
             })?;
         }
-        if let Some(p) = self.gym.path.iter().find(|p| !p.is_dir()) {
-            return Err(bad(
-                "gym.path",
-                "folders that exist (relative ones are relative to the config file)",
-                p.display().to_string(),
-            ));
-        }
         for (key, v) in [
             ("actor.env_step_ms", self.actor.env_step_ms),
             ("actor.control_hz", self.actor.control_hz),
@@ -898,6 +898,35 @@ impl ExperimentConfig {
                 "actor.realtime_priority",
                 "0 (off) or a SCHED_FIFO priority 1..=99",
                 self.actor.realtime_priority.to_string(),
+            ));
+        }
+        self.validate_gym_table(bad)
+    }
+
+    /// The `[gym]` table's own values: folders that exist, a name fit for files, a positive
+    /// time limit, kwargs JSON can carry.
+    fn validate_gym_table(
+        &self,
+        bad: &dyn Fn(&str, &str, String) -> ConfigError,
+    ) -> Result<(), ConfigError> {
+        if let Some(p) = self.gym.path.iter().find(|p| !p.is_dir()) {
+            return Err(bad(
+                "gym.path",
+                "folders that exist (relative ones are relative to the config file)",
+                p.display().to_string(),
+            ));
+        }
+        let file_safe = |c: char| c.is_ascii_alphanumeric() || "._-".contains(c);
+        if let Some(name) = self
+            .gym
+            .name
+            .as_ref()
+            .filter(|n| n.is_empty() || !n.chars().all(file_safe))
+        {
+            return Err(bad(
+                "gym.name",
+                "a name for files: letters, digits, '.', '_' and '-'",
+                format!("{name:?}"),
             ));
         }
         if self.gym.max_episode_steps == Some(0) {

@@ -54,10 +54,13 @@ impl ExperimentConfig {
         Some(spec)
     }
 
-    /// The env id as it appears in file and folder names (`runs/mbpo-<it>-s0`,
-    /// `learning-<it>.json`): `:` and `/` of a `gym:` id become `-`.
+    /// The env as it appears in file and folder names (`runs/mbpo-<it>-s0`,
+    /// `learning-<it>.json`): `gym.name` where set, else the id with `:` and `/` as `-`.
     pub fn env_file_name(&self) -> String {
-        self.env.replace([':', '/'], "-")
+        match &self.gym.name {
+            Some(name) => name.clone(),
+            None => self.env.replace([':', '/'], "-"),
+        }
     }
 
     /// A fresh environment of this config (a Python one starts its process here), slowed to
@@ -201,4 +204,23 @@ pub enum RolloutTerminationError {
     /// A Python rule's process did not start.
     #[error(transparent)]
     Env(#[from] mbpo_envs::EnvError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_come_from_the_id_or_from_gym_name() {
+        let mut cfg = ExperimentConfig {
+            env: "gym:dmc_env:make".into(),
+            ..Default::default()
+        };
+        assert_eq!(cfg.env_file_name(), "gym-dmc_env-make");
+        cfg.gym.name = Some("dmc-walker-walk".into());
+        assert_eq!(cfg.env_file_name(), "dmc-walker-walk");
+        cfg.env = "Hopper-v5".into();
+        cfg.gym.name = None;
+        assert_eq!(cfg.env_file_name(), "Hopper-v5");
+    }
 }

@@ -10,15 +10,19 @@
 //!   model holdout MSE), one panel each, one shared legend.
 //! * [`plot_histogram`]: a histogram as bars (a paced run's step-interval errors).
 //! * [`learning_table`]: the eval returns as a markdown table, seed by seed, with the median and
-//!   the paper's curve ([`mbpo_paper_curve`]) at the same env steps.
+//!   published curves (the paper's, [`mbpo_paper_curve`]; peers', [`read_peer_curves`]) at the
+//!   same env steps.
 #![warn(missing_docs)]
 
 mod histogram;
 mod paper_curve;
+mod peer_curve;
+mod reference_plot;
 mod table;
 
 pub use histogram::{plot_histogram, Bar};
-pub use paper_curve::{mbpo_paper_curve, PaperCurve, PaperPoint};
+pub use paper_curve::{mbpo_paper_curve, PaperCurve, PaperPoint, Reading};
+pub use peer_curve::{read_peer_curves, task_name};
 pub use table::learning_table;
 
 use plotters::prelude::*;
@@ -31,6 +35,14 @@ pub enum PlotError {
     /// A run directory has no readable `metrics.csv`.
     #[error("{path}: {message}")]
     Metrics {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A peer's curves file cannot be read (`--peer`).
+    #[error("peer curves {path}: {message}")]
+    PeerCurves {
         /// The file.
         path: PathBuf,
         /// What is wrong.
@@ -371,32 +383,16 @@ impl Ranged for TickedAxis {
     }
 }
 
-/// The part of `reference` over the env steps `x0..=x1` as (env steps, mean, std), ends
-/// interpolated (empty where the curve has no points in that range).
-fn reference_within(reference: &PaperCurve, x0: f64, x1: f64) -> Vec<(f64, f64, f64)> {
-    let end = |x: f64| reference.at(x as u64).map(|p| (x, p.mean, p.std));
-    end(x0)
-        .into_iter()
-        .chain(
-            reference
-                .points
-                .iter()
-                .map(|p| (p.env_steps as f64, p.mean, p.std))
-                .filter(|&(s, _, _)| x0 < s && s < x1),
-        )
-        .chain(end(x1))
-        .collect()
-}
-
 /// The chart of one panel: env steps against a ticked (maybe log) y axis.
-type PanelChart<'a, 'b> = ChartContext<
+pub(crate) type PanelChart<'a, 'b> = ChartContext<
     'a,
     BitMapBackend<'b>,
     Cartesian2d<plotters::coord::types::RangedCoordf64, TickedAxis>,
 >;
 
-/// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot. A
-/// `reference` curve is drawn dashed, in a grey ± std band, over the env steps the runs cover.
+/// Draw one panel of `curves` into `area`; `legend_inside` puts the legend in the plot. The
+/// `references` (published curves) are drawn dashed with their ± std over the env steps the
+/// runs cover ([`reference_plot`]).
 fn draw_panel(
     area: &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
     curves: &[GroupCurve],
@@ -404,7 +400,7 @@ fn draw_panel(
     y_desc: &str,
     scale: Scale,
     legend_inside: bool,
-    reference: Option<&PaperCurve>,
+    references: &[PaperCurve],
 ) -> Result<(), String> {
     let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
     let series: Vec<(usize, &GroupCurve)> = curves
@@ -420,7 +416,7 @@ fn draw_panel(
             .iter()
             .all(|(_, c)| c.points.iter().all(|p| p.2 > 0.0 && p.1 > 0.0));
     let tf = |y: f64| if log { y.log10() } else { y };
-    let (x0, x1, lo, hi, reference_points) = panel_range(&series, reference, log);
+    let (x0, x1, lo, hi, reference_points) = panel_range(&series, references, log);
     let y_desc = match log {
         true => format!("{y_desc} (log scale)"),
         false => y_desc.to_string(),
@@ -453,9 +449,7 @@ fn draw_panel(
     for &(i, c) in &series {
         draw_runs(&mut chart, i, c, &tf, legend_inside)?;
     }
-    if let (Some(reference), Some(points)) = (reference, reference_points) {
-        draw_reference(&mut chart, reference, points, log, legend_inside)?;
-    }
+    reference_plot::draw_references(&mut chart, &reference_points, log, legend_inside)?;
     if legend_inside {
         chart
             .configure_series_labels()
@@ -494,13 +488,13 @@ fn draw_empty_panel(
 }
 
 /// The panel's x range and padded y range (in the axis's units: log10 on a log scale), and
-/// the reference's points within the x range.
+/// each reference's points within the x range.
 #[allow(clippy::type_complexity)]
-fn panel_range(
+fn panel_range<'r>(
     series: &[(usize, &GroupCurve)],
-    reference: Option<&PaperCurve>,
+    references: &'r [PaperCurve],
     log: bool,
-) -> (f64, f64, f64, f64, Option<Vec<(f64, f64, f64)>>) {
+) -> (f64, f64, f64, f64, Vec<reference_plot::ReferencePoints<'r>>) {
     let tf = |y: f64| if log { y.log10() } else { y };
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
     for (_, c) in series {
@@ -508,10 +502,13 @@ fn panel_range(
             (x0, x1, y0, y1) = (x0.min(x), x1.max(x), y0.min(tf(lo)), y1.max(tf(hi)));
         }
     }
-    let reference_points = reference.map(|r| reference_within(r, x0, x1));
-    // The reference's ± std band where the scale can show it (a log scale shows the mean only).
+    let reference_points: Vec<_> = references
+        .iter()
+        .map(|r| (r, reference_plot::within(r, x0, x1)))
+        .collect();
+    // The references' ± std where the scale can show it (a log scale shows the mean only).
     let spread = |std: f64| if log { 0.0 } else { std };
-    for &(_, mean, std) in reference_points.iter().flatten() {
+    for &(_, mean, std) in reference_points.iter().flat_map(|(_, p)| p) {
         let s = spread(std);
         (y0, y1) = (y0.min(tf(mean - s)), y1.max(tf(mean + s)));
     }
@@ -551,49 +548,6 @@ fn draw_runs(
     Ok(())
 }
 
-/// The reference curve: dashed mean in a grey ± std band (the mean only on a log scale).
-fn draw_reference(
-    chart: &mut PanelChart<'_, '_>,
-    reference: &PaperCurve,
-    points: Vec<(f64, f64, f64)>,
-    log: bool,
-    legend_inside: bool,
-) -> Result<(), String> {
-    let e = |e: plotters::drawing::DrawingAreaErrorKind<_>| e.to_string();
-    let tf = |y: f64| if log { y.log10() } else { y };
-    let spread = |std: f64| if log { 0.0 } else { std };
-    let style = BLACK.stroke_width(2);
-    let band: Vec<(f64, f64)> = points
-        .iter()
-        .map(|&(x, mean, std)| (x, tf(mean + spread(std))))
-        .chain(
-            points
-                .iter()
-                .rev()
-                .map(|&(x, mean, std)| (x, tf(mean - spread(std)))),
-        )
-        .collect();
-    chart
-        .draw_series(std::iter::once(Polygon::new(
-            band,
-            BLACK.mix(0.07).filled(),
-        )))
-        .map_err(e)?;
-    let line = chart
-        .draw_series(DashedLineSeries::new(
-            points.into_iter().map(|(x, mean, _)| (x, tf(mean))),
-            8,
-            6,
-            style,
-        ))
-        .map_err(e)?;
-    if legend_inside {
-        line.label(reference.label.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-    }
-    Ok(())
-}
-
 fn legend_text(c: &GroupCurve) -> String {
     format!(
         "{} (mean, min..max over {} seed{})",
@@ -616,13 +570,14 @@ fn report(out: &Path, curves: &[GroupCurve], panels: &[(&str, &[GroupCurve])]) -
 }
 
 /// Plot `column` (e.g. `eval_return`) of `runs`, grouped by [`group_name`] and directory, to a
-/// PNG, with a `reference` curve (e.g. [`mbpo_paper_curve`]) dashed next to them.
+/// PNG, with published `references` (e.g. [`mbpo_paper_curve`], [`read_peer_curves`]) dashed
+/// next to them.
 pub fn plot_runs(
     runs: &[PathBuf],
     column: &str,
     title: &str,
     out: &Path,
-    reference: Option<&PaperCurve>,
+    references: &[PaperCurve],
 ) -> Result<PlotReport, PlotError> {
     let curves = group_curves(runs, column)?;
     if curves.iter().all(|c| c.points.is_empty()) {
@@ -642,7 +597,7 @@ pub fn plot_runs(
         column,
         Scale::Linear,
         true,
-        reference,
+        references,
     )
     .map_err(draw_err)?;
     root.present().map_err(|e| draw_err(e.to_string()))?;
@@ -715,7 +670,7 @@ pub fn plot_losses(runs: &[PathBuf], title: &str, out: &Path) -> Result<PlotRepo
             panel.column,
             panel.scale,
             false,
-            None,
+            &[],
         )
         .map_err(draw_err)?;
     }
@@ -799,7 +754,7 @@ mod tests {
     fn the_reference_is_drawn_over_the_runs_steps_with_interpolated_ends() {
         let r = paper_curve::test_curve(&[(0, 0.0), (2000, 200.0), (3000, 100.0), (10_000, 800.0)]);
         assert_eq!(
-            reference_within(&r, 1000.0, 4000.0),
+            reference_plot::within(&r, 1000.0, 4000.0),
             vec![
                 (1000.0, 100.0, 10.0),
                 (2000.0, 200.0, 20.0),
@@ -809,13 +764,22 @@ mod tests {
         );
         // Runs beyond the curve: it ends where its points do.
         assert_eq!(
-            reference_within(&r, 3000.0, 20_000.0),
+            reference_plot::within(&r, 3000.0, 20_000.0),
             vec![(3000.0, 100.0, 10.0), (10_000.0, 800.0, 80.0)]
         );
         let dir = std::env::temp_dir().join(format!("mbpo-plot-ref-{}", std::process::id()));
         let runs = vec![write_run(&dir, "mbpo-Hopper-v5-s0", &[100.0, 900.0, 400.0])];
         let out = dir.join("curves.png");
-        plot_runs(&runs, "eval_return", "test", &out, Some(&r)).unwrap();
+        // With a sparse peer curve too: drawn at its points within the runs' steps only.
+        let sparse = PaperCurve {
+            reading: Reading::AtPoints,
+            ..paper_curve::test_curve(&[(0, 0.0), (2000, 300.0), (100_000, 900.0)])
+        };
+        assert_eq!(
+            reference_plot::within(&sparse, 1000.0, 3000.0),
+            vec![(2000.0, 300.0, 30.0)]
+        );
+        plot_runs(&runs, "eval_return", "test", &out, &[r, sparse]).unwrap();
         assert!(std::fs::metadata(&out).unwrap().len() > 1000);
         std::fs::remove_dir_all(&dir).unwrap();
     }
@@ -829,7 +793,7 @@ mod tests {
             write_run(&dir, "mbpo-P-s0", &[-1500.0, -150.0, -140.0]),
         ];
         let out = dir.join("curves.png");
-        let r = plot_runs(&runs, "eval_return", "test", &out, None).unwrap();
+        let r = plot_runs(&runs, "eval_return", "test", &out, &[]).unwrap();
         assert_eq!(
             r.groups,
             vec![("mbpo-P".to_string(), 1), ("sac-P".to_string(), 2)]
@@ -837,7 +801,7 @@ mod tests {
         let bytes = std::fs::read(&out).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
         assert!(bytes.len() > 5000, "a real picture, not an empty canvas");
-        let err = plot_runs(&runs, "critic_loss", "t", &out, None)
+        let err = plot_runs(&runs, "critic_loss", "t", &out, &[])
             .unwrap_err()
             .to_string();
         assert!(
@@ -928,7 +892,7 @@ mod tests {
                 "eval_return",
                 "t",
                 &out,
-                None,
+                &[],
             )
             .unwrap_err(),
             plot_losses(&[good.clone(), empty.clone()], "t", &out).unwrap_err(),

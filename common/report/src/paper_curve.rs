@@ -22,19 +22,40 @@ pub struct PaperPoint {
     pub std: f64,
 }
 
-/// A reference learning curve: eval return at env steps.
+/// A published learning curve to compare ours with: eval return at env steps (the MBPO
+/// authors' own, or a peer method's read by [`crate::read_peer_curves`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct PaperCurve {
     /// What the curve is, for legends and tables.
     pub label: String,
     /// The points, sorted by env steps.
     pub points: Vec<PaperPoint>,
+    /// How the curve is read between its points.
+    pub reading: Reading,
+}
+
+/// How a [`PaperCurve`] is read at env steps between its points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reading {
+    /// Linearly between neighbouring points: a dense curve (the MBPO authors' has one point
+    /// per 1000-step epoch).
+    Interpolate,
+    /// Only at a point, or one at most 1 % of the env steps before: a sparse curve (TD-MPC2's
+    /// published ones have a point per 100k env steps; SAC's in the SimbaV2 collection one per
+    /// 16,666, so "at 100k" is its point at 99,996). Between points such a curve says nothing:
+    /// a straight line from 0 to 100k would be a figure nobody measured.
+    AtPoints,
 }
 
 impl PaperCurve {
-    /// The curve at `env_steps`, mean and std linearly interpolated between its points; `None`
-    /// outside them (the curve says nothing there).
+    /// The curve at `env_steps` (see [`Reading`]); `None` where it says nothing: outside its
+    /// points, or between sparse points.
     pub fn at(&self, env_steps: u64) -> Option<PaperPoint> {
+        if self.reading == Reading::AtPoints {
+            let before = self.points.partition_point(|p| p.env_steps <= env_steps);
+            let p = *self.points.get(before.checked_sub(1)?)?;
+            return (p.env_steps >= env_steps - env_steps / 100).then_some(p);
+        }
         let after = self.points.partition_point(|p| p.env_steps < env_steps);
         let p1 = *self.points.get(after)?;
         if p1.env_steps == env_steps {
@@ -87,6 +108,7 @@ pub fn mbpo_paper_curve(env: &str) -> Option<PaperCurve> {
     (!points.is_empty()).then(|| PaperCurve {
         label: format!("MBPO paper, {source} (authors' runs, mean ± std)"),
         points,
+        reading: Reading::Interpolate,
     })
 }
 
@@ -103,6 +125,7 @@ pub(crate) fn test_curve(points: &[(u64, f64)]) -> PaperCurve {
                 std: mean / 10.0,
             })
             .collect(),
+        reading: Reading::Interpolate,
     }
 }
 

@@ -1,7 +1,7 @@
 //! Learning curves as a markdown table, for the README and issue notes: each run's eval return
 //! at every `every` env steps, the mean of its last [`RECENT_EVALUATIONS`] evaluations (one
 //! evaluation swings widely; a collapse shows in the mean) and its best, then the median over
-//! the group's runs and the paper's curve at the same env steps.
+//! the group's runs and the published curves (the paper's, peers') at the same env steps.
 
 use crate::{group_name, group_runs, read_curve, PaperCurve, PlotError};
 use mbpo_core::stats::{median, RECENT_EVALUATIONS};
@@ -81,7 +81,7 @@ fn median_cell(mut values: Vec<f64>, rows: usize) -> String {
 }
 
 /// One group's table.
-fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) -> String {
+fn group_table(rows: &[Row], columns: &[u64], references: &[PaperCurve]) -> String {
     let mut header = vec!["env steps".to_string()];
     header.extend(columns.iter().map(|&c| steps_label(c)));
     header.push(format!("mean of last {RECENT_EVALUATIONS}"));
@@ -113,7 +113,7 @@ fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) ->
         cells.push(median_of(&|r| r.best.map(|b| b.0)));
         out += &line(cells);
     }
-    if let Some(reference) = reference {
+    for reference in references {
         let mut cells = vec![reference.label.to_string()];
         cells.extend(columns.iter().map(|&c| {
             reference
@@ -127,12 +127,12 @@ fn group_table(rows: &[Row], columns: &[u64], reference: Option<&PaperCurve>) ->
 }
 
 /// The eval returns of `runs` as markdown, one table per group (see [`crate::group_curves`]),
-/// with columns every `every` env steps up to the furthest run, and the `reference` curve's
-/// values in the last row.
+/// with columns every `every` env steps up to the furthest run, and a row of each of the
+/// `references` (published curves; a sparse one has values only at its own points).
 pub fn learning_table(
     runs: &[PathBuf],
     every: u64,
-    reference: Option<&PaperCurve>,
+    references: &[PaperCurve],
 ) -> Result<String, PlotError> {
     let every = every.max(1);
     let groups = group_runs(runs);
@@ -156,7 +156,7 @@ pub fn learning_table(
         if groups.len() > 1 {
             out += &format!("**{name}**\n\n");
         }
-        out += &group_table(&rows, &columns, reference);
+        out += &group_table(&rows, &columns, references);
         out += "\n";
     }
     Ok(out)
@@ -188,7 +188,12 @@ mod tests {
             write_run(&dir, "mbpo-Hopper-v5-s2", &[50.0, 60.0, 70.0]),
         ];
         let paper = crate::paper_curve::test_curve(&[(1000, 5.0), (3000, 25.0)]);
-        let table = learning_table(&runs, 2000, Some(&paper)).unwrap();
+        let peer = PaperCurve {
+            label: "peer".into(),
+            reading: crate::Reading::AtPoints,
+            ..crate::paper_curve::test_curve(&[(1000, 5.0), (3990, 30.0)])
+        };
+        let table = learning_table(&runs, 2000, &[paper, peer]).unwrap();
         let expected = "\
 | env steps | 2k | 4k | mean of last 10 | best |
 | --- | --- | --- | --- | --- |
@@ -197,6 +202,7 @@ mod tests {
 | seed 2 | 60 |  | 60 (1k-3k) | 70 (3k) |
 | median | 60 | 220 (2 of 3) | 60 | 70 |
 | paper | 15 ± 2 |  |  |  |
+| peer |  | 30 ± 3 |  |  |
 
 ";
         assert_eq!(table, expected);
@@ -213,7 +219,7 @@ mod tests {
             write_run(&dir.join("a"), "sac-Pendulum-v1-s0", &returns),
             write_run(&dir.join("b"), "sac-Pendulum-v1-s0", &returns),
         ];
-        let table = learning_table(&runs, 6000, None).unwrap();
+        let table = learning_table(&runs, 6000, &[]).unwrap();
         assert!(
             table.contains("| seed 0 | 6 | 12 | 8 (3k-12k) | 12 (12k) |"),
             "{table}"

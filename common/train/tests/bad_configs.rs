@@ -125,6 +125,10 @@ const CASES: &[(&str, &[&str])] = &[
         &["`gym.max_episode_steps`", "a positive number"],
     ),
     (
+        "env = \"gym:dmc_env:make\"\n[gym]\nname = \"dmc/walker walk\"",
+        &["`gym.name`", "a name for files", "\"dmc/walker walk\""],
+    ),
+    (
         "algo = \"mbpo\"\n[mbpo]\nepoch_length = 0",
         &["`mbpo.epoch_length`", "a positive number"],
     ),

@@ -247,6 +247,11 @@ pub struct PlotArgs {
     /// PNG (`<stem>.md`: each seed, the median, the MBPO paper's curve where there is one).
     #[arg(long, default_value_t = 10_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub table_every: u64,
+    /// A published curve file to draw and tabulate beside the runs, `FILE` or `LABEL=FILE`
+    /// (repeatable): tdmpc2's `results/<method>/<task>.csv` (`step,reward,seed`) or SimbaV2's
+    /// `results/baseline/<method>.csv` (the rows of the runs' task); mean ± std over its seeds.
+    #[arg(long = "peer", value_name = "[LABEL=]FILE")]
+    pub peers: Vec<String>,
 }
 
 /// How a crashed service process is handled.

@@ -72,22 +72,22 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
             Ok(())
         }
         cli::Command::Plot(args) => {
-            let reference = (args.column == "eval_return")
-                .then(|| run_report::mbpo_paper_curve_of(&args.runs))
-                .flatten();
+            let references = match args.column.as_str() {
+                "eval_return" => run_report::references_of(&args.runs, &args.peers)?,
+                _ => Vec::new(),
+            };
             let curves = mbpo_report::plot_runs(
                 &args.runs,
                 &args.column,
                 &args.title,
                 &args.out,
-                reference.as_ref(),
+                &references,
             )?;
             let losses = mbpo_report::companion_path(&args.out, "losses");
             let title = format!("{}: training losses", args.title);
             let losses = mbpo_report::plot_losses_if_any(&args.runs, &title, &losses)?;
             let table = args.out.with_extension("md");
-            let text =
-                mbpo_report::learning_table(&args.runs, args.table_every, reference.as_ref())?;
+            let text = mbpo_report::learning_table(&args.runs, args.table_every, &references)?;
             std::fs::write(&table, format!("### {}\n\n{text}", args.title))?;
             out!(
                 "{}",
@@ -95,7 +95,7 @@ fn run(cli: cli::Cli) -> anyhow::Result<()> {
                     "plot": curves.out,
                     "losses": losses.as_ref().map(|l| &l.out),
                     "table": table,
-                    "reference": reference.map(|r| r.label),
+                    "references": references.iter().map(|r| &r.label).collect::<Vec<_>>(),
                     "runs": args.runs.len(),
                     "groups": curves.groups,
                     "loss_panels_with_data": losses.map(|l| l.panels_with_data).unwrap_or_default(),

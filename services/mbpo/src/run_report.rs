@@ -17,8 +17,8 @@ pub fn plot_and_point(out: &Path) {
     let title = out
         .file_name()
         .map_or_else(|| out.display().to_string(), |n| n.to_string_lossy().into());
-    let reference = mbpo_paper_curve_of(&runs);
-    let plotted = mbpo_report::plot_runs(&runs, "eval_return", &title, &curve, reference.as_ref())
+    let references = Vec::from_iter(mbpo_paper_curve_of(&runs));
+    let plotted = mbpo_report::plot_runs(&runs, "eval_return", &title, &curve, &references)
         .and_then(|_| {
             let title = format!("{title}: training losses");
             mbpo_report::plot_losses_if_any(&runs, &title, &losses)
@@ -57,6 +57,24 @@ pub fn mbpo_paper_curve_of(runs: &[PathBuf]) -> Option<mbpo_report::PaperCurve> 
     envs.all(|env| env.as_deref() == Some(first.as_str()))
         .then(|| mbpo_report::mbpo_paper_curve(&first))
         .flatten()
+}
+
+/// The published curves to draw beside `runs`: the MBPO paper's where it applies
+/// ([`mbpo_paper_curve_of`]), then those of each `--peer` file for the runs' task (read from the
+/// first run's `config.toml`).
+pub fn references_of(
+    runs: &[PathBuf],
+    peers: &[String],
+) -> Result<Vec<mbpo_report::PaperCurve>, mbpo_report::PlotError> {
+    let env = runs
+        .first()
+        .and_then(|run| mbpo_train::ExperimentConfig::load(&run.join("config.toml")).ok())
+        .map_or_else(String::new, |cfg| cfg.env);
+    let mut references = Vec::from_iter(mbpo_paper_curve_of(runs));
+    for peer in peers {
+        references.extend(mbpo_report::read_peer_curves(peer, &env)?);
+    }
+    Ok(references)
 }
 
 /// A paced run's histogram of step-interval errors (`summary.json`'s `pacing`) drawn to

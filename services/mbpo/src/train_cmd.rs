@@ -228,6 +228,8 @@ pub fn bench_run(cfg: &ExperimentConfig, dir: &Path) -> Result<Summary, TrainErr
         before.model.threads = cfg.model.threads;
         // Nor does the target return (the benchmark reads steps-to-target off the curve).
         before.eval.target_return = cfg.eval.target_return;
+        // Nor the name in file names (the directory is already this run's).
+        before.gym.name = cfg.gym.name.clone();
         if &before != cfg {
             return Err(TrainError::Config(format!(
                 "{} holds a run of another config (see its config.toml); \

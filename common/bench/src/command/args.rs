@@ -197,6 +197,12 @@ pub struct LearningArgs {
     /// command without it then writes the file, reusing the completed runs.
     #[arg(long, value_delimiter = ',')]
     pub only_seeds: Vec<u64>,
+    /// A published curve file to keep beside the results (`published` of the entry: mean ± std
+    /// at its points and at the budgets), `FILE` or `LABEL=FILE` (repeatable; see `mbpo plot
+    /// --peer`). A rerun without it keeps the ones given before; the MBPO authors' curve is
+    /// added for an MBPO run of a task they ran.
+    #[arg(long = "peer", value_name = "[LABEL=]FILE")]
+    pub peers: Vec<String>,
 }
 
 #[derive(Debug, Args)]

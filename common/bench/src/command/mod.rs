@@ -204,6 +204,7 @@ fn learning(args: &LearningArgs, seed_run: SeedRun) -> anyhow::Result<()> {
             args.seeds
         );
     }
+    let peers = crate::published::read_peers(&cfg, &args.peers)?;
     if !args.only_seeds.is_empty() {
         let done = crate::learning_bench::run_seeds(
             &cfg,
@@ -232,6 +233,7 @@ fn learning(args: &LearningArgs, seed_run: SeedRun) -> anyhow::Result<()> {
         seed_run,
         &args.budgets,
     )?;
+    crate::learning_bench::attach_published(&args.out, &cfg, &peers, &args.budgets)?;
     out!(
         "{}",
         json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
