@@ -59,7 +59,9 @@ pub(crate) fn drive<R: SequentialRun>(
     let (mut run, done) = open_run(cfg, out, opts, |dir, t| algo.restore(dir, t))?;
     algo.begin();
     let schedule = Schedule::of(cfg);
-    let label = format!("{} {} s{}", cfg.algo.name(), cfg.env, cfg.seed);
+    // A Python env's own name where its config gives one (`gym:dmc_env:make` makes many tasks).
+    let env = cfg.gym.name.as_deref().unwrap_or(&cfg.env);
+    let label = format!("{} {env} s{}", cfg.algo.name(), cfg.seed);
     let mut progress = Progress::new(label, cfg.steps, Display::auto());
     if let Some(what) = R::COUNTING {
         progress = progress.counting(what);

@@ -514,7 +514,7 @@ impl Collector {
         let (m, _, stalled) = self.training?;
         let seconds = m.seconds as f64;
         let mut note = training_note(m.version, m.epoch as usize, m.holdout_mse, seconds);
-        if stalled && !self.rows_from_evaluations() {
+        if stalled && self.pipeline.has_learner() {
             note.push_str("; the learner waits for it");
         }
         Some(note)
@@ -540,14 +540,14 @@ impl Collector {
             .produced
             .saturating_sub(schedule.init_random_steps);
         if after_warmup > 0 {
-            let per_step = tally.sac_updates.saturating_sub(schedule.burst_updates);
-            ratios.updates_per_env_step = per_step as f64 / after_warmup as f64;
+            let per_env_step = |updates: u64| {
+                updates.saturating_sub(schedule.burst_updates) as f64 / after_warmup as f64
+            };
             let acting = self
                 .updates_when_acting_ended
-                .filter(|_| !self.rows_from_evaluations());
-            let per_step_while_acting = |u: u64| u.saturating_sub(schedule.burst_updates);
-            ratios.updates_per_env_step_while_acting =
-                acting.map(|u| per_step_while_acting(u) as f64 / after_warmup as f64);
+                .filter(|_| self.pipeline.has_learner());
+            ratios.updates_per_env_step_while_acting = acting.map(per_env_step);
+            ratios.updates_per_env_step = per_env_step(tally.sac_updates);
         }
         PipelineSummary {
             summary: Summary {
