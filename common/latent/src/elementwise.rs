@@ -10,9 +10,8 @@
 //! the latent state is normalised by SimNorm, groups of 8.)
 
 use mbpo_nn::math::exp_neg_f32;
-
-/// LayerNorm's ε (PyTorch's default, as TD-MPC2 uses it).
-pub const LAYER_NORM_EPS: f32 = 1e-5;
+/// LayerNorm lives with the dense layers (`mbpo_nn::norm`): SAC's critics use it too.
+pub use mbpo_nn::norm::{layer_norm_backward, layer_norm_forward, LAYER_NORM_EPS};
 
 /// Width of a SimNorm group: the latent is a set of `dim / 8` simplices.
 pub const SIMNORM_GROUP: usize = 8;
@@ -52,110 +51,6 @@ fn mish_backward_kernel(z: &[f32], dy: &[f32], dz: &mut [f32]) {
     for ((dz, &z), &dy) in dz.iter_mut().zip(z).zip(dy) {
         let (t, n) = tanh_softplus(z);
         *dz = dy * (t + z * (1.0 - t * t) * (n / (1.0 + n)));
-    }
-}
-
-/// Lanes of the row sums: 16 running sums, added together at the end in a fixed order, so the
-/// sums vectorise (one AVX-512 register, two AVX2 ones) and give the same bits at every SIMD
-/// level. One running sum per row had made LayerNorm a quarter of a plan's time (each add
-/// waiting for the last).
-const LANES: usize = 16;
-
-/// Σ f(xᵢ) over `x` in [`LANES`] running sums.
-#[inline(always)]
-fn lane_sum(x: &[f32], f: impl Fn(usize, f32) -> f32) -> f32 {
-    let mut acc = [0.0f32; LANES];
-    let full = x.len() / LANES * LANES;
-    for (c, chunk) in x[..full].chunks_exact(LANES).enumerate() {
-        for (l, (a, &v)) in acc.iter_mut().zip(chunk).enumerate() {
-            *a += f(c * LANES + l, v);
-        }
-    }
-    for (l, &v) in x[full..].iter().enumerate() {
-        acc[l] += f(full + l, v);
-    }
-    // A fixed tree: 16 → 8 → 4 → 2 → 1.
-    let mut width = LANES;
-    while width > 1 {
-        width /= 2;
-        for l in 0..width {
-            acc[l] += acc[l + width];
-        }
-    }
-    acc[0]
-}
-
-/// Row-wise LayerNorm of `rows` rows of `z` (width `gamma.len()`) into `y`, keeping the
-/// normalised `x_hat` and each row's `inv_std` for the backward pass.
-pub fn layer_norm_forward(
-    z: &[f32],
-    gamma: &[f32],
-    beta: &[f32],
-    x_hat: &mut [f32],
-    inv_std: &mut [f32],
-    y: &mut [f32],
-) {
-    mbpo_nn::simd_dispatch!(layer_norm_forward_kernel[z, gamma, beta, x_hat, inv_std, y])
-}
-
-#[inline(always)]
-fn layer_norm_forward_kernel(
-    z: &[f32],
-    gamma: &[f32],
-    beta: &[f32],
-    x_hat: &mut [f32],
-    inv_std: &mut [f32],
-    y: &mut [f32],
-) {
-    let n = gamma.len();
-    for (r, inv) in inv_std.iter_mut().enumerate() {
-        let row = &z[r * n..(r + 1) * n];
-        let mean = lane_sum(row, |_, v| v) / n as f32;
-        let var = lane_sum(row, |_, v| (v - mean) * (v - mean)) / n as f32;
-        *inv = 1.0 / (var + LAYER_NORM_EPS).sqrt();
-        let (xh, out) = (&mut x_hat[r * n..(r + 1) * n], &mut y[r * n..(r + 1) * n]);
-        for j in 0..n {
-            xh[j] = (row[j] - mean) * *inv;
-            out[j] = gamma[j] * xh[j] + beta[j];
-        }
-    }
-}
-
-/// LayerNorm's backward pass, in place: `d` holds ∂L/∂y and receives ∂L/∂z; `dγ`, `dβ` are
-/// added into `d_affine` when given.
-pub fn layer_norm_backward(
-    x_hat: &[f32],
-    inv_std: &[f32],
-    gamma: &[f32],
-    d: &mut [f32],
-    d_affine: Option<(&mut [f32], &mut [f32])>,
-) {
-    mbpo_nn::simd_dispatch!(layer_norm_backward_kernel[x_hat, inv_std, gamma, d, d_affine])
-}
-
-#[inline(always)]
-fn layer_norm_backward_kernel(
-    x_hat: &[f32],
-    inv_std: &[f32],
-    gamma: &[f32],
-    d: &mut [f32],
-    mut d_affine: Option<(&mut [f32], &mut [f32])>,
-) {
-    let n = gamma.len();
-    for (r, &inv) in inv_std.iter().enumerate() {
-        let (xh, g_out) = (&x_hat[r * n..(r + 1) * n], &mut d[r * n..(r + 1) * n]);
-        if let Some((dg, db)) = d_affine.as_mut() {
-            for j in 0..n {
-                dg[j] += g_out[j] * xh[j];
-                db[j] += g_out[j];
-            }
-        }
-        let mean_g = lane_sum(g_out, |j, v| gamma[j] * v) / n as f32;
-        let mean_gx = lane_sum(g_out, |j, v| gamma[j] * v * xh[j]) / n as f32;
-        // Each output reads only its own input and the row's means: in place is safe.
-        for j in 0..n {
-            g_out[j] = (gamma[j] * g_out[j] - mean_g - xh[j] * mean_gx) * inv;
-        }
     }
 }
 

@@ -54,6 +54,15 @@ impl Activation {
         simd::dispatch!(forward_kernel(self, z, a))
     }
 
+    /// The dense layer's epilogue without a bias (after a LayerNorm, whose β is one): `z ←
+    /// f(z)` in place when [`Activation::in_place`] (`a` is untouched), else `a = f(z)`.
+    pub fn epilogue(self, z: &mut [f32], a: &mut [f32]) {
+        match self {
+            Activation::Silu => self.forward(z, &mut a[..z.len()]),
+            _ => simd::dispatch!(in_place_kernel(self, z)),
+        }
+    }
+
     /// The dense layer's epilogue, row-wise on `z` holding whole rows of `bias.len()` values:
     /// `z ← f(z + b)` in place when [`Activation::in_place`] (`a` is untouched), else
     /// `z ← z + b` and `a = f(z)`.
@@ -112,6 +121,15 @@ fn forward_kernel(act: Activation, z: &[f32], a: &mut [f32]) {
         Activation::Relu => a.iter_mut().zip(z).for_each(|(a, &z)| *a = z.max(0.0)),
         Activation::Silu => a.iter_mut().zip(z).for_each(|(a, &z)| *a = z * sigmoid(z)),
         Activation::Tanh => a.iter_mut().zip(z).for_each(|(a, &z)| *a = z.tanh()),
+    }
+}
+
+#[inline(always)]
+fn in_place_kernel(act: Activation, z: &mut [f32]) {
+    match act {
+        Activation::Identity | Activation::Silu => {}
+        Activation::Relu => z.iter_mut().for_each(|z| *z = z.max(0.0)),
+        Activation::Tanh => z.iter_mut().for_each(|z| *z = z.tanh()),
     }
 }
 

@@ -28,6 +28,7 @@ pub mod init;
 pub mod layout;
 pub mod math;
 pub mod mlp;
+pub mod norm;
 pub mod ops;
 pub mod pool;
 pub mod simd;

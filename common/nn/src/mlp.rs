@@ -6,11 +6,17 @@
 //! rule, `∂L/∂z_l = ∂L/∂a_l · f'(z_l)`, `∂L/∂W_l = a_{l−1}ᵀ ∂L/∂z_l`, `∂L/∂b_l = Σ_rows ∂L/∂z_l`
 //! and `∂L/∂a_{l−1} = ∂L/∂z_l W_lᵀ`, down to the input gradient `∂L/∂x` that SAC's actor update
 //! and gradient-based planning need.
+//!
+//! [`Mlp::with_hidden_layer_norm`] puts a LayerNorm between every hidden layer's affine map and
+//! its activation (`a_l = f(LN(z_l))`, the critics of DroQ and RLPD, the `sac.critic_layer_norm`
+//! option); the backward pass then goes through LayerNorm's ([`crate::norm`]) between the
+//! activation's derivative and the weights.
 
 use crate::activation::Activation;
 use crate::gemm::{gemm, Op};
 use crate::init::Init;
 use crate::layout::ParamLayout;
+use crate::norm::{layer_norm_backward, layer_norm_forward};
 use mbpo_core::Rng;
 use std::ops::Range;
 
@@ -23,21 +29,38 @@ pub struct Mlp {
     layout: ParamLayout,
     weights: Vec<Range<usize>>,
     biases: Vec<Range<usize>>,
+    /// LayerNorm's γ and β of each layer that has one (the hidden ones, when asked for).
+    norms: Vec<Option<(Range<usize>, Range<usize>)>>,
 }
 
 impl Mlp {
     /// An MLP with layer widths `dims = [in, h_1, ..., out]`.
     pub fn new(dims: &[usize], hidden: Activation, output: Activation) -> Self {
+        Self::build(dims, hidden, output, false)
+    }
+
+    /// [`Mlp::new`] with a LayerNorm after every hidden layer's affine map, before its
+    /// activation; its γ and β (`l{l}.ln_g`, `l{l}.ln_b`) follow the layer's bias in the layout.
+    pub fn with_hidden_layer_norm(dims: &[usize], hidden: Activation, output: Activation) -> Self {
+        Self::build(dims, hidden, output, true)
+    }
+
+    fn build(dims: &[usize], hidden: Activation, output: Activation, normed: bool) -> Self {
         assert!(
             dims.len() >= 2,
             "an MLP needs at least an input and an output width"
         );
         assert!(dims.iter().all(|&d| d > 0), "layer widths must be positive");
         let mut layout = ParamLayout::new();
-        let (mut weights, mut biases) = (Vec::new(), Vec::new());
-        for l in 0..dims.len() - 1 {
+        let (mut weights, mut biases, mut norms) = (Vec::new(), Vec::new(), Vec::new());
+        let layers = dims.len() - 1;
+        for l in 0..layers {
             weights.push(layout.push(format!("l{l}.w"), &[dims[l], dims[l + 1]]));
             biases.push(layout.push(format!("l{l}.b"), &[dims[l + 1]]));
+            norms.push((normed && l + 1 < layers).then(|| {
+                let gamma = layout.push(format!("l{l}.ln_g"), &[dims[l + 1]]);
+                (gamma, layout.push(format!("l{l}.ln_b"), &[dims[l + 1]]))
+            }));
         }
         Self {
             dims: dims.to_vec(),
@@ -46,7 +69,13 @@ impl Mlp {
             layout,
             weights,
             biases,
+            norms,
         }
+    }
+
+    /// Whether the hidden layers are LayerNormed ([`Mlp::with_hidden_layer_norm`]).
+    pub fn has_layer_norm(&self) -> bool {
+        self.norms.iter().any(Option::is_some)
     }
 
     /// Layer widths `[in, h_1, ..., out]`.
@@ -116,7 +145,8 @@ impl Mlp {
         dw + dx
     }
 
-    /// Draw initial parameters layer by layer from `rng`.
+    /// Draw initial parameters layer by layer from `rng` (the same draws with or without
+    /// LayerNorm, whose γ starts at 1 and β at 0).
     pub fn init(&self, params: &mut [f32], init: Init, rng: &mut Rng) {
         assert_eq!(params.len(), self.num_params());
         for l in 0..self.num_layers() {
@@ -127,6 +157,10 @@ impl Mlp {
                 self.dims[l],
                 rng,
             );
+            if let Some((gamma, beta)) = &self.norms[l] {
+                params[gamma.clone()].fill(1.0);
+                params[beta.clone()].fill(0.0);
+            }
         }
     }
 
@@ -154,11 +188,26 @@ impl Mlp {
                 done[l - 1].output(self.activation(l - 1), batch * n_in)
             };
             let layer = &mut todo[0];
-            let z = &mut layer.z[..batch * n_out];
             let w = &params[self.weights[l].clone()];
-            gemm(z, input, Op::N, w, Op::N, batch, n_in, n_out, false);
             let bias = &params[self.biases[l].clone()];
-            self.activation(l).bias_forward(z, bias, &mut layer.a);
+            let Some((gamma, beta)) = &self.norms[l] else {
+                let z = &mut layer.z[..batch * n_out];
+                gemm(z, input, Op::N, w, Op::N, batch, n_in, n_out, false);
+                self.activation(l).bias_forward(z, bias, &mut layer.a);
+                continue;
+            };
+            // z = LN(x W + b), then a = f(z): the activation's epilogue without a bias.
+            let pre = &mut layer.pre[..batch * n_out];
+            gemm(pre, input, Op::N, w, Op::N, batch, n_in, n_out, false);
+            Activation::Identity.bias_forward(pre, bias, &mut []);
+            let (gamma, beta) = (&params[gamma.clone()], &params[beta.clone()]);
+            let (x_hat, inv_std) = (
+                &mut layer.x_hat[..batch * n_out],
+                &mut layer.inv_std[..batch],
+            );
+            let z = &mut layer.z[..batch * n_out];
+            layer_norm_forward(pre, gamma, beta, x_hat, inv_std, z);
+            self.activation(l).epilogue(z, &mut layer.a);
         }
         let last = self.num_layers() - 1;
         cache.layers[last].output(self.output, batch * self.out_dim())
@@ -190,7 +239,6 @@ impl Mlp {
         let mut dz_buf = std::mem::take(&mut cache.dz);
         for l in (0..n_layers).rev() {
             let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
-            let act = self.activation(l);
             // Ping-pong: layer l writes ∂L/∂a_{l−1} into one buffer while reading ∂L/∂a_l
             // from the other, which the layer above wrote.
             let (b0, b1) = gbuf.split_at_mut(1);
@@ -210,27 +258,11 @@ impl Mlp {
             } else {
                 cache.layers[l - 1].output(self.activation(l - 1), batch * n_in)
             };
-            // ∂L/∂z_l, fused with the bias gradient Σ_rows ∂L/∂z_l when parameters are wanted.
-            let mut grads_l = grads.as_deref_mut().map(|g| {
-                let (gw, gb) = g.split_at_mut(self.biases[l].start);
-                (&mut gw[self.weights[l].clone()], &mut gb[..n_out])
-            });
-            let dz: &[f32] = if act == Activation::Identity {
-                if let Some((_, gb)) = grads_l.as_mut() {
-                    sum_rows(g, gb);
-                }
-                g
-            } else {
-                let (z, a) = cache.layers[l].kept(act);
-                let dz = &mut dz_buf[..batch * n_out];
-                match grads_l.as_mut() {
-                    Some((_, gb)) => act.backward_bias_grad(z, a, g, dz, gb),
-                    None => act.backward(z, a, g, dz),
-                }
-                &dz_buf[..batch * n_out]
-            };
-            if let Some((gw, _)) = grads_l {
-                gemm(gw, input, Op::T, dz, Op::N, n_in, batch, n_out, false);
+            let mut grads_l = grads.as_deref_mut().map(|g| self.layer_grads(l, g));
+            let layer = &cache.layers[l];
+            let dz = self.affine_grad(l, params, layer, g, &mut dz_buf, grads_l.as_mut());
+            if let Some(gl) = grads_l {
+                gemm(gl.w, input, Op::T, dz, Op::N, n_in, batch, n_out, false);
             }
             // ∂L/∂a_{l−1} = ∂L/∂z_l W_lᵀ: for the layer below, or the caller's ∂L/∂x.
             let w = &params[self.weights[l].clone()];
@@ -245,6 +277,100 @@ impl Mlp {
         }
         cache.grad = gbuf;
         cache.dz = dz_buf;
+    }
+
+    /// Layer `l`'s share of a parameter gradient `grads` (the whole layout).
+    fn layer_grads<'g>(&self, l: usize, grads: &'g mut [f32]) -> LayerGrads<'g> {
+        let n_out = self.dims[l + 1];
+        let (head, tail) = grads.split_at_mut(self.biases[l].start);
+        let (b, rest) = tail.split_at_mut(n_out);
+        // γ and β follow the bias (`build` pushes them so).
+        let norm = self.norms[l].as_ref().map(|(gamma, _)| {
+            debug_assert_eq!(gamma.start, self.biases[l].end);
+            let (dg, rest) = rest.split_at_mut(n_out);
+            (dg, &mut rest[..n_out])
+        });
+        LayerGrads {
+            w: &mut head[self.weights[l].clone()],
+            b,
+            norm,
+        }
+    }
+
+    /// ∂L/∂(a_{l−1} W_l + b_l) of layer `l` from `g` = ∂L/∂a_l (in `dz_buf`, or `g` itself for
+    /// a plain linear layer), with the bias gradient Σ_rows of it (and LayerNorm's γ and β
+    /// gradients) into `grads` when given, fused with the activation's derivative where it can.
+    fn affine_grad<'b>(
+        &self,
+        l: usize,
+        params: &[f32],
+        layer: &LayerCache,
+        g: &'b [f32],
+        dz_buf: &'b mut [f32],
+        grads: Option<&mut LayerGrads<'_>>,
+    ) -> &'b [f32] {
+        let (act, n) = (self.activation(l), g.len());
+        let (z, a) = layer.kept(act);
+        let Some((gamma, _)) = &self.norms[l] else {
+            if act == Activation::Identity {
+                if let Some(gl) = grads {
+                    sum_rows(g, gl.b);
+                }
+                return g;
+            }
+            let dz = &mut dz_buf[..n];
+            match grads {
+                Some(gl) => act.backward_bias_grad(z, a, g, dz, gl.b),
+                None => act.backward(z, a, g, dz),
+            }
+            return dz;
+        };
+        // Through the activation to LN's output, then through LN (in place) to its input.
+        let d = &mut dz_buf[..n];
+        act.backward(z, a, g, d);
+        let rows = n / self.dims[l + 1];
+        let (x_hat, inv_std) = (&layer.x_hat[..n], &layer.inv_std[..rows]);
+        let gamma = &params[gamma.clone()];
+        match grads {
+            Some(gl) => {
+                let (dg, db) = gl.norm.as_mut().expect("a normed layer has γ and β");
+                dg.fill(0.0);
+                db.fill(0.0);
+                layer_norm_backward(x_hat, inv_std, gamma, d, Some((&mut **dg, &mut **db)));
+                sum_rows(d, gl.b);
+            }
+            None => layer_norm_backward(x_hat, inv_std, gamma, d, None),
+        }
+        d
+    }
+
+    /// [`Mlp::affine_grad`] without parameter gradients on gathered rows: row i of `g` (and
+    /// of the result) belongs to row `rows[i]` of the layer's kept values.
+    fn rows_affine_grad<'b>(
+        &self,
+        l: usize,
+        params: &[f32],
+        layer: &LayerCache,
+        rows: &[usize],
+        g: &'b [f32],
+        dz_buf: &'b mut [f32],
+    ) -> &'b [f32] {
+        let (act, n) = (self.activation(l), self.dims[l + 1]);
+        let norm = &self.norms[l];
+        if act == Activation::Identity && norm.is_none() {
+            return g;
+        }
+        let (z, a) = layer.kept(act);
+        let dz = &mut dz_buf[..g.len()];
+        act.backward_rows(z, a, n, rows, g, dz);
+        if let Some((gamma, _)) = norm {
+            let gamma = &params[gamma.clone()];
+            for (&r, d) in rows.iter().zip(dz.chunks_exact_mut(n)) {
+                let (x_hat, inv_std) = (&layer.x_hat[r * n..][..n], &layer.inv_std[r..r + 1]);
+                layer_norm_backward(x_hat, inv_std, gamma, d, None);
+            }
+        }
+        dz
     }
 
     /// Input gradient of the last [`Mlp::forward`] for a subset of its rows and input columns:
@@ -278,7 +404,6 @@ impl Mlp {
         let mut dz_buf = std::mem::take(&mut cache.dz);
         for l in (0..n_layers).rev() {
             let (n_in, n_out) = (self.dims[l], self.dims[l + 1]);
-            let act = self.activation(l);
             let (b0, b1) = gbuf.split_at_mut(1);
             let (read, write) = if (n_layers - 1 - l).is_multiple_of(2) {
                 (&b1[0], &mut b0[0])
@@ -290,13 +415,7 @@ impl Mlp {
             } else {
                 &read[..m * n_out]
             };
-            let dz: &[f32] = if act == Activation::Identity {
-                g
-            } else {
-                let (z, a) = cache.layers[l].kept(act);
-                act.backward_rows(z, a, n_out, rows, g, &mut dz_buf[..m * n_out]);
-                &dz_buf[..m * n_out]
-            };
+            let dz = self.rows_affine_grad(l, params, &cache.layers[l], rows, g, &mut dz_buf);
             let w = &params[self.weights[l].clone()];
             if l > 0 {
                 gemm(
@@ -332,11 +451,23 @@ impl Mlp {
     }
 }
 
+/// One layer's share of a parameter gradient.
+struct LayerGrads<'g> {
+    w: &'g mut [f32],
+    b: &'g mut [f32],
+    /// LayerNorm's ∂γ and ∂β.
+    norm: Option<(&'g mut [f32], &'g mut [f32])>,
+}
+
 /// One layer's forward values.
 #[derive(Debug, Clone, Default)]
 struct LayerCache {
     z: Vec<f32>,
     a: Vec<f32>,
+    /// With LayerNorm: its input x W + b, its normalised x̂ and each row's 1/√(σ² + ε).
+    pre: Vec<f32>,
+    x_hat: Vec<f32>,
+    inv_std: Vec<f32>,
 }
 
 impl LayerCache {
@@ -401,9 +532,16 @@ impl MlpCache {
             .map(|l| {
                 let n = cap * mlp.dims()[l + 1];
                 let a = if mlp.activation(l).in_place() { 0 } else { n };
+                let (normed, rows) = match mlp.norms[l] {
+                    Some(_) => (n, cap),
+                    None => (0, 0),
+                };
                 LayerCache {
                     z: vec![0.0; n],
                     a: vec![0.0; a],
+                    pre: vec![0.0; normed],
+                    x_hat: vec![0.0; normed],
+                    inv_std: vec![0.0; rows],
                 }
             })
             .collect();

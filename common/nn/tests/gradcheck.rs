@@ -41,24 +41,47 @@ fn compare(what: &str, analytic: &[f32], numeric: &[f64]) -> f64 {
 }
 
 fn check_mlp(dims: &[usize], hidden: Activation, output: Activation, eps: f32, seed: u64) {
-    let net = Mlp::new(dims, hidden, output);
-    let batch = 3;
+    check_net(&Mlp::new(dims, hidden, output), eps, seed);
+}
+
+/// Initial parameters of `net`; a LayerNormed one's γ and β moved off their 1 and 0, so
+/// their gradients are checked away from the identity map.
+fn init_params(net: &Mlp, seed: u64) -> Vec<f32> {
     let mut params = vec![0.0; net.num_params()];
     net.init(
         &mut params,
         Init::TorchDefault,
         &mut stream(seed, "init", 0),
     );
+    if net.has_layer_norm() {
+        for (p, n) in params
+            .iter_mut()
+            .zip(randn(net.num_params(), seed + 7, 0.3))
+        {
+            *p += n;
+        }
+    }
+    params
+}
+
+fn check_net(net: &Mlp, eps: f32, seed: u64) {
+    let (dims, hidden, output) = (
+        net.dims(),
+        net.activation(0),
+        net.activation(net.num_layers() - 1),
+    );
+    let batch = 3;
+    let params = init_params(net, seed);
     let x = randn(batch * net.in_dim(), seed, 1.0);
     let c = randn(batch * net.out_dim(), seed + 1, 1.0);
-    let mut cache = MlpCache::new(&net, batch);
+    let mut cache = MlpCache::new(net, batch);
     net.forward(&params, &x, batch, &mut cache);
     let mut grads = vec![0.0; net.num_params()];
     let mut dx = vec![0.0; x.len()];
     net.backward(&params, &x, &mut cache, &c, Some(&mut grads), Some(&mut dx));
 
     let eval = |p: &[f32], x: &[f32]| {
-        let mut cache = MlpCache::new(&net, batch);
+        let mut cache = MlpCache::new(net, batch);
         loss(net.forward(p, x, batch, &mut cache), &c)
     };
     let numeric_params: Vec<f64> = (0..params.len())
@@ -81,7 +104,12 @@ fn check_mlp(dims: &[usize], hidden: Activation, output: Activation, eps: f32, s
             (up - down) / (2.0 * eps as f64)
         })
         .collect();
-    let name = format!("{dims:?} {hidden:?}/{output:?}");
+    let normed = if net.has_layer_norm() {
+        " LayerNorm"
+    } else {
+        ""
+    };
+    let name = format!("{dims:?} {hidden:?}/{output:?}{normed}");
     compare(&format!("{name} dθ"), &grads, &numeric_params);
     compare(&format!("{name} dx"), &dx, &numeric_x);
     assert!(
@@ -129,6 +157,48 @@ fn deep_mixed_mlp_gradients_match_finite_differences() {
     );
     // Policy-like: ReLU hidden layers, tanh output.
     check_mlp(&[3, 8, 8, 2], Activation::Relu, Activation::Tanh, 1e-3, 6);
+}
+
+#[test]
+fn layer_normed_mlp_gradients_match_finite_differences() {
+    // Critic-like: ReLU hidden layers, each LayerNormed, a linear output.
+    let critic = Mlp::with_hidden_layer_norm(&[5, 8, 8, 1], Activation::Relu, Activation::Identity);
+    check_net(&critic, 1e-3, 31);
+    let smooth = Mlp::with_hidden_layer_norm(&[4, 6, 5, 3], Activation::Tanh, Activation::Tanh);
+    check_net(&smooth, 3e-3, 32);
+    let silu = Mlp::with_hidden_layer_norm(&[4, 6, 3], Activation::Silu, Activation::Identity);
+    check_net(&silu, 3e-3, 33);
+    // γ and β after each hidden layer's bias, none on the output layer.
+    let names: Vec<&str> = critic
+        .layout()
+        .entries()
+        .iter()
+        .map(|e| e.name.as_str())
+        .collect();
+    assert_eq!(
+        names,
+        [
+            "l0.w", "l0.b", "l0.ln_g", "l0.ln_b", "l1.w", "l1.b", "l1.ln_g", "l1.ln_b", "l2.w",
+            "l2.b"
+        ]
+    );
+}
+
+#[test]
+fn layer_norm_leaves_the_draws_of_the_weights_alone() {
+    let plain = Mlp::new(&[5, 8, 8, 1], Activation::Relu, Activation::Identity);
+    let normed = Mlp::with_hidden_layer_norm(&[5, 8, 8, 1], Activation::Relu, Activation::Identity);
+    let (mut p, mut q) = (
+        vec![0.0; plain.num_params()],
+        vec![0.0; normed.num_params()],
+    );
+    plain.init(&mut p, Init::TorchDefault, &mut stream(3, "init", 0));
+    normed.init(&mut q, Init::TorchDefault, &mut stream(3, "init", 0));
+    for l in 0..3 {
+        assert_eq!(p[plain.weight_range(l)], q[normed.weight_range(l)]);
+        assert_eq!(p[plain.bias_range(l)], q[normed.bias_range(l)]);
+    }
+    assert!(!plain.has_layer_norm() && normed.has_layer_norm());
 }
 
 #[test]
@@ -238,27 +308,27 @@ fn a_smaller_batch_after_a_larger_one_uses_only_its_rows() {
 /// each entry against central differences of L in that input, and every other row's input
 /// must not matter (the rows are independent).
 fn check_input_grad_rows(hidden: Activation, output: Activation, seed: u64) {
-    let net = Mlp::new(&[5, 7, 6, 2], hidden, output);
+    check_input_grad_rows_of(&Mlp::new(&[5, 7, 6, 2], hidden, output), seed);
+}
+
+fn check_input_grad_rows_of(net: &Mlp, seed: u64) {
+    let (hidden, output) = (net.activation(0), net.activation(net.num_layers() - 1));
+    assert_eq!((net.in_dim(), net.out_dim()), (5, 2));
     let batch = 6;
     let rows = [4usize, 1, 3];
     let cols = 2..5;
-    let mut params = vec![0.0; net.num_params()];
-    net.init(
-        &mut params,
-        Init::TorchDefault,
-        &mut stream(seed, "init", 0),
-    );
+    let params = init_params(net, seed);
     let x = randn(batch * 5, seed, 1.0);
     let c = randn(rows.len() * 2, seed + 1, 1.0);
     let loss_rows = |x: &[f32]| {
-        let mut cache = MlpCache::new(&net, batch);
+        let mut cache = MlpCache::new(net, batch);
         let y = net.forward(&params, x, batch, &mut cache);
         rows.iter()
             .enumerate()
             .map(|(i, &r)| loss(&y[r * 2..r * 2 + 2], &c[i * 2..i * 2 + 2]))
             .sum::<f64>()
     };
-    let mut cache = MlpCache::new(&net, batch);
+    let mut cache = MlpCache::new(net, batch);
     net.forward(&params, &x, batch, &mut cache);
     let mut d = vec![0.0; rows.len() * cols.len()];
     net.input_grad_rows(&params, &mut cache, &rows, &c, cols.clone(), &mut d);
@@ -288,4 +358,6 @@ fn check_input_grad_rows(hidden: Activation, output: Activation, seed: u64) {
 fn input_gradient_of_selected_rows_and_columns_matches_finite_differences() {
     check_input_grad_rows(Activation::Relu, Activation::Identity, 21);
     check_input_grad_rows(Activation::Silu, Activation::Tanh, 22);
+    let normed = Mlp::with_hidden_layer_norm(&[5, 7, 6, 2], Activation::Relu, Activation::Identity);
+    check_input_grad_rows_of(&normed, 23);
 }

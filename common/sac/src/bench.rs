@@ -69,19 +69,22 @@ pub fn executed_flops(sac: &Sac, batch: usize) -> u64 {
     update_flops(sac, batch) - textbook_input_backward + one_pass_on_actions
 }
 
-/// Time SAC updates at the given dims for about `duration` (after a warm-up).
+/// Time SAC updates at the given dims for about `duration` (after a warm-up), the critics
+/// LayerNormed when `critic_layer_norm` (its element-wise work is not in the flop counts).
 pub fn sac_update(
     obs_dim: usize,
     act_dim: usize,
     hidden: &[usize],
     batch: usize,
     threads: usize,
+    critic_layer_norm: bool,
     duration: Duration,
 ) -> SacUpdateBench {
     let config = SacConfig {
         batch_size: batch,
         hidden: hidden.to_vec(),
         threads,
+        critic_layer_norm,
         ..SacConfig::default()
     };
     let mut sac = Sac::new(

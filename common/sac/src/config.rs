@@ -38,6 +38,11 @@ pub struct SacConfig {
     /// gradients are added in a fixed order, so the actor's results, and through it a run's,
     /// are deterministic for a given thread count but differ in rounding between counts.
     pub threads: usize,
+    /// LayerNorm after each hidden layer of the critics, before the ReLU (not in SAC or MBPO;
+    /// off by default). At many updates per env step a critic's values can run away on
+    /// state-actions its data never had (imagined ones, here); normalising the hidden layers
+    /// bounds them (Ball et al. 2023, RLPD; Hiraoka et al. 2022, DroQ). The actor is unchanged.
+    pub critic_layer_norm: bool,
 }
 
 impl Default for SacConfig {
@@ -56,6 +61,7 @@ impl Default for SacConfig {
             log_std_min: -20.0,
             log_std_max: 2.0,
             threads: 1,
+            critic_layer_norm: false,
         }
     }
 }

@@ -1,6 +1,6 @@
-//! Twin Q critics Q₁, Q₂(s, a): two ReLU MLPs on the concatenated [s, a] with one scalar output,
-//! stored one after the other in one flat vector (`q1.*`, then `q2.*`) so one Adam and one
-//! Polyak call cover both.
+//! Twin Q critics Q₁, Q₂(s, a): two ReLU MLPs (their hidden layers LayerNormed as an option)
+//! on the concatenated [s, a] with one scalar output, stored one after the other in one flat
+//! vector (`q1.*`, then `q2.*`) so one Adam and one Polyak call cover both.
 
 use mbpo_core::Rng;
 use mbpo_nn::{Activation, Init, Mlp, MlpCache, ParamLayout};
@@ -25,12 +25,16 @@ pub struct CriticCache {
 }
 
 impl TwinCritic {
-    /// Twin critics with ReLU hidden layers of widths `hidden`.
-    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize]) -> Self {
+    /// Twin critics with ReLU hidden layers of widths `hidden`, each LayerNormed before its
+    /// ReLU when `layer_norm` (`sac.critic_layer_norm`).
+    pub fn new(obs_dim: usize, act_dim: usize, hidden: &[usize], layer_norm: bool) -> Self {
         let mut dims = vec![obs_dim + act_dim];
         dims.extend_from_slice(hidden);
         dims.push(1);
-        let mlp = Mlp::new(&dims, Activation::Relu, Activation::Identity);
+        let mlp = match layer_norm {
+            false => Mlp::new(&dims, Activation::Relu, Activation::Identity),
+            true => Mlp::with_hidden_layer_norm(&dims, Activation::Relu, Activation::Identity),
+        };
         let mut layout = ParamLayout::new();
         layout.extend_prefixed("q1", mlp.layout());
         layout.extend_prefixed("q2", mlp.layout());

@@ -262,7 +262,7 @@ mod tests {
         // The lanes' path of the actor step: Q_e(s, a) on each lane, each row's ∂/∂min handed
         // to its minimum's critic, each lane's backward pass on its own rows.
         let (o, a, batch) = (3, 2, 32);
-        let critic = TwinCritic::new(o, a, &[16, 16]);
+        let critic = TwinCritic::new(o, a, &[16, 16], false);
         let actor = TanhGaussianActor::new(o, a, &[4], -20.0, 2.0);
         let mut params = vec![0.0; critic.num_params()];
         critic.init(&mut params, &mut stream(5, "q", 0));

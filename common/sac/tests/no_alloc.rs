@@ -33,11 +33,12 @@ fn updates_do_not_allocate_in_steady_state() {
     data.act
         .iter_mut()
         .for_each(|v| *v = normal_f32(&mut g).tanh());
-    for threads in [1, 2] {
+    for (threads, critic_layer_norm) in [(1, false), (2, false), (1, true), (2, true)] {
         let config = SacConfig {
             batch_size: batch,
             hidden: vec![32, 32],
             threads,
+            critic_layer_norm,
             ..SacConfig::default()
         };
         let mut sac = Sac::new(obs, act, config, &mut stream(0, "alloc.init", 0));
@@ -53,7 +54,7 @@ fn updates_do_not_allocate_in_steady_state() {
         let allocs = allocations() - before;
         assert_eq!(
             allocs, 0,
-            "{allocs} allocations in 20 updates on {threads} threads"
+            "{allocs} allocations in 20 updates on {threads} threads (critic LayerNorm: {critic_layer_norm})"
         );
     }
 }

@@ -122,6 +122,9 @@ pub struct SacUpdateArgs {
     /// Threads one update runs on (the config's `sac.threads`).
     #[arg(long, default_value_t = 1)]
     pub threads: usize,
+    /// LayerNorm in the critics' hidden layers (`sac.critic_layer_norm`).
+    #[arg(long)]
+    pub critic_layer_norm: bool,
 }
 
 #[derive(Debug, Args)]

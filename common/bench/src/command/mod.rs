@@ -68,6 +68,7 @@ pub fn run(cmd: BenchCommand, seed_run: SeedRun) -> anyhow::Result<()> {
                 &[256, 256],
                 256,
                 t.threads.max(1),
+                t.critic_layer_norm,
                 Duration::from_secs_f64(t.seconds),
             );
             out!("{}", serde_json::to_string(&r)?)?;
