@@ -160,7 +160,9 @@ fn parse_runs(text: &str, task: &str) -> Result<Runs, String> {
         let number = |c: usize| {
             let f = field(c)?;
             f.parse::<f64>()
-                .map_err(|_| format!("line {}: {f:?} is not a number", i + 1))
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("line {}: {f:?} is not a finite number", i + 1))
         };
         let method = cols.method.map(field).transpose()?.map(String::from);
         let (_, seeds) = runs
@@ -306,11 +308,19 @@ mod tests {
             err.contains("header.csv") && err.contains("no step or env_step column"),
             "{err}"
         );
-        let path = write("bad/value.csv", "step,reward,seed\n1000,abc,0\n");
-        let err = read_peer_curves(path.to_str().unwrap(), "x")
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("line 2") && err.contains("\"abc\""), "{err}");
+        for bad in ["abc", "nan", "inf"] {
+            let path = write(
+                "bad/value.csv",
+                &format!("step,reward,seed\n1000,{bad},0\n"),
+            );
+            let err = read_peer_curves(path.to_str().unwrap(), "x")
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.contains("line 2") && err.contains(&format!("\"{bad}\"")),
+                "{err}"
+            );
+        }
         let err = read_peer_curves("/nonexistent/peer.csv", "x")
             .unwrap_err()
             .to_string();
