@@ -20,7 +20,8 @@
 # own, which lowers its own share of the CPU (see learning_mujoco.sh on autogroups):
 #   mkdir -p results/runs; setsid nohup bash deploy/learning_dmc.sh --published $R \
 #       >> results/runs/dmc.log 2>&1 < /dev/null &
-# Runs in <out>/runs/tdmpc-dmc-<task>-s<seed>, each task's log in <out>/runs/dmc-<task>.log.
+# Runs in <out>/runs/tdmpc-dmc-<task>-s<seed>, each task's log in <out>/runs/dmc-<task>.log;
+# parked (deploy/park_runs.sh: curves, for a fresh checkout) when it stops, restored when it starts.
 # The whole script is one group, read before it runs (an edit while it runs changes nothing).
 {
 set -euo pipefail
@@ -64,6 +65,7 @@ bash deploy/setup_dmc.sh >&2
 bash deploy/build.sh cli >&2
 mbpo=./target/release/mbpo
 mkdir -p "$out/runs"
+bash deploy/park_runs.sh --restore
 # A stop signal is for the benchmark, which checkpoints; this script waits for it to exit
 # (`wait` returns early when a trapped signal arrives: wait again while it is alive).
 trap 'echo "stopping: the seed under way checkpoints" >&2' INT TERM
@@ -87,6 +89,7 @@ for task in $tasks; do
         --config "deploy/configs/tdmpc-$task.toml" --seeds "$seeds" --steps "$steps" \
         --threads 1 --budgets "50000,$steps" --out "$out" "${peers[@]}" >> "$log" 2>&1 &
     if ! wait_for "$!"; then
+        bash deploy/park_runs.sh
         echo "$task stopped: see $log; rerun the same command to continue" >&2
         exit 1
     fi
@@ -95,4 +98,5 @@ for task in $tasks; do
     "$mbpo" plot "${runs[@]}" --out "$out/learning-tdmpc-dmc-$task.png" --table-every 10000 \
         "${peers[@]}" --title "TD-MPC2 (ours, 1M preset) on DMC $task, $seeds seeds" >&2
 done
+bash deploy/park_runs.sh
 }
