@@ -976,6 +976,13 @@ mod tests {
 
     #[test]
     fn restored_checkpoint_continues_bit_identically() {
+        for layer_norm in [false, true] {
+            restore_continues_bit_identically(layer_norm);
+        }
+    }
+
+    fn restore_continues_bit_identically(layer_norm: bool) {
+        let small_sac = |seed| sac_with(seed, 1, layer_norm);
         let batch = random_batch(6, 10);
         let mut rng = stream(11, "upd", 0);
         let mut original = small_sac(12);
@@ -1013,5 +1020,9 @@ mod tests {
         );
         let err = small_sac(1).restore(other.checkpoint()).unwrap_err();
         assert!(err.contains("actor parameters"), "{err}");
+        // Critics with LayerNorm have γ and β the plain ones lack: refused, not misread.
+        let normed = sac_with(1, 1, true);
+        let err = small_sac(1).restore(normed.checkpoint()).unwrap_err();
+        assert!(err.contains("critic"), "{err}");
     }
 }
