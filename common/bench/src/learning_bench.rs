@@ -348,13 +348,13 @@ pub fn learning_benchmark_at(
 }
 
 /// Set the published curves of `cfg`'s entry in its results file under `out` (written by the
-/// benchmark just run; [`crate::published::curves_for`]).
+/// benchmark just run; [`crate::published::curves_for`]); returns them.
 pub fn attach_published(
     out: &Path,
     cfg: &ExperimentConfig,
     peers: &[(String, mbpo_report::PaperCurve)],
     budgets: &[u64],
-) -> Result<(), TrainError> {
+) -> Result<Vec<crate::published::PublishedCurve>, TrainError> {
     let file = out.join(format!("learning-{}.json", cfg.env_file_name()));
     let mut all = read_results(&file)?;
     let key = entry_name(cfg);
@@ -366,7 +366,9 @@ pub fn attach_published(
     })?;
     let earlier = std::mem::take(&mut entry.published);
     entry.published = crate::published::curves_for(cfg, peers, budgets, earlier);
-    write_results(&file, &all)
+    let published = entry.published.clone();
+    write_results(&file, &all)?;
+    Ok(published)
 }
 
 /// Write a results file's entries, atomically (a reader never sees half a file).
@@ -589,8 +591,16 @@ mod tests {
             all["sac"].clone()
         };
         learning_benchmark_at(&cfg, "c.toml", &[0], 1, &out, fake_run, &[200, 300]).unwrap();
-        attach_published(&out, &cfg, &peers, &[200, 300]).unwrap();
+        let returned = attach_published(&out, &cfg, &peers, &[200, 300]).unwrap();
         let entry = read(&out);
+        // (Read back through JSON, a float may be an ulp off: serde_json's parser is not
+        // correctly rounded without its float_roundtrip feature.)
+        let labels = |c: &[crate::published::PublishedCurve]| {
+            c.iter()
+                .map(|c| (c.label.clone(), c.source.clone()))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(labels(&returned), labels(&entry.published));
         assert_eq!(
             entry.published.len(),
             1,

@@ -234,7 +234,12 @@ fn learning(args: &LearningArgs, seed_run: SeedRun) -> anyhow::Result<()> {
         seed_run,
         &args.budgets,
     )?;
-    crate::learning_bench::attach_published(&args.out, &cfg, &peers, &args.budgets)?;
+    let published =
+        crate::learning_bench::attach_published(&args.out, &cfg, &peers, &args.budgets)?;
+    let published: Vec<_> = published
+        .iter()
+        .map(|c| json!({"label": c.label, "at_budgets": c.at_budgets}))
+        .collect();
     out!(
         "{}",
         json!({"bench": "learning", "env": cfg.env, "config": name, "steps": cfg.steps,
@@ -244,6 +249,7 @@ fn learning(args: &LearningArgs, seed_run: SeedRun) -> anyhow::Result<()> {
                "final_returns": r.seeds.iter().map(|s| s.final_return).collect::<Vec<_>>(),
                "env_steps_to_target": r.seeds.iter().map(|s| s.env_steps_to_target).collect::<Vec<_>>(),
                "budgets": r.budgets,
+               "published": published,
                "wall_seconds": r.seeds.iter().map(|s| s.wall_seconds).collect::<Vec<_>>(),
                "results": args.out.join(format!("learning-{}.json", cfg.env_file_name()))})
     )?;
