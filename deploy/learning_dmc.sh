@@ -17,7 +17,7 @@
 # checkpoints the seed under way; the same command continues it from its checkpoint and reuses
 # the seeds already completed. It is hours per seed (about 7 h of one core at walker-walk's
 # sizes, 2026-12-05), meant to run in the background beside other work, as a session of its
-# own, which lowers its own share of the CPU (see learning_mujoco.sh on autogroups):
+# own, which lowers its own share of the CPU (deploy/background.sh says how):
 #   mkdir -p results/runs; setsid nohup bash deploy/learning_dmc.sh --published $R \
 #       >> results/runs/dmc.log 2>&1 < /dev/null &
 # Runs in <out>/runs/tdmpc-dmc-<task>-s<seed>, each task's log in <out>/runs/dmc-<task>.log;
@@ -57,25 +57,15 @@ for task in $tasks; do
         fi
     done
 done
-renice -n 19 -p $$ >/dev/null 2>&1 || true
-if [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ] && [ -w /proc/self/autogroup ]; then
-    echo 19 > /proc/self/autogroup 2>/dev/null || true
-fi
+source deploy/background.sh
+yield_cpu_to_other_work
 bash deploy/setup_dmc.sh >&2
 bash deploy/build.sh cli >&2
 mbpo=./target/release/mbpo
 mkdir -p "$out/runs"
 bash deploy/park_runs.sh --restore
-# A stop signal is for the benchmark, which checkpoints; this script waits for it to exit
-# (`wait` returns early when a trapped signal arrives: wait again while it is alive).
+# A stop signal is for the benchmark, which checkpoints; this script waits for it to exit.
 trap 'echo "stopping: the seed under way checkpoints" >&2' INT TERM
-wait_for() {
-    local status=0
-    while true; do
-        wait "$1" && return 0 || status=$?
-        kill -0 "$1" 2>/dev/null || return "$status"
-    done
-}
 for task in $tasks; do
     peers=()
     if [ -n "$published" ]; then

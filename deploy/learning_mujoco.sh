@@ -80,18 +80,8 @@ for task in $tasks; do
 done
 budgets=$steps
 if [ "$steps" -gt 20000 ]; then budgets="20000,$steps"; fi
-# Yield the cores to anything else (builds, tests, speed figures). `nice` alone does not: with
-# the kernel's autogroup scheduling (sched_autogroup_enabled = 1, as on these VMs) the CPU is
-# shared between sessions first, and `setsid`, as the header's command uses, makes the lanes a
-# session of their own, so niced lanes still took half the CPU from a build started elsewhere
-# (results/measurements.md, "A new machine (AMD EPYC with AVX-512)", 2026-11-29, commit
-# dfb7710). An autogroup's weight is the nice value written to it;
-# it is written only when this script leads its session (started by `setsid`), so that a run
-# from a terminal never lowers the terminal's own session.
-renice -n 19 -p $$ >/dev/null 2>&1 || true
-if [ "$(ps -o sid= -p $$ | tr -d ' ')" = "$$" ] && [ -w /proc/self/autogroup ]; then
-    echo 19 > /proc/self/autogroup 2>/dev/null || true
-fi
+source deploy/background.sh
+yield_cpu_to_other_work
 bash deploy/setup_mujoco.sh >&2
 bash deploy/build.sh cli >&2
 mbpo=./target/release/mbpo
@@ -163,14 +153,6 @@ lane() {
         "$mbpo" plot "${runs[@]}" --out "$out/learning-$id.png" "${peers[@]}" \
             --title "MBPO $id, $seeds seeds (mean, min..max)"
     done < "$claims/jobs"
-}
-
-wait_for() {
-    local status=0
-    while true; do
-        wait "$1" && return 0 || status=$?
-        kill -0 "$1" 2>/dev/null || return "$status"
-    done
 }
 
 # Claims of an earlier start are void: this script is the only one running the lanes.
