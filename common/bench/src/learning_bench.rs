@@ -338,11 +338,10 @@ pub fn learning_benchmark_at(
     // Read again just before writing: another benchmark (another algorithm on this task) may
     // have written its entry while these seeds ran.
     let mut all = read_results(&file)?;
-    let earlier = all.insert(algo.clone(), entry.clone());
-    // The published curves stay until `published::attach` sets them again.
-    let entry = all.get_mut(&algo).expect("just inserted");
-    entry.published = earlier.map(|e| e.published).unwrap_or_default();
-    let entry = entry.clone();
+    // The published curves stay until `attach_published` sets them again.
+    let mut entry = entry;
+    entry.published = all.remove(&algo).map(|e| e.published).unwrap_or_default();
+    all.insert(algo, entry.clone());
     write_results(&file, &all)?;
     Ok(entry)
 }

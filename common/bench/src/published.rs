@@ -45,7 +45,7 @@ pub fn read_peers(
 ) -> Result<Vec<(String, PaperCurve)>, PlotError> {
     let mut curves = Vec::new();
     for spec in peers {
-        let source = spec.split_once('=').map_or(spec.as_str(), |(_, f)| f);
+        let (_, source) = mbpo_report::split_peer_spec(spec);
         for curve in mbpo_report::read_peer_curves(spec, &cfg.env)? {
             curves.push((source.to_string(), curve));
         }

@@ -22,7 +22,7 @@ mod table;
 
 pub use histogram::{plot_histogram, Bar};
 pub use paper_curve::{mbpo_paper_curve, PaperCurve, PaperPoint, Reading};
-pub use peer_curve::{read_peer_curves, task_name};
+pub use peer_curve::{read_peer_curves, split_peer_spec};
 pub use table::learning_table;
 
 use plotters::prelude::*;
@@ -489,7 +489,6 @@ fn draw_empty_panel(
 
 /// The panel's x range and padded y range (in the axis's units: log10 on a log scale), and
 /// each reference's points within the x range.
-#[allow(clippy::type_complexity)]
 fn panel_range<'r>(
     series: &[(usize, &GroupCurve)],
     references: &'r [PaperCurve],

@@ -24,7 +24,7 @@ const METRIC: &str = "avg_return";
 
 /// The task of an env id or a peer file's env name, to match them across versions and
 /// spellings: `gym:Walker2d-v5`, `Walker2d-v4` and `Walker2d_v4` are all `walker2d`.
-pub fn task_name(env: &str) -> String {
+pub(crate) fn task_name(env: &str) -> String {
     let id = env
         .rsplit_once(':')
         .map_or(env, |(_, id)| id)
@@ -33,13 +33,19 @@ pub fn task_name(env: &str) -> String {
     name.to_lowercase()
 }
 
+/// A `--peer` argument, `FILE` or `LABEL=FILE`, as (label, file).
+pub fn split_peer_spec(spec: &str) -> (Option<&str>, &str) {
+    match spec.split_once('=') {
+        Some((label, file)) => (Some(label), file),
+        None => (None, spec),
+    }
+}
+
 /// The curves of `spec` (`FILE`, or `LABEL=FILE` to name them) for the task of `env` (see
 /// [`task_name`]; a file of one task, without an env column, is read whatever `env` is).
 pub fn read_peer_curves(spec: &str, env: &str) -> Result<Vec<PaperCurve>, PlotError> {
-    let (label, path) = match spec.split_once('=') {
-        Some((label, path)) => (Some(label.to_string()), PathBuf::from(path)),
-        None => (None, PathBuf::from(spec)),
-    };
+    let (label, path) = split_peer_spec(spec);
+    let (label, path) = (label.map(String::from), PathBuf::from(path));
     let bad = |message: String| PlotError::PeerCurves {
         path: path.clone(),
         message,

@@ -47,6 +47,7 @@ pub(crate) fn draw_references(
     log: bool,
     legend_inside: bool,
 ) -> Result<(), String> {
+    let tf = |y: f64| if log { y.log10() } else { y };
     for (i, (reference, points)) in references.iter().enumerate() {
         // A curve with no point over the runs' steps (TD-MPC2's first after 0 is at 100k) is
         // not in the legend either: a name without a mark would say it is drawn.
@@ -56,7 +57,6 @@ pub(crate) fn draw_references(
         let color = COLORS[i % COLORS.len()];
         draw_spread(chart, reference.reading, points, color, log)?;
         let style = color.stroke_width(2);
-        let tf = |y: f64| if log { y.log10() } else { y };
         let line = chart
             .draw_series(DashedLineSeries::new(
                 points.iter().map(|&(x, mean, _)| (x, tf(mean))),
