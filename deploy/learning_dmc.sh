@@ -21,7 +21,8 @@
 #   mkdir -p results/runs; setsid nohup bash deploy/learning_dmc.sh --published $R \
 #       >> results/runs/dmc.log 2>&1 < /dev/null &
 # Runs in <out>/runs/tdmpc-dmc-<task>-s<seed>, each task's log in <out>/runs/dmc-<task>.log;
-# parked (deploy/park_runs.sh: curves, for a fresh checkout) when it stops, restored when it starts.
+# parked (deploy/park_runs.sh --with-checkpoints: curves and the newest checkpoint, for a fresh
+# checkout) when it stops, restored when it starts.
 # The whole script is one group, read before it runs (an edit while it runs changes nothing).
 {
 set -euo pipefail
@@ -79,7 +80,7 @@ for task in $tasks; do
         --config "deploy/configs/tdmpc-$task.toml" --seeds "$seeds" --steps "$steps" \
         --threads 1 --budgets "50000,$steps" --out "$out" "${peers[@]}" >> "$log" 2>&1 &
     if ! wait_for "$!"; then
-        bash deploy/park_runs.sh
+        bash deploy/park_runs.sh --with-checkpoints
         echo "$task stopped: see $log; rerun the same command to continue" >&2
         exit 1
     fi
@@ -88,5 +89,5 @@ for task in $tasks; do
     "$mbpo" plot "${runs[@]}" --out "$out/learning-tdmpc-dmc-$task.png" --table-every 10000 \
         "${peers[@]}" --title "TD-MPC2 (ours, 1M preset) on DMC $task, $seeds seeds" >&2
 done
-bash deploy/park_runs.sh
+bash deploy/park_runs.sh --with-checkpoints
 }

@@ -169,7 +169,7 @@ trap 'echo "stopping: the seeds under way checkpoint, then they are parked" >&2'
 status=0
 wait_for "$first" || status=$?
 wait_for "$second" || status=$?
-bash deploy/park_runs.sh
+bash deploy/park_runs.sh --with-checkpoints
 [ "$status" = 0 ] || echo "a lane stopped (exit $status): see $out/runs/lane-*.log; rerun to continue" >&2
 exit "$status"
 }

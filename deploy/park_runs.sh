@@ -28,9 +28,12 @@
 # moments. The copies of D_env are identical bytes in three files, so the packing uses zstd's
 # long-distance matching with a 128 MB window (--long=27), which finds the second and third copy:
 # Ant-v5 at 45,348 (73 MB) packs to 36 MB instead of 56 MB. The window is zstd's default
-# decoding limit, so any zstd >= 1.3.2 unpacks it without options. Commit such a file only when
-# the compute it saves is worth the repository's growth (a seed past about 20k steps). The TensorBoard file and the older checkpoints (the
-# `checkpoint.keep_every` ones `bench breakdown`/`diagnose` start from) are never parked.
+# decoding limit, so any zstd >= 1.3.2 unpacks it without options. A checkpoint below 5000 env
+# steps is not packed (it saves less than an hour of a core). The learning lanes park with
+# checkpoints when they stop: on 2026-12-06 a fresh checkout found the lanes parked with curves
+# only, and Hopper seeds at 55k went back to 20k, a TD-MPC2 seed at 60k to 0. The TensorBoard
+# file and the older checkpoints (the `checkpoint.keep_every` ones `bench breakdown`/`diagnose`
+# start from) are never parked.
 #
 # Parking without --with-checkpoints keeps a checkpoint parked before (older than the run, it
 # still saves its steps; a completed run drops it). Restoring never touches a run directory that
@@ -85,7 +88,11 @@ park() {
         fi
     else
         ckpt=$(newest_complete "$run")
-        if [ -n "$ckpt" ]; then
+        if [ -n "$ckpt" ] && [ "$((10#$(basename "$ckpt")))" -lt "$min_checkpoint_steps" ]; then
+            # Too early to be worth the repository's growth: the run would redo these steps.
+            echo "parked $run: its curve so far (checkpoint $(basename "$ckpt") is below" \
+                "$min_checkpoint_steps env steps, not parked)" >&2
+        elif [ -n "$ckpt" ]; then
             # The directory's name is its env steps; the tar keeps it so restoring recreates it.
             tar -C "$run/checkpoints" -cf - "$(basename "$ckpt")" |
                 zstd -19 --long=27 -T1 -q -c > "$dest.tmp/checkpoint.tar.zst"
@@ -126,6 +133,9 @@ restore() {
 # results/runs/<run> and results/<variant>/runs/<run> (a benchmark's --out), as parked under
 # results/parked/runs/ and results/parked/<variant>/runs/.
 with_checkpoints=0
+# A checkpoint younger than this many env steps is not parked: it saves less than an hour of a
+# core, and a packed checkpoint adds 25-50 MB to the repository's history each time.
+min_checkpoint_steps=5000
 case "${1:-}" in
     "" | --restore) ;;
     --with-checkpoints) with_checkpoints=1 ;;
