@@ -31,6 +31,8 @@ TAGS = {
     "alpha": "sac/alpha",
     "entropy": "sac/entropy",
     "q_mean": "sac/q_mean",
+    "consistency_loss": "world_model/consistency_loss",
+    "reward_loss": "world_model/reward_loss",
     "model_holdout_mse": "model/holdout_mse",
     "rollout_length": "model/rollout_length",
     "model_buffer": "model/buffer",

@@ -38,6 +38,8 @@ fn seeds() -> Vec<Vec<u8>> {
             alpha: 0.2,
             entropy: -1.0,
             q_mean: 12.0,
+            consistency_loss: 0.25,
+            reward_loss: 0.5,
             rollout_length: 3,
             model_buffer: 100_000,
             model_version: 2,

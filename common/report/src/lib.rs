@@ -7,7 +7,8 @@
 //!
 //! * [`plot_runs`]: one column (default `eval_return`) against env steps.
 //! * [`plot_losses`]: the training diagnostics ([`LOSS_PANELS`]: critic loss, actor loss, α,
-//!   model holdout MSE), one panel each, one shared legend.
+//!   model holdout MSE; for TD-MPC2 runs [`WORLD_MODEL_LOSS_PANELS`]), one panel each, one
+//!   shared legend.
 //! * [`plot_histogram`]: a histogram as bars (a paced run's step-interval errors).
 //! * [`learning_table`]: the eval returns as a markdown table, seed by seed, with the median and
 //!   published curves (the paper's, [`mbpo_paper_curve`]; peers', [`read_peer_curves`]) at the
@@ -250,6 +251,43 @@ pub const LOSS_PANELS: [Panel; 4] = [
         scale: Scale::Log,
     },
 ];
+
+/// The loss panels of [`plot_losses`] when a run has TD-MPC2's world-model losses: its Q heads'
+/// and policy prior's losses sit in the critic and actor columns.
+pub const WORLD_MODEL_LOSS_PANELS: [Panel; 4] = [
+    Panel {
+        column: "critic_loss",
+        title: "value loss: Q heads' two-hot CE (last update)",
+        scale: Scale::Log,
+    },
+    Panel {
+        column: "actor_loss",
+        title: "policy prior loss (last update)",
+        scale: Scale::Linear,
+    },
+    Panel {
+        column: "consistency_loss",
+        title: "latent consistency loss (last update)",
+        scale: Scale::Log,
+    },
+    Panel {
+        column: "reward_loss",
+        title: "reward loss: two-hot CE (last update)",
+        scale: Scale::Log,
+    },
+];
+
+/// [`WORLD_MODEL_LOSS_PANELS`] when any of `runs` has a consistency loss, else [`LOSS_PANELS`]
+/// (runs written before that column existed have none).
+fn loss_panels(runs: &[PathBuf]) -> &'static [Panel; 4] {
+    let world_model = runs
+        .iter()
+        .any(|r| read_curve(r, "consistency_loss").is_ok_and(|c| !c.points.is_empty()));
+    match world_model {
+        true => &WORLD_MODEL_LOSS_PANELS,
+        false => &LOSS_PANELS,
+    }
+}
 
 /// `<dir>/<stem>-<suffix>.png` next to `out` (e.g. `curves.png` -> `curves-losses.png`).
 pub fn companion_path(out: &Path, suffix: &str) -> PathBuf {
@@ -603,8 +641,8 @@ pub fn plot_runs(
     Ok(report(out, &curves, &[(column, &curves)]))
 }
 
-/// [`plot_losses`], or `None` when no run has any of the [`LOSS_PANELS`]' columns (a TD-MPC2 or
-/// MPC run has none of SAC's losses): nothing to draw is not an error there.
+/// [`plot_losses`], or `None` when no run has any of the loss panels' values (an MPC run has
+/// none; a TD-MPC2 run written before 2026-12-06 neither): nothing to draw is not an error.
 pub fn plot_losses_if_any(
     runs: &[PathBuf],
     title: &str,
@@ -617,10 +655,11 @@ pub fn plot_losses_if_any(
     }
 }
 
-/// Plot the [`LOSS_PANELS`] of `runs` (2 x 2 panels, one legend on top) to a PNG. A panel no
-/// run has values for (the model's MSE of SAC runs) says so instead of failing.
+/// Plot the loss panels of `runs` ([`LOSS_PANELS`], or [`WORLD_MODEL_LOSS_PANELS`] for
+/// TD-MPC2; 2 x 2 panels, one legend on top) to a PNG. A panel no run has values for (the
+/// model's MSE of SAC runs) says so instead of failing.
 pub fn plot_losses(runs: &[PathBuf], title: &str, out: &Path) -> Result<PlotReport, PlotError> {
-    let panels = LOSS_PANELS
+    let panels = loss_panels(runs)
         .iter()
         .map(|p| Ok((p, group_curves(runs, p.column)?)))
         .collect::<Result<Vec<_>, PlotError>>()?;
@@ -875,6 +914,58 @@ mod tests {
         // The band is the spread over seeds: critic loss at step 200 is 50/2 * {2, 2.5, 3}.
         let mbpo = &group_curves(&runs, "critic_loss").unwrap()[0];
         assert_eq!(mbpo.points[0], (200.0, 25.0 * 2.5, 50.0, 75.0));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_world_model_run_gets_its_own_loss_panels() {
+        let dir = std::env::temp_dir().join(format!("mbpo-plot-wm-{}", std::process::id()));
+        let old_sac = write_loss_run(&dir, "sac-P-s0", 1.0, None);
+        // A SAC run of this version has the world model's columns, empty.
+        let sac = write_loss_run(&dir, "sac-P-s1", 1.0, None);
+        let text = std::fs::read_to_string(sac.join("metrics.csv")).unwrap();
+        let mut lines = text.lines();
+        let mut with_columns = format!("{},consistency_loss,reward_loss\n", lines.next().unwrap());
+        for line in lines {
+            with_columns += &format!("{line},,\n");
+        }
+        std::fs::write(sac.join("metrics.csv"), with_columns).unwrap();
+        let tdmpc = dir.join("tdmpc-P-s0");
+        std::fs::create_dir_all(&tdmpc).unwrap();
+        let mut text = String::from(
+            "env_steps,eval_return,critic_loss,actor_loss,alpha,consistency_loss,reward_loss\n100,-1500,,,,,\n",
+        );
+        for i in 2..=20u32 {
+            let t = f64::from(i);
+            text += &format!(
+                "{},-1000,{},{},,{},{}\n",
+                i * 100,
+                5.0 / t,
+                -t,
+                1.0 / t,
+                2.0 / t
+            );
+        }
+        std::fs::write(tdmpc.join("metrics.csv"), text).unwrap();
+        let out = dir.join("wm-losses.png");
+        let r = plot_losses(&[sac.clone(), tdmpc], "losses", &out).unwrap();
+        assert_eq!(
+            r.panels_with_data,
+            vec![
+                "critic_loss",
+                "actor_loss",
+                "consistency_loss",
+                "reward_loss"
+            ]
+        );
+        // SAC alone, written before the column or after it (empty): SAC's panels.
+        for runs in [vec![old_sac.clone()], vec![old_sac, sac]] {
+            let r = plot_losses(&runs, "losses", &out).unwrap();
+            assert_eq!(
+                r.panels_with_data,
+                vec!["critic_loss", "actor_loss", "alpha"]
+            );
+        }
         std::fs::remove_dir_all(dir).unwrap();
     }
 

@@ -26,6 +26,8 @@ pub const METRIC_COLUMNS: &[&str] = &[
     "alpha",
     "entropy",
     "q_mean",
+    "consistency_loss",
+    "reward_loss",
     "model_holdout_mse",
     "rollout_length",
     "model_buffer",
@@ -33,6 +35,28 @@ pub const METRIC_COLUMNS: &[&str] = &[
     "env_steps_per_sec",
     "updates_per_sec",
 ];
+
+/// The header of `metrics.csv` before the world model's columns (`consistency_loss`,
+/// `reward_loss`, 2026-12-06): a run written then is resumed by rewriting its rows with the
+/// new columns empty ([`RunDir::reopen`]), so the lanes that span versions continue.
+const EARLIER_METRIC_COLUMNS: &[&[&str]] = &[&[
+    "env_steps",
+    "episodes",
+    "eval_return",
+    "train_return",
+    "sac_updates",
+    "critic_loss",
+    "actor_loss",
+    "alpha",
+    "entropy",
+    "q_mean",
+    "model_holdout_mse",
+    "rollout_length",
+    "model_buffer",
+    "wall_seconds",
+    "env_steps_per_sec",
+    "updates_per_sec",
+]];
 
 /// The TensorBoard tag of each `metrics.csv` column (`env_steps` is the step of every scalar).
 pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
@@ -45,6 +69,8 @@ pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
     ("alpha", "sac/alpha"),
     ("entropy", "sac/entropy"),
     ("q_mean", "sac/q_mean"),
+    ("consistency_loss", "world_model/consistency_loss"),
+    ("reward_loss", "world_model/reward_loss"),
     ("model_holdout_mse", "model/holdout_mse"),
     ("rollout_length", "model/rollout_length"),
     ("model_buffer", "model/buffer"),
@@ -73,9 +99,10 @@ pub struct MetricsRow {
     pub train_return: Option<f64>,
     /// SAC updates so far.
     pub sac_updates: u64,
-    /// Critic loss of the last update.
+    /// The value function's loss in the last update: SAC's critic MSE, TD-MPC2's Q heads'
+    /// two-hot cross-entropy.
     pub critic_loss: Option<f64>,
-    /// Actor loss of the last update.
+    /// The policy's loss in the last update: SAC's actor, TD-MPC2's policy prior.
     pub actor_loss: Option<f64>,
     /// Temperature α.
     pub alpha: Option<f64>,
@@ -83,6 +110,10 @@ pub struct MetricsRow {
     pub entropy: Option<f64>,
     /// Mean Q₁ on the last batch.
     pub q_mean: Option<f64>,
+    /// The latent dynamics' consistency loss in the last update (TD-MPC2).
+    pub consistency_loss: Option<f64>,
+    /// The reward head's two-hot cross-entropy in the last update (TD-MPC2).
+    pub reward_loss: Option<f64>,
     /// Mean elite holdout MSE of the last model training (MBPO).
     pub model_holdout_mse: Option<f64>,
     /// Current rollout length k (MBPO).
@@ -111,6 +142,8 @@ impl MetricsRow {
             opt(self.alpha),
             opt(self.entropy),
             opt(self.q_mean),
+            opt(self.consistency_loss),
+            opt(self.reward_loss),
             opt(self.model_holdout_mse),
             opt(self.rollout_length),
             opt(self.model_buffer),
@@ -133,6 +166,8 @@ impl MetricsRow {
             self.alpha,
             self.entropy,
             self.q_mean,
+            self.consistency_loss,
+            self.reward_loss,
             self.model_holdout_mse,
             self.rollout_length,
             self.model_buffer,
@@ -370,26 +405,7 @@ impl RunDir {
         let csv = path.join("metrics.csv");
         let text = std::fs::read_to_string(&csv)
             .map_err(|e| std::io::Error::new(e.kind(), format!("{}: {e}", csv.display())))?;
-        let mut lines = text.lines();
-        let header = lines.next().unwrap_or_default();
-        let want = METRIC_COLUMNS.join(",");
-        if header != want {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!(
-                    "{}: header does not match this version's columns; expected `{want}`, found `{header}`",
-                    csv.display()
-                ),
-            ));
-        }
-        let mut kept = format!("{want}\n");
-        for line in lines {
-            let step = line.split(',').next().and_then(|c| c.parse::<u64>().ok());
-            if step.is_some_and(|s| s <= resume_step) {
-                kept += line;
-                kept.push('\n');
-            }
-        }
+        let kept = rows_up_to(&csv, &text, resume_step)?;
         let tmp = path.join("metrics.csv.tmp");
         std::fs::write(&tmp, kept)?;
         std::fs::rename(&tmp, &csv)?;
@@ -448,6 +464,55 @@ impl RunDir {
         std::fs::write(&tmp, serde_json::to_string_pretty(summary)? + "\n")?;
         std::fs::rename(tmp, self.path.join("summary.json"))
     }
+}
+
+/// The text of a `metrics.csv` (`path`, for errors) cut after the rows up to `resume_step`,
+/// under this version's header: a file of an earlier version ([`EARLIER_METRIC_COLUMNS`]) has
+/// its cells moved under their columns and the new columns left empty; any other header is
+/// refused by name.
+fn rows_up_to(path: &Path, text: &str, resume_step: u64) -> std::io::Result<String> {
+    let mut lines = text.lines();
+    let header = lines.next().unwrap_or_default();
+    let want = METRIC_COLUMNS.join(",");
+    let found: Vec<&str> = header.split(',').collect();
+    let bad = |message: String| {
+        let message = format!("{}: {message}", path.display());
+        std::io::Error::new(std::io::ErrorKind::InvalidData, message)
+    };
+    let earlier = EARLIER_METRIC_COLUMNS.contains(&found.as_slice());
+    if header != want && !earlier {
+        return Err(bad(format!(
+            "header does not match this version's columns; expected `{want}`, found `{header}`"
+        )));
+    }
+    // Where each of this version's columns is in the file's rows (None: a new column).
+    let source: Vec<Option<usize>> = METRIC_COLUMNS
+        .iter()
+        .map(|c| found.iter().position(|f| f == c))
+        .collect();
+    let mut kept = format!("{want}\n");
+    for (i, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        // Later rows (or a row cut short by a crash) belong to the abandoned continuation.
+        if !cells[0].parse::<u64>().is_ok_and(|s| s <= resume_step) {
+            continue;
+        }
+        if cells.len() != found.len() {
+            let n = cells.len();
+            return Err(bad(format!(
+                "line {}: {n} cells under {} columns",
+                i + 2,
+                found.len()
+            )));
+        }
+        let moved: Vec<&str> = source.iter().map(|c| c.map_or("", |c| cells[c])).collect();
+        kept += &moved.join(",");
+        kept.push('\n');
+    }
+    if earlier {
+        tracing::info!("{}: rewritten with this version's columns", path.display());
+    }
+    Ok(kept)
 }
 
 /// Read one column of a `metrics.csv` back as (env_steps, value) pairs (rows where it is empty
@@ -585,12 +650,14 @@ mod tests {
             alpha: Some(8.0),
             entropy: Some(9.0),
             q_mean: Some(10.0),
-            model_holdout_mse: Some(11.0),
-            rollout_length: Some(12.0),
-            model_buffer: Some(13.0),
-            wall_seconds: 14.0,
-            env_steps_per_sec: 15.0,
-            updates_per_sec: 16.0,
+            consistency_loss: Some(11.0),
+            reward_loss: Some(12.0),
+            model_holdout_mse: Some(13.0),
+            rollout_length: Some(14.0),
+            model_buffer: Some(15.0),
+            wall_seconds: 16.0,
+            env_steps_per_sec: 17.0,
+            updates_per_sec: 18.0,
         };
         let cells = row.cells();
         assert_eq!(cells.len(), METRIC_COLUMNS.len());
@@ -686,6 +753,60 @@ mod tests {
             .map(|s| (s.0, s.2))
             .collect();
         assert_eq!(ret, vec![(100, 7.0)]);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn reopen_moves_an_earlier_versions_rows_under_the_new_columns() {
+        let dir = std::env::temp_dir().join(format!("mbpo-rundir-v1-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let earlier = EARLIER_METRIC_COLUMNS[0];
+        // Row i holds the value i*100 + (its column's index) in every cell.
+        let row = |i: usize| -> String {
+            let cells: Vec<String> = (0..earlier.len())
+                .map(|c| (i * 100 + c).to_string())
+                .collect();
+            cells.join(",")
+        };
+        let text = format!(
+            "{}\n{}\n{}\n{}\n",
+            earlier.join(","),
+            row(1),
+            row(2),
+            "300,cut"
+        );
+        std::fs::write(dir.join("metrics.csv"), text).unwrap();
+        let mut run = RunDir::reopen(&dir, 250).unwrap();
+        run.write_metrics(&MetricsRow {
+            env_steps: 300,
+            consistency_loss: Some(0.5),
+            ..Default::default()
+        })
+        .unwrap();
+        drop(run);
+        let text = std::fs::read_to_string(dir.join("metrics.csv")).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines[0], METRIC_COLUMNS.join(","));
+        assert_eq!(lines.len(), 4, "{text}");
+        for (i, line) in lines[1..3].iter().enumerate() {
+            let i = i + 1;
+            for (column, cell) in METRIC_COLUMNS.iter().zip(line.split(',')) {
+                let want = match earlier.iter().position(|c| c == column) {
+                    Some(c) => (i * 100 + c).to_string(),
+                    None => String::new(),
+                };
+                assert_eq!(cell, want, "row {i}, {column}");
+            }
+        }
+        assert_eq!(
+            read_metric_curve(&dir.join("metrics.csv"), "consistency_loss").unwrap(),
+            vec![(300, 0.5)]
+        );
+        // A kept row with fewer cells than the header is refused by line.
+        let text = format!("{}\n{}\n100,1\n", earlier.join(","), row(0));
+        std::fs::write(dir.join("metrics.csv"), text).unwrap();
+        let err = RunDir::reopen(&dir, 250).unwrap_err().to_string();
+        assert!(err.contains("line 3: 2 cells under 16 columns"), "{err}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 

@@ -40,6 +40,26 @@ fn a_tdmpc_run_resumed_from_any_checkpoint_equals_the_uninterrupted_run() {
         100 + 220,
         "the burst, then one per step"
     );
+    // Every row (the first after the burst of updates at 100) has the world model's losses.
+    let text = std::fs::read_to_string(full.join("metrics.csv")).unwrap();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4, "100, 200, 300 and the last step: {text}");
+    for column in [
+        "critic_loss",
+        "actor_loss",
+        "consistency_loss",
+        "reward_loss",
+    ] {
+        let c = header.iter().position(|h| *h == column).unwrap();
+        for row in &rows {
+            let v: f64 = row[c]
+                .parse()
+                .unwrap_or_else(|_| panic!("{column}: {text}"));
+            assert!(v.is_finite(), "{column}: {text}");
+        }
+    }
     let again = temp_dir("tdmpc-again");
     let repeat = train_tdmpc(&cfg, &again).unwrap();
     assert_eq!(

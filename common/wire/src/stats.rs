@@ -51,9 +51,9 @@ pub struct LearnerRow {
     pub env_steps: u64,
     /// SAC updates so far.
     pub sac_updates: u64,
-    /// Critic loss of the last update.
+    /// The value function's loss in the last update (SAC's critics, TD-MPC2's Q heads).
     pub critic_loss: f32,
-    /// Actor loss of the last update.
+    /// The policy's loss in the last update (SAC's actor, TD-MPC2's policy prior).
     pub actor_loss: f32,
     /// Temperature α.
     pub alpha: f32,
@@ -61,6 +61,10 @@ pub struct LearnerRow {
     pub entropy: f32,
     /// Mean Q of the last update.
     pub q_mean: f32,
+    /// TD-MPC2's latent consistency loss in the last update (SAC: NaN).
+    pub consistency_loss: f32,
+    /// TD-MPC2's reward loss in the last update (SAC: NaN).
+    pub reward_loss: f32,
     /// Rollout length in force.
     pub rollout_length: usize,
     /// Transitions in D_model.
@@ -272,7 +276,10 @@ fn learner_record(l: &LearnerRow) -> StatsRecord {
             l.q_mean,
             l.rollout_length as f32,
             l.model_buffer as f32,
+            l.consistency_loss,
         ]),
+        // The eight metrics are taken: the reward loss rides in the (otherwise unused) value.
+        value: l.reward_loss as f64,
         ..Default::default()
     }
 }
@@ -425,6 +432,8 @@ impl Stats {
                 q_mean: m[4],
                 rollout_length: m[5] as usize,
                 model_buffer: m[6] as usize,
+                consistency_loss: m[7],
+                reward_loss: r.value as f32,
                 model_version: r.model_version,
             }),
             StatsKind::Model => Stats::Model(ModelTrained {
@@ -603,6 +612,8 @@ mod tests {
                 alpha: 0.125,
                 entropy: -0.75,
                 q_mean: 10.0,
+                consistency_loss: 0.625,
+                reward_loss: 0.375,
                 rollout_length: 3,
                 model_buffer: 40_000,
                 model_version: 2,

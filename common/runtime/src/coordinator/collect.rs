@@ -423,7 +423,8 @@ impl Collector {
             let done: Vec<&(u64, f64)> = self.book.episodes.iter().filter(|e| e.0 <= t).collect();
             let train_return = done.iter().max_by_key(|e| e.0).map(|e| e.1);
             let updated = lr.sac_updates > 0;
-            // A learner without SAC's figures (TD-MPC2's world model) sends NaN: empty cells.
+            // A figure a learner does not have (SAC's α for TD-MPC2, the world model's losses
+            // for SAC) comes as NaN: an empty cell.
             let some = |v: f32| (updated && v.is_finite()).then_some(v as f64);
             let model = (lr.model_version > 0)
                 .then(|| self.book.models.get(&lr.model_version).copied())
@@ -452,6 +453,8 @@ impl Collector {
                 alpha: (!no_learner && lr.alpha.is_finite()).then_some(lr.alpha as f64),
                 entropy: some(lr.entropy),
                 q_mean: some(lr.q_mean),
+                consistency_loss: some(lr.consistency_loss),
+                reward_loss: some(lr.reward_loss),
                 model_holdout_mse: model,
                 rollout_length: model
                     .filter(|_| !no_learner)
@@ -759,6 +762,8 @@ fn planning_row(t: u64, model_version: u64) -> LearnerRow {
         alpha: f32::NAN,
         entropy: 0.0,
         q_mean: 0.0,
+        consistency_loss: f32::NAN,
+        reward_loss: f32::NAN,
         rollout_length: 0,
         model_buffer: 0,
         model_version,

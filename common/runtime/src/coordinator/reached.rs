@@ -160,6 +160,8 @@ mod tests {
             alpha: 0.1,
             entropy: 0.0,
             q_mean: 0.0,
+            consistency_loss: f32::NAN,
+            reward_loss: f32::NAN,
             rollout_length: 1,
             model_buffer: 0,
             model_version: 2,

@@ -278,6 +278,8 @@ impl<S: Transport> Learner<S> {
                 alpha: role.sac().alpha(),
                 entropy: role.last_stats.entropy,
                 q_mean: role.last_stats.q_mean,
+                consistency_loss: f32::NAN,
+                reward_loss: f32::NAN,
                 rollout_length: role.rollout_length,
                 model_buffer: role.model_buffer_len(),
                 model_version: self.batch.model_version,

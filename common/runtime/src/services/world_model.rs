@@ -230,19 +230,22 @@ impl<S: Transport> WorldModelLearnerWorker<S> {
         true
     }
 
-    /// After publishing: the metrics row at an eval point (TD-MPC2 has none of SAC's figures:
-    /// NaN, an empty cell), progress twice a second.
+    /// After publishing: the metrics row at an eval point (the world model's losses; SAC's α,
+    /// entropy and mean Q are NaN, empty cells), progress twice a second.
     fn report(&mut self, cx: &LearnerCx<'_, S>) -> Result<()> {
         let (consumed, updates) = (self.consumed, self.role.updates());
         if cx.s.schedule.is_eval_point(consumed) {
+            let losses = self.role.reported_losses();
             cx.stats.report(LearnerRow {
                 env_steps: consumed,
                 sac_updates: updates,
-                critic_loss: f32::NAN,
-                actor_loss: f32::NAN,
+                critic_loss: losses.value,
+                actor_loss: losses.policy,
                 alpha: f32::NAN,
                 entropy: f32::NAN,
                 q_mean: f32::NAN,
+                consistency_loss: losses.consistency,
+                reward_loss: losses.reward,
                 rollout_length: 0,
                 model_buffer: 0,
                 model_version: 0,

@@ -179,6 +179,19 @@ pub struct WorldModelLearnerState {
     pub updates: u64,
 }
 
+/// A TD-MPC2 update's losses in the metrics row's terms.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReportedLosses {
+    /// The Q heads' two-hot cross-entropy (the `critic_loss` column).
+    pub value: f32,
+    /// The policy prior's loss (the `actor_loss` column).
+    pub policy: f32,
+    /// The latent consistency loss.
+    pub consistency: f32,
+    /// The reward head's two-hot cross-entropy.
+    pub reward: f32,
+}
+
 /// The world model learning from real episodes.
 pub struct WorldModelLearner {
     learner: Learner,
@@ -240,6 +253,22 @@ impl WorldModelLearner {
     /// Updates done: the version of the parameters.
     pub fn updates(&self) -> u64 {
         self.updates
+    }
+    /// The last update's losses as a metrics row reports them, NaN before the first:
+    /// the Q heads' (`critic_loss`), the policy prior's (`actor_loss`), consistency, reward.
+    pub fn reported_losses(&self) -> ReportedLosses {
+        let nan = ReportedLosses {
+            value: f32::NAN,
+            policy: f32::NAN,
+            consistency: f32::NAN,
+            reward: f32::NAN,
+        };
+        self.last.map_or(nan, |s| ReportedLosses {
+            value: s.model.value,
+            policy: s.policy,
+            consistency: s.model.consistency,
+            reward: s.model.reward,
+        })
     }
     /// The current parameters.
     pub fn params(&self) -> &[f32] {

@@ -174,19 +174,24 @@ impl SequentialRun for TdmpcRun<'_> {
         let updates = self.learner.updates();
         let span = (now - last_time).max(1e-9);
         let actor = self.actor.env_actor();
+        let losses = self.learner.reported_losses();
+        let cell = |v: f32| v.is_finite().then_some(v as f64);
         let row = MetricsRow {
             env_steps: t,
             episodes: actor.episodes,
             eval_return: ret,
             train_return: actor.last_return,
             sac_updates: updates,
+            critic_loss: cell(losses.value),
+            actor_loss: cell(losses.policy),
+            consistency_loss: cell(losses.consistency),
+            reward_loss: cell(losses.reward),
             wall_seconds: now,
             env_steps_per_sec: (t - last_steps) as f64 / span,
             updates_per_sec: (updates - self.book.last_row_updates) as f64 / span,
             ..Default::default()
         };
         self.book.wrote_row(t, ret, now, updates);
-        let losses = self.learner.last.map(|s| s.model);
         tracing::info!(
             "tdmpc {} seed {}: step {t} eval {ret:.1} best {:.1} train episode {:.1} \
              updates {updates} losses {losses:?}",
