@@ -8,7 +8,7 @@ use mbpo_integration_tests::*;
 use mbpo_runtime::in_process::{run_in_process, InProcessRun};
 use mbpo_runtime::{Mode, Slack};
 use mbpo_train::tdmpc::train_tdmpc;
-use mbpo_train::{train_mbpo, train_mpc, Algo, ImaginedStateClip};
+use mbpo_train::{train_mbpo, train_mpc, Algo, ExperimentConfig, ImaginedStateClip};
 
 fn how(dir: &std::path::Path, name: &str, mode: Mode, actors: u16) -> InProcessRun {
     InProcessRun {
@@ -73,19 +73,30 @@ fn in_process_lockstep_mbpo_equals_sequential() {
 
 #[test]
 fn in_process_lockstep_mbpo_with_clipped_imagined_states_equals_sequential() {
-    // The option lives in the rollout role both paths share; this shows it reaches the
-    // pipeline's rollout generator and keeps lockstep equal to the reference.
+    lockstep_with_an_option_equals_sequential("clip", |cfg| {
+        cfg.mbpo.clip_imagined_states = ImaginedStateClip::RealBox
+    });
+}
+
+#[test]
+fn in_process_lockstep_mbpo_with_masked_rollouts_equals_sequential() {
+    lockstep_with_an_option_equals_sequential("mask", |cfg| cfg.mbpo.rollout_keep_fraction = 0.5);
+}
+
+/// An option of the rollouts lives in the rollout role both paths share; this shows that it
+/// reaches the pipeline's rollout generator and keeps lockstep equal to the reference.
+fn lockstep_with_an_option_equals_sequential(name: &str, set: fn(&mut ExperimentConfig)) {
     let mut cfg = tiny_config(400);
     cfg.mbpo.rollout_schedule = [0, 1, 3, 3];
-    let dir = scratch("in-process-clip");
+    let dir = scratch(&format!("in-process-{name}"));
     let paper = train_mbpo(&cfg, &dir.join("paper")).unwrap();
-    cfg.mbpo.clip_imagined_states = ImaginedStateClip::RealBox;
+    set(&mut cfg);
     let seq = train_mbpo(&cfg, &dir.join("sequential")).unwrap();
     assert_ne!(
         seq.policy_sha256, paper.policy_sha256,
-        "clipping changed no imagined state: the test would not see it missing"
+        "{name} changed no imagined transition: the test would not see it missing"
     );
-    let run = how(&dir, "clipped-lockstep", Mode::Lockstep, 1);
+    let run = how(&dir, &format!("{name}-lockstep"), Mode::Lockstep, 1);
     let s = run_in_process(&cfg, &run).unwrap();
     assert_eq!(s.summary.status, "completed");
     assert_lockstep_equals(

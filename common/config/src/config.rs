@@ -286,6 +286,12 @@ pub struct MbpoConfig {
     /// Clamp imagined next states into the box of the real states seen (not in the paper; off
     /// by default).
     pub clip_imagined_states: ImaginedStateClip,
+    /// Fraction of each rollout step's live transitions kept: those the elites disagree on
+    /// least (the variance of their mean predictions, summed over reward and next state); the
+    /// rest are not stored and their rollouts end. M2AC's masking (Pan et al. 2020) without
+    /// its reward penalty; not in the paper: 1 keeps every transition (the default). D_model's
+    /// capacity stays the paper's, so it holds more branches, as when rollouts terminate.
+    pub rollout_keep_fraction: f64,
 }
 
 /// What happens to an imagined next state outside every range the real states were seen in
@@ -316,6 +322,7 @@ impl Default for MbpoConfig {
             updates_per_step: 20,
             replay_capacity: 1_000_000,
             clip_imagined_states: ImaginedStateClip::Off,
+            rollout_keep_fraction: 1.0,
         }
     }
 }
@@ -696,6 +703,13 @@ impl ExperimentConfig {
                 "mbpo.real_ratio",
                 "in [0, 1]",
                 m.real_ratio.to_string(),
+            ));
+        }
+        if !(m.rollout_keep_fraction > 0.0 && m.rollout_keep_fraction <= 1.0) {
+            return Err(bad(
+                "mbpo.rollout_keep_fraction",
+                "in (0, 1] (1 keeps every imagined transition)",
+                m.rollout_keep_fraction.to_string(),
             ));
         }
         let [e_min, e_max, k_min, k_max] = m.rollout_schedule;

@@ -18,7 +18,10 @@
 //! measurement, and both figures are the best over the run, so a quiet moment anywhere in the run
 //! counts for both and the fraction stays meaningful when other processes come and go.
 
-use crate::{ModelConfig, ModelConfigError, ProbabilisticEnsemble, RolloutTermination, TrainError};
+use crate::{
+    ModelConfig, ModelConfigError, ProbabilisticEnsemble, RolloutFilter, RolloutTermination,
+    TrainError,
+};
 use mbpo_core::rng::{normal_f32, uniform_range_f32};
 use mbpo_core::{stream, Batch, ReplayBuffer, UniformPolicy};
 use mbpo_nn::simd::{cap_simd_level, SimdLevel};
@@ -275,7 +278,7 @@ pub fn model_rollout(
                 &mut policy,
                 1,
                 RolloutTermination::Rule(&never),
-                None,
+                RolloutFilter::PAPER,
                 rng,
                 &mut pool,
             )

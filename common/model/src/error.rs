@@ -120,6 +120,9 @@ pub enum RolloutError {
     /// No termination rule was given and the model learns none.
     #[error("no termination rule: give the task's, or build the model with learn_termination")]
     NoTerminationRule,
+    /// The elites' predictions behind a masked rollout failed.
+    #[error("scoring the imagined transitions for the mask: {0}")]
+    Mask(PredictError),
 }
 
 /// Why parameters or weights could not be loaded into a model.

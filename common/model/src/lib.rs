@@ -24,7 +24,7 @@
 //!
 //! ```
 //! use mbpo_core::{stream, Batch, ReplayBuffer, UniformPolicy};
-//! use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination};
+//! use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutFilter, RolloutTermination};
 //!
 //! let config = ModelConfig { members: 3, elites: 2, hidden: vec![16, 16],
 //!                            weight_decay: vec![1e-4; 3], max_epochs: Some(2),
@@ -39,7 +39,7 @@
 //! let mut policy = UniformPolicy { low: vec![-1.0], high: vec![1.0] };
 //! let mut pool = ReplayBuffer::new(2, 1, 100);
 //! let never = |_: &[f32], _: &[f32], _: &[f32]| false;
-//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, RolloutTermination::Rule(&never), None, &mut rng, &mut pool).unwrap();
+//! let stats = model.rollout(&data.obs[..20], 10, &mut policy, 3, RolloutTermination::Rule(&never), RolloutFilter::PAPER, &mut rng, &mut pool).unwrap();
 //! assert_eq!((stats.transitions, pool.len()), (30, 30));
 //! ```
 #![warn(missing_docs)]
@@ -54,6 +54,7 @@ mod network;
 mod normalizer;
 mod parallel;
 mod rollout;
+mod rollout_mask;
 mod simd;
 pub mod termination;
 mod train;
@@ -64,7 +65,7 @@ pub use grad::MeanTape;
 pub use model::{ModelState, ModelWeights, ProbabilisticEnsemble};
 pub use normalizer::InputNormalizer;
 pub use rollout::{
-    rollout_length, BatchTermination, ModelPoolSizing, RolloutRule, RolloutStats,
+    rollout_length, BatchTermination, ModelPoolSizing, RolloutFilter, RolloutRule, RolloutStats,
     RolloutTermination, Termination,
 };
 pub use termination::{TerminationClassifier, TerminationReport, TerminationWeights};

@@ -93,6 +93,23 @@ pub(crate) struct Workspace {
     /// Member per sample.
     pub(crate) members: Vec<usize>,
     pub(crate) rollout: RolloutBuffers,
+    /// The buffers of a masked rollout's scores (`rollout_mask.rs`).
+    pub(crate) mask: MaskBuffers,
+}
+
+/// The buffers of a masked rollout (`rollout_mask.rs`), kept in the workspace: sized once,
+/// then reused.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct MaskBuffers {
+    pub(crate) members: Vec<usize>,
+    pub(crate) mean: Vec<f32>,
+    pub(crate) logvar: Vec<f32>,
+    pub(crate) sum: Vec<f64>,
+    pub(crate) sum_sq: Vec<f64>,
+    pub(crate) disagreement: Vec<f32>,
+    pub(crate) order: Vec<u32>,
+    /// Whether each live transition of the last mask is kept.
+    pub(crate) keep: Vec<bool>,
 }
 
 /// The buffers of [`ProbabilisticEnsemble::rollout`] (`rollout.rs`), taken out of the model's

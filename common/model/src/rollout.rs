@@ -8,12 +8,13 @@
 //! hand-written termination function (or, here, the model's learned one), every transition is
 //! pushed to the model buffer, and terminated samples are dropped before the next step.
 //!
-//! One addition, off unless asked for (`mbpo.clip_imagined_states`): each predicted next state
-//! can be clamped into the box of the real states seen ([`StateBox`]) before the termination
-//! rule and the buffer see it.
+//! Two additions, off unless asked for ([`RolloutFilter`]): each predicted next state can be
+//! clamped into the box of the real states seen ([`StateBox`], `mbpo.clip_imagined_states`)
+//! before the termination rule and the buffer see it, and each step can keep only the
+//! transitions the elites agree on most (`rollout_mask.rs`, `mbpo.rollout_keep_fraction`).
 
 use crate::error::RolloutError;
-use crate::model::{ProbabilisticEnsemble, RolloutBuffers};
+use crate::model::{MaskBuffers, ProbabilisticEnsemble, RolloutBuffers};
 use mbpo_core::{BatchPolicy, ReplayBuffer, Rng, StateBox};
 use serde::{Deserialize, Serialize};
 
@@ -90,6 +91,25 @@ impl RolloutRule {
     }
 }
 
+/// What a rollout does to the model's predictions beyond the paper (nothing, in
+/// [`RolloutFilter::PAPER`]).
+#[derive(Debug, Clone, Copy)]
+pub struct RolloutFilter<'a> {
+    /// Clamp every predicted next state into this box (`mbpo.clip_imagined_states`).
+    pub clip: Option<&'a StateBox>,
+    /// Keep this fraction of each step's live transitions, those the elites disagree on least,
+    /// and end the others' rollouts (`mbpo.rollout_keep_fraction`; 1: all, the paper).
+    pub keep_fraction: f64,
+}
+
+impl RolloutFilter<'_> {
+    /// MBPO's rollouts: every prediction kept as it is.
+    pub const PAPER: RolloutFilter<'static> = RolloutFilter {
+        clip: None,
+        keep_fraction: 1.0,
+    };
+}
+
 /// What one call of [`ProbabilisticEnsemble::rollout`] produced.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RolloutStats {
@@ -105,13 +125,16 @@ pub struct RolloutStats {
     pub mean_reward: f64,
     /// Transitions whose predicted next state was clamped into the real box (0 without one).
     pub clipped: usize,
+    /// Transitions the mask dropped (0 without one).
+    #[serde(default)]
+    pub masked: usize,
 }
 
 impl ProbabilisticEnsemble {
     /// Run `n` model rollouts of up to `k` steps from `start_obs` (`n x obs_dim`) under
     /// `policy`, pushing every transition into `out` (the model buffer D_model); `termination`
-    /// decides which transitions end their rollout; `clip`, when given, clamps every predicted
-    /// next state into its box first.
+    /// decides which transitions end their rollout; `filter` clamps or masks the predictions
+    /// first ([`RolloutFilter::PAPER`]: neither).
     ///
     /// Random draws come from `rng` in a fixed order (per step: the policy's actions, one elite
     /// per sample, then the Gaussian noise), so a seed fixes the result.
@@ -123,22 +146,14 @@ impl ProbabilisticEnsemble {
         policy: &mut dyn BatchPolicy,
         k: usize,
         mut termination: RolloutTermination,
-        clip: Option<&StateBox>,
+        filter: RolloutFilter,
         rng: &mut Rng,
         out: &mut ReplayBuffer,
     ) -> Result<RolloutStats, RolloutError> {
         let (o, a) = (self.obs_dim, self.act_dim);
         self.check_rollout(start_obs, n, &termination, out)?;
         let mut stats = RolloutStats::before(k);
-        let mut buf = std::mem::take(&mut self.ws.rollout);
-        buf.obs.clear();
-        buf.obs.extend_from_slice(start_obs);
-        buf.act.resize(n * a, 0.0);
-        buf.next_obs.resize(n * o, 0.0);
-        buf.reward.resize(n, 0.0);
-        buf.done.resize(n, false);
-        let mut members = std::mem::take(&mut self.ws.members);
-        members.resize(n, 0);
+        let (mut buf, mut members, mut mask) = self.take_rollout_buffers(start_obs, n);
         let mut reward_sum = 0.0f64;
         let mut alive = n;
         for _ in 0..k {
@@ -160,35 +175,80 @@ impl ProbabilisticEnsemble {
                 &mut buf.reward[..alive],
                 &mut buf.next_obs[..alive * o],
             );
-            if let Some(state_box) = clip {
+            if let Some(state_box) = filter.clip {
                 for next in buf.next_obs[..alive * o].chunks_exact_mut(o) {
                     stats.clipped += usize::from(state_box.clip(next));
                 }
             }
-            if let Err(e) = self.mark_batch_terminations(&mut termination, &mut buf, alive) {
-                self.ws.rollout = buf;
-                self.ws.members = members;
-                return Err(e);
-            }
-            let kept = push_live(
-                &mut buf,
-                &termination,
+            let judged = self
+                .mask_step(&filter, &buf, alive, &mut mask)
+                .and_then(|kept| {
+                    self.mark_batch_terminations(&mut termination, &mut buf, alive)?;
+                    Ok(kept)
+                });
+            let keep = match judged {
+                Ok(kept) => kept.map(|kept| {
+                    stats.masked += alive - kept;
+                    &mask.keep[..alive]
+                }),
+                Err(e) => {
+                    (self.ws.rollout, self.ws.members, self.ws.mask) = (buf, members, mask);
+                    return Err(e);
+                }
+            };
+            let live = Live {
+                termination: &termination,
+                keep,
                 alive,
-                out,
-                &mut stats,
-                &mut reward_sum,
-            );
-            stats.transitions += alive;
-            alive = kept;
+            };
+            alive = push_live(&mut buf, live, out, &mut stats, &mut reward_sum);
         }
         stats.mean_reward = if stats.transitions > 0 {
             reward_sum / stats.transitions as f64
         } else {
             0.0
         };
-        self.ws.rollout = buf;
-        self.ws.members = members;
+        (self.ws.rollout, self.ws.members, self.ws.mask) = (buf, members, mask);
         Ok(stats)
+    }
+
+    /// The workspace's rollout buffers, sized for `n` rollouts from `start_obs` (given back
+    /// when the rollout ends).
+    fn take_rollout_buffers(
+        &mut self,
+        start_obs: &[f32],
+        n: usize,
+    ) -> (RolloutBuffers, Vec<usize>, MaskBuffers) {
+        let (o, a) = (self.obs_dim, self.act_dim);
+        let mut buf = std::mem::take(&mut self.ws.rollout);
+        buf.obs.clear();
+        buf.obs.extend_from_slice(start_obs);
+        buf.act.resize(n * a, 0.0);
+        buf.next_obs.resize(n * o, 0.0);
+        buf.reward.resize(n, 0.0);
+        buf.done.resize(n, false);
+        let mut members = std::mem::take(&mut self.ws.members);
+        members.resize(n, 0);
+        (buf, members, std::mem::take(&mut self.ws.mask))
+    }
+
+    /// The mask of one step's `alive` transitions when `filter` asks for one: `Some(kept)`
+    /// with `mask.keep` marking them; `None` keeps all.
+    fn mask_step(
+        &mut self,
+        filter: &RolloutFilter,
+        buf: &RolloutBuffers,
+        alive: usize,
+        mask: &mut MaskBuffers,
+    ) -> Result<Option<usize>, RolloutError> {
+        if filter.keep_fraction >= 1.0 {
+            return Ok(None);
+        }
+        let (o, a) = (self.obs_dim, self.act_dim);
+        let (obs, act) = (&buf.obs[..alive * o], &buf.act[..alive * a]);
+        self.keep_mask(obs, act, alive, filter.keep_fraction, mask)
+            .map(Some)
+            .map_err(RolloutError::Mask)
     }
 
     /// The rollout's inputs fit this model: a learned rule exists if asked for, `n` start
@@ -256,23 +316,40 @@ impl RolloutStats {
             alive_per_step: Vec::with_capacity(k),
             mean_reward: 0.0,
             clipped: 0,
+            masked: 0,
         }
     }
 }
 
-/// Push the `alive` transitions of a step into `out` and keep the non-terminated next states
-/// as the next step's states, compacted in place; returns how many live on.
+/// One step's live transitions as [`push_live`] takes them.
+struct Live<'a, 'r> {
+    termination: &'a RolloutTermination<'r>,
+    /// The mask's verdict per transition (`None`: all kept).
+    keep: Option<&'a [bool]>,
+    alive: usize,
+}
+
+/// Push the `alive` transitions of a step the mask keeps into `out` and keep their
+/// non-terminated next states as the next step's states, compacted in place; returns how many
+/// live on.
 fn push_live(
     buf: &mut RolloutBuffers,
-    termination: &RolloutTermination,
-    alive: usize,
+    live: Live,
     out: &mut ReplayBuffer,
     stats: &mut RolloutStats,
     reward_sum: &mut f64,
 ) -> usize {
     let (o, a) = (out.obs_dim(), out.act_dim());
+    let Live {
+        termination,
+        keep,
+        alive,
+    } = live;
     let mut kept = 0;
     for i in 0..alive {
+        if keep.is_some_and(|keep| !keep[i]) {
+            continue; // masked: neither stored nor rolled on
+        }
         let (s, act) = (&buf.obs[i * o..(i + 1) * o], &buf.act[i * a..(i + 1) * a]);
         let s_next = &buf.next_obs[i * o..(i + 1) * o];
         let done = match termination {
@@ -280,6 +357,7 @@ fn push_live(
             _ => buf.done[i],
         };
         out.push(s, act, buf.reward[i], s_next, done);
+        stats.transitions += 1;
         *reward_sum += buf.reward[i] as f64;
         if done {
             stats.terminated += 1;

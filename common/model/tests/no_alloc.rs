@@ -9,7 +9,7 @@ mod common;
 use common::{pendulum_data, small_config};
 use mbpo_core::alloc_count::{allocations, ignore_libtest_main_thread, CountingAllocator};
 use mbpo_core::{stream, ReplayBuffer, UniformPolicy};
-use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutTermination};
+use mbpo_model::{ModelConfig, ProbabilisticEnsemble, RolloutFilter, RolloutTermination};
 
 #[global_allocator]
 static GLOBAL: CountingAllocator = CountingAllocator;
@@ -89,7 +89,11 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
     let mut pool = ReplayBuffer::new(3, 1, 10 * n);
     let never = |_: &[f32], _: &[f32], _: &[f32]| false;
     let mut rrng = stream(0, "alloc", 1);
-    let mut rollout = |model: &mut ProbabilisticEnsemble, k: usize| {
+    let mut rollout = |model: &mut ProbabilisticEnsemble, k: usize, keep_fraction: f64| {
+        let filter = RolloutFilter {
+            keep_fraction,
+            ..RolloutFilter::PAPER
+        };
         model
             .rollout(
                 &obs,
@@ -97,13 +101,16 @@ fn training_steps_predictions_and_rollouts_do_not_allocate() {
                 &mut policy,
                 k,
                 RolloutTermination::Rule(&never),
-                None,
+                filter,
                 &mut rrng,
                 &mut pool,
             )
             .unwrap();
     };
-    rollout(&mut model, 5);
+    rollout(&mut model, 5, 1.0);
     // One allocation: the returned statistics' per-step vector.
-    assert_eq!(count(|| rollout(&mut model, 5)), 1);
+    assert_eq!(count(|| rollout(&mut model, 5, 1.0)), 1);
+    // Masked: the elites' scores and the ranking reuse their buffers too.
+    rollout(&mut model, 5, 0.5);
+    assert_eq!(count(|| rollout(&mut model, 5, 0.5)), 1);
 }

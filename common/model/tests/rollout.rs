@@ -7,7 +7,7 @@ use common::small_config;
 use mbpo_core::{stream, ReplayBuffer, Rng, StateBox, UniformPolicy};
 use mbpo_envs::termination_fn;
 use mbpo_model::{
-    ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutStats,
+    ModelConfig, PredictError, ProbabilisticEnsemble, RolloutError, RolloutFilter, RolloutStats,
     RolloutTermination,
 };
 
@@ -131,7 +131,7 @@ fn mountain_car_rollouts_stop_at_the_goal() {
             &mut uniform(1),
             5,
             RolloutTermination::Rule(&done),
-            None,
+            RolloutFilter::PAPER,
             &mut stream(0, "r", 0),
             &mut out,
         )
@@ -168,7 +168,7 @@ fn everything_terminating_ends_the_rollout_after_one_step() {
             &mut uniform(1),
             7,
             RolloutTermination::Rule(&always),
-            None,
+            RolloutFilter::PAPER,
             &mut stream(0, "r", 1),
             &mut out,
         )
@@ -199,7 +199,10 @@ fn clipped_rollouts_keep_every_imagined_state_in_the_real_box() {
                 &mut uniform(1),
                 3,
                 RolloutTermination::Rule(&past_one),
-                clip,
+                RolloutFilter {
+                    clip,
+                    ..RolloutFilter::PAPER
+                },
                 &mut stream(0, "r", 2),
                 &mut out,
             )
@@ -280,7 +283,7 @@ fn fake_done_rollouts(
             &mut uniform(2),
             k,
             RolloutTermination::Rule(&fake_done),
-            None,
+            RolloutFilter::PAPER,
             &mut rng,
             &mut out,
         )
@@ -322,7 +325,7 @@ fn rollouts_use_only_elites() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
-            None,
+            RolloutFilter::PAPER,
             &mut stream(5, "r", 0),
             &mut out,
         )
@@ -411,7 +414,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
-            None,
+            RolloutFilter::PAPER,
             &mut rng,
             &mut out,
         )
@@ -435,7 +438,7 @@ fn bad_rollout_and_prediction_arguments_are_typed_errors() {
             &mut uniform(1),
             1,
             RolloutTermination::Rule(&never),
-            None,
+            RolloutFilter::PAPER,
             &mut rng,
             &mut wrong,
         )
@@ -485,4 +488,123 @@ fn rollouts_give_the_same_bits_on_any_thread_count() {
     for threads in [2, 3] {
         assert!(run(threads) == one, "{threads} threads");
     }
+}
+
+/// A randomly initialised 3-member model (elites 0 and 1) whose members disagree by input.
+fn disagreeing_model() -> ProbabilisticEnsemble {
+    let cfg = small_config(3, 2, &[8]);
+    ProbabilisticEnsemble::new(2, 1, cfg, &mut stream(0, "disagree", 0)).unwrap()
+}
+
+#[test]
+fn elite_disagreement_is_the_variance_of_the_elites_means() {
+    let mut model = disagreeing_model();
+    let n = 6;
+    let obs: Vec<f32> = (0..2 * n).map(|i| (i as f32 * 0.7).sin() * 2.0).collect();
+    let act: Vec<f32> = (0..n).map(|i| i as f32 / n as f32 - 0.5).collect();
+    let mut score = vec![0.0; n];
+    model.elite_disagreement(&obs, &act, n, &mut score).unwrap();
+    // Two elites: Var = ((μ₀ − μ₁)/2)² per dimension of [reward, next_obs], summed.
+    let means = |model: &mut ProbabilisticEnsemble, e: usize| {
+        let (mut mean, mut logvar) = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
+        model
+            .predict_gaussian(&obs, &act, n, &vec![e; n], &mut mean, &mut logvar)
+            .unwrap();
+        mean
+    };
+    let (m0, m1) = (means(&mut model, 0), means(&mut model, 1));
+    for (i, &got) in score.iter().enumerate() {
+        let want: f64 = (3 * i..3 * i + 3)
+            .map(|j| ((f64::from(m0[j]) - f64::from(m1[j])) / 2.0).powi(2))
+            .sum();
+        let got = f64::from(got);
+        assert!(
+            (got - want).abs() <= 1e-5 * want.max(1e-6),
+            "row {i}: {got} vs {want}"
+        );
+        assert!(got > 0.0, "random members disagree");
+    }
+    // The non-elite member 2 plays no part: making it an elite changes the scores.
+    let mut w = model.weights();
+    w.elites = vec![0, 2];
+    model.load_weights(&w).unwrap();
+    let mut other = vec![0.0; n];
+    model.elite_disagreement(&obs, &act, n, &mut other).unwrap();
+    assert_ne!(other, score);
+}
+
+#[test]
+fn a_masked_rollout_keeps_the_transitions_the_elites_agree_on() {
+    let mut model = disagreeing_model();
+    let n = 10;
+    let starts: Vec<f32> = (0..2 * n).map(|i| (i as f32 * 1.3).cos() * 3.0).collect();
+    // A constant action, so the scores of the start states can be recomputed.
+    let mut constant = UniformPolicy {
+        low: vec![0.3],
+        high: vec![0.3],
+    };
+    let mut score = vec![0.0; n];
+    model
+        .elite_disagreement(&starts, &[0.3; 10], n, &mut score)
+        .unwrap();
+    let mut ranked: Vec<usize> = (0..n).collect();
+    ranked.sort_by(|&i, &j| score[i].total_cmp(&score[j]));
+    let never = |_: &[f32], _: &[f32], _: &[f32]| false;
+    let mut run = |model: &mut ProbabilisticEnsemble, k: usize, keep_fraction: f64| {
+        let mut out = ReplayBuffer::new(2, 1, 100);
+        let filter = RolloutFilter {
+            keep_fraction,
+            ..RolloutFilter::PAPER
+        };
+        let rule = RolloutTermination::Rule(&never);
+        let stats = model
+            .rollout(
+                &starts,
+                n,
+                &mut constant,
+                k,
+                rule,
+                filter,
+                &mut stream(0, "m", 0),
+                &mut out,
+            )
+            .unwrap();
+        (stats, out.to_batch())
+    };
+    // One step keeping 30 %: the 3 start states with the least disagreement, in their order.
+    let (stats, b) = run(&mut model, 1, 0.3);
+    assert_eq!((stats.transitions, stats.masked), (3, 7));
+    let mut want: Vec<usize> = ranked[..3].to_vec();
+    want.sort();
+    let stored: Vec<&[f32]> = b.obs.chunks_exact(2).collect();
+    let expected: Vec<&[f32]> = want.iter().map(|&i| &starts[2 * i..2 * i + 2]).collect();
+    assert_eq!(stored, expected);
+    // Three steps keeping half: ⌈10/2⌉ = 5, then 3, then 2 transitions; the rest masked.
+    let (stats, b) = run(&mut model, 3, 0.5);
+    assert_eq!(stats.alive_per_step, vec![10, 5, 3]);
+    assert_eq!((stats.transitions, stats.masked, b.len), (10, 8, 10));
+    // Keeping everything is the paper's rollout, bit for bit.
+    let (all, b_all) = run(&mut model, 3, 1.0);
+    let mut paper = ReplayBuffer::new(2, 1, 100);
+    let rule = RolloutTermination::Rule(&never);
+    let filter = RolloutFilter::PAPER;
+    let mut policy = UniformPolicy {
+        low: vec![0.3],
+        high: vec![0.3],
+    };
+    let same = model
+        .rollout(
+            &starts,
+            n,
+            &mut policy,
+            3,
+            rule,
+            filter,
+            &mut stream(0, "m", 0),
+            &mut paper,
+        )
+        .unwrap();
+    assert_eq!((all.masked, all.transitions), (0, 30));
+    assert_eq!(same, all);
+    assert_eq!(paper.to_batch(), b_all);
 }

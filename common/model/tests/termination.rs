@@ -5,7 +5,8 @@
 use mbpo_core::rng::{stream, uniform_range_f32};
 use mbpo_core::{Batch, ReplayBuffer, UniformPolicy};
 use mbpo_model::{
-    ModelConfig, ProbabilisticEnsemble, RolloutRule, RolloutTermination, TerminationClassifier,
+    ModelConfig, ProbabilisticEnsemble, RolloutFilter, RolloutRule, RolloutTermination,
+    TerminationClassifier,
 };
 
 const OBS: usize = 3;
@@ -144,7 +145,7 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
             &mut policy,
             5,
             RolloutTermination::Learned,
-            None,
+            RolloutFilter::PAPER,
             &mut rng,
             &mut out,
         )
@@ -168,7 +169,7 @@ fn rollouts_of_a_model_with_a_learned_rule_end_where_it_predicts_termination() {
             &mut policy,
             1,
             RolloutTermination::Learned,
-            None,
+            RolloutFilter::PAPER,
             &mut rng,
             &mut out,
         )

@@ -26,7 +26,8 @@ use mbpo_core::{
 };
 use mbpo_envs::EnvError;
 use mbpo_model::{
-    rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble, TrainReport,
+    rollout_length, ModelPoolSizing, ModelState, ModelWeights, ProbabilisticEnsemble,
+    RolloutFilter, RolloutStats, TrainReport,
 };
 use mbpo_sac::{ActorPolicy, Sac, SacState, SacStats, TanhGaussianActor};
 use serde::{Deserialize, Serialize};
@@ -406,6 +407,8 @@ pub struct RolloutRole {
     schedule: [usize; 4],
     /// Whether imagined next states are clamped into the real box (`mbpo.clip_imagined_states`).
     clip: ImaginedStateClip,
+    /// The fraction of each rollout step's transitions kept (`mbpo.rollout_keep_fraction`).
+    keep_fraction: f64,
     starts: Batch,
     staged: ReplayBuffer,
     rng: Rng,
@@ -444,6 +447,7 @@ impl RolloutRole {
             termination,
             schedule: cfg.mbpo.rollout_schedule,
             clip: cfg.mbpo.clip_imagined_states,
+            keep_fraction: cfg.mbpo.rollout_keep_fraction,
             starts: Batch::new(obs_dim, act_dim, n),
             staged: ReplayBuffer::new(obs_dim, act_dim, 1),
             rng: stream(cfg.seed, "rollout", 0),
@@ -579,6 +583,29 @@ impl RolloutRole {
         self.restore(live)?;
         rows
     }
+    /// What the options beyond the paper did to a branch's rollouts, when one is on.
+    fn log_filtered(&self, stats: &RolloutStats, n: usize, k: usize, clipped: bool) {
+        let share = |x: usize, of: usize| 100.0 * x as f64 / of.max(1) as f64;
+        let v = self.model_version;
+        if clipped {
+            let (c, t) = (stats.clipped, stats.transitions);
+            tracing::info!(
+                "branched {n} rollouts of k = {k} with model {v}: {c} of {t} imagined next \
+                 states ({:.2} %) clamped into the real box",
+                share(c, t)
+            );
+        }
+        if self.keep_fraction < 1.0 {
+            let (m, t) = (stats.masked, stats.transitions);
+            tracing::info!(
+                "branched {n} rollouts of k = {k} with model {v}: kept {t} imagined transitions, \
+                 masked {m} ({:.2} %) the elites disagreed on most (rollout_keep_fraction {})",
+                share(m, m + t),
+                self.keep_fraction
+            );
+        }
+    }
+
     /// k = rollout_length(epoch); M · model_train_freq k-step rollouts of π in p_θ from start
     /// states drawn uniformly from the real data.
     pub fn branch(&mut self, epoch: usize) -> Result<ImaginedBatch, TrainError> {
@@ -595,20 +622,15 @@ impl RolloutRole {
         };
         let (model, policy, rng) = (&mut self.model, &mut self.policy.net, &mut self.rng);
         let (starts, staged) = (&self.starts.obs, &mut self.staged);
+        let filter = RolloutFilter {
+            clip: real_box.as_ref(),
+            keep_fraction: self.keep_fraction,
+        };
         let stats = self
             .termination
-            .with(|rule| model.rollout(starts, n, policy, k, rule, real_box.as_ref(), rng, staged))
+            .with(|rule| model.rollout(starts, n, policy, k, rule, filter, rng, staged))
             .map_err(|e| TrainError::Config(e.to_string()))?;
-        if real_box.is_some() {
-            tracing::info!(
-                "branched {n} rollouts of k = {k} with model {}: {} of {} imagined next states \
-                 ({:.2} %) clamped into the real box",
-                self.model_version,
-                stats.clipped,
-                stats.transitions,
-                100.0 * stats.clipped as f64 / stats.transitions.max(1) as f64
-            );
-        }
+        self.log_filtered(&stats, n, k, real_box.is_some());
         let rows = self.staged.to_batch();
         self.staged = ReplayBuffer::new(self.starts.obs_dim, self.starts.act_dim, n * k);
         Ok(ImaginedBatch {

@@ -153,6 +153,18 @@ const CASES: &[(&str, &[&str])] = &[
         &["`mbpo.real_ratio`", "in [0, 1]", "NaN"],
     ),
     (
+        "algo = \"mbpo\"\n[mbpo]\nrollout_keep_fraction = 0",
+        &["`mbpo.rollout_keep_fraction`", "in (0, 1]", "found 0"],
+    ),
+    (
+        "algo = \"mbpo\"\n[mbpo]\nrollout_keep_fraction = 1.25",
+        &["`mbpo.rollout_keep_fraction`", "in (0, 1]", "1.25"],
+    ),
+    (
+        "algo = \"mbpo\"\n[mbpo]\nrollout_keep_fraction = nan",
+        &["`mbpo.rollout_keep_fraction`", "in (0, 1]", "NaN"],
+    ),
+    (
         "algo = \"mbpo\"\n[mbpo]\nrollout_schedule = [100, 20, 1, 15]",
         &[
             "`mbpo.rollout_schedule`",

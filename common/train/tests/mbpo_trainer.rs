@@ -49,10 +49,21 @@ fn mbpo_run_writes_model_columns_and_reproduces_bit_for_bit() {
         "G updates per env step after the warm-up"
     );
     let metrics = std::fs::read_to_string(a.join("metrics.csv")).unwrap();
+    let header: Vec<&str> = metrics.lines().next().unwrap().split(',').collect();
     let last: Vec<&str> = metrics.lines().last().unwrap().split(',').collect();
+    let cell = |name: &str| last[header.iter().position(|h| *h == name).unwrap()];
     // model_holdout_mse, rollout_length, model_buffer are filled once the model was trained.
-    assert!(last[10].parse::<f64>().unwrap() > 0.0, "{metrics}");
-    assert_eq!(last[11], "1");
+    assert!(
+        cell("model_holdout_mse").parse::<f64>().unwrap() > 0.0,
+        "{metrics}"
+    );
+    assert_eq!(cell("rollout_length"), "1");
+    assert!(
+        cell("model_buffer").parse::<f64>().unwrap() > 0.0,
+        "{metrics}"
+    );
+    // The world model's columns are TD-MPC2's: empty in an MBPO run.
+    assert_eq!((cell("consistency_loss"), cell("reward_loss")), ("", ""));
     assert_eq!(
         read_eval_curve(&a.join("metrics.csv")).unwrap(),
         read_eval_curve(&b.join("metrics.csv")).unwrap()
@@ -130,6 +141,31 @@ fn clip_imagined_states_keeps_the_model_buffer_in_the_real_box() {
         "the paper's rollouts leave the box ({outside} of {rows})"
     );
     assert_eq!(outside_with(ImaginedStateClip::RealBox), (rows, 0));
+}
+
+#[test]
+fn a_keep_fraction_masks_each_rollout_step() {
+    // 50 x 100 rollouts of 5 steps keeping half of each step: ⌈5000/2⌉ = 2500, then 1250,
+    // 625, 313, 157 transitions (Pendulum never terminates).
+    let rows_with = |keep: f64| {
+        let mut cfg = small_config(1000);
+        cfg.mbpo.rollout_schedule = [0, 1, 5, 5];
+        cfg.mbpo.rollout_keep_fraction = keep;
+        let mut mbpo = Mbpo::new(&cfg).unwrap();
+        for _ in 0..60 {
+            mbpo.warm_up_step().unwrap();
+        }
+        mbpo.train_model().unwrap();
+        mbpo.branch_rollouts(5).unwrap();
+        mbpo.model_buffer_len()
+    };
+    assert_eq!(rows_with(1.0), 5 * 5000);
+    assert_eq!(rows_with(0.5), 2500 + 1250 + 625 + 313 + 157);
+    assert_eq!(
+        ExperimentConfig::default().mbpo.rollout_keep_fraction,
+        1.0,
+        "the paper's rollouts unless asked"
+    );
 }
 
 #[test]

@@ -354,6 +354,22 @@ fn d_model_stored_as_its_branches_is_restored_slot_for_slot() {
     d_model_round_trips(&cfg, "d-model-branches", 50, |_| true);
 }
 
+/// Masked rollouts (`mbpo.rollout_keep_fraction`) add fewer rows per branch than the paper's,
+/// and the branches stored for them give the same rows back.
+#[test]
+fn d_model_of_masked_rollouts_is_restored_slot_for_slot() {
+    let mut cfg = small_mbpo(450);
+    cfg.mbpo.retain_epochs = 2;
+    cfg.mbpo.model_train_freq = 50;
+    cfg.mbpo.rollout_keep_fraction = 0.5;
+    let rows = d_model_round_trips(&cfg, "d-model-masked", 50, |_| true);
+    let rollouts = cfg.mbpo.rollouts_per_step * cfg.mbpo.model_train_freq as usize;
+    assert!(
+        !rows.is_empty() && rows.iter().all(|&r| r < rollouts),
+        "each branch keeps about half of its first step: {rows:?} of {rollouts} rollouts"
+    );
+}
+
 /// Once D_env wraps (after 300 steps), a branch's start states are gone from it: the rows
 /// are stored.
 #[test]
