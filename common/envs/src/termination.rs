@@ -94,12 +94,7 @@ mod tests {
     use crate::{make, termination_fn, TERMINATION_ENV_IDS};
 
     fn done(id: &str, next_obs: &[f32]) -> bool {
-        // Humanoid is not wrapped (no task), but its rule is written and checked.
-        let rule = match id {
-            "Humanoid-v5" => humanoid,
-            _ => termination_fn(id).unwrap(),
-        };
-        rule(&[], &[], next_obs)
+        termination_fn(id).unwrap()(&[], &[], next_obs)
     }
 
     /// MBPO's original Hopper rule, abs applied to the boolean (`mbpo/static/hopper.py`).
