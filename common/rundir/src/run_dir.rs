@@ -36,27 +36,16 @@ pub const METRIC_COLUMNS: &[&str] = &[
     "updates_per_sec",
 ];
 
-/// The header of `metrics.csv` before the world model's columns (`consistency_loss`,
-/// `reward_loss`, 2026-12-06): a run written then is resumed by rewriting its rows with the
-/// new columns empty ([`RunDir::reopen`]), so the lanes that span versions continue.
-const EARLIER_METRIC_COLUMNS: &[&[&str]] = &[&[
-    "env_steps",
-    "episodes",
-    "eval_return",
-    "train_return",
-    "sac_updates",
-    "critic_loss",
-    "actor_loss",
-    "alpha",
-    "entropy",
-    "q_mean",
-    "model_holdout_mse",
-    "rollout_length",
-    "model_buffer",
-    "wall_seconds",
-    "env_steps_per_sec",
-    "updates_per_sec",
-]];
+/// The columns added to `metrics.csv` on 2026-12-06 (TD-MPC2's world model). A run written
+/// before has every other column, in this order, and none of these: resuming it rewrites its
+/// rows with them empty ([`RunDir::reopen`]), so the lanes that span versions continue.
+const ADDED_COLUMNS: &[&str] = &["consistency_loss", "reward_loss"];
+
+/// Whether `found` is the header of a run written before [`ADDED_COLUMNS`].
+fn is_earlier_header(found: &[&str]) -> bool {
+    let earlier = METRIC_COLUMNS.iter().filter(|c| !ADDED_COLUMNS.contains(c));
+    found.iter().eq(earlier)
+}
 
 /// The TensorBoard tag of each `metrics.csv` column (`env_steps` is the step of every scalar).
 pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
@@ -467,7 +456,7 @@ impl RunDir {
 }
 
 /// The text of a `metrics.csv` (`path`, for errors) cut after the rows up to `resume_step`,
-/// under this version's header: a file of an earlier version ([`EARLIER_METRIC_COLUMNS`]) has
+/// under this version's header: a file of an earlier version ([`is_earlier_header`]) has
 /// its cells moved under their columns and the new columns left empty; any other header is
 /// refused by name.
 fn rows_up_to(path: &Path, text: &str, resume_step: u64) -> std::io::Result<String> {
@@ -479,7 +468,7 @@ fn rows_up_to(path: &Path, text: &str, resume_step: u64) -> std::io::Result<Stri
         let message = format!("{}: {message}", path.display());
         std::io::Error::new(std::io::ErrorKind::InvalidData, message)
     };
-    let earlier = EARLIER_METRIC_COLUMNS.contains(&found.as_slice());
+    let earlier = is_earlier_header(&found);
     if header != want && !earlier {
         return Err(bad(format!(
             "header does not match this version's columns; expected `{want}`, found `{header}`"
@@ -760,7 +749,9 @@ mod tests {
     fn reopen_moves_an_earlier_versions_rows_under_the_new_columns() {
         let dir = std::env::temp_dir().join(format!("mbpo-rundir-v1-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let earlier = EARLIER_METRIC_COLUMNS[0];
+        // The header runs were written with until 2026-12-06 (as a resumed run finds it).
+        let header = "env_steps,episodes,eval_return,train_return,sac_updates,critic_loss,actor_loss,alpha,entropy,q_mean,model_holdout_mse,rollout_length,model_buffer,wall_seconds,env_steps_per_sec,updates_per_sec";
+        let earlier: Vec<&str> = header.split(',').collect();
         // Row i holds the value i*100 + (its column's index) in every cell.
         let row = |i: usize| -> String {
             let cells: Vec<String> = (0..earlier.len())
