@@ -31,14 +31,14 @@ TAGS = {
     "alpha": "sac/alpha",
     "entropy": "sac/entropy",
     "q_mean": "sac/q_mean",
-    "consistency_loss": "world_model/consistency_loss",
-    "reward_loss": "world_model/reward_loss",
     "model_holdout_mse": "model/holdout_mse",
     "rollout_length": "model/rollout_length",
     "model_buffer": "model/buffer",
     "wall_seconds": "speed/wall_seconds",
     "env_steps_per_sec": "speed/env_steps_per_sec",
     "updates_per_sec": "speed/updates_per_sec",
+    "consistency_loss": "world_model/consistency_loss",
+    "reward_loss": "world_model/reward_loss",
 }
 
 

@@ -26,14 +26,14 @@ pub const METRIC_COLUMNS: &[&str] = &[
     "alpha",
     "entropy",
     "q_mean",
-    "consistency_loss",
-    "reward_loss",
     "model_holdout_mse",
     "rollout_length",
     "model_buffer",
     "wall_seconds",
     "env_steps_per_sec",
     "updates_per_sec",
+    "consistency_loss",
+    "reward_loss",
 ];
 
 /// The columns added to `metrics.csv` on 2026-12-06 (TD-MPC2's world model). A run written
@@ -58,14 +58,14 @@ pub const TENSORBOARD_TAGS: &[(&str, &str)] = &[
     ("alpha", "sac/alpha"),
     ("entropy", "sac/entropy"),
     ("q_mean", "sac/q_mean"),
-    ("consistency_loss", "world_model/consistency_loss"),
-    ("reward_loss", "world_model/reward_loss"),
     ("model_holdout_mse", "model/holdout_mse"),
     ("rollout_length", "model/rollout_length"),
     ("model_buffer", "model/buffer"),
     ("wall_seconds", "speed/wall_seconds"),
     ("env_steps_per_sec", "speed/env_steps_per_sec"),
     ("updates_per_sec", "speed/updates_per_sec"),
+    ("consistency_loss", "world_model/consistency_loss"),
+    ("reward_loss", "world_model/reward_loss"),
 ];
 
 /// Sub-directory of the run directory that holds the TensorBoard event files.
@@ -99,10 +99,6 @@ pub struct MetricsRow {
     pub entropy: Option<f64>,
     /// Mean Q₁ on the last batch.
     pub q_mean: Option<f64>,
-    /// The latent dynamics' consistency loss in the last update (TD-MPC2).
-    pub consistency_loss: Option<f64>,
-    /// The reward head's two-hot cross-entropy in the last update (TD-MPC2).
-    pub reward_loss: Option<f64>,
     /// Mean elite holdout MSE of the last model training (MBPO).
     pub model_holdout_mse: Option<f64>,
     /// Current rollout length k (MBPO).
@@ -115,6 +111,10 @@ pub struct MetricsRow {
     pub env_steps_per_sec: f64,
     /// SAC updates per second since the last row.
     pub updates_per_sec: f64,
+    /// The latent dynamics' consistency loss in the last update (TD-MPC2).
+    pub consistency_loss: Option<f64>,
+    /// The reward head's two-hot cross-entropy in the last update (TD-MPC2).
+    pub reward_loss: Option<f64>,
 }
 
 impl MetricsRow {
@@ -131,14 +131,14 @@ impl MetricsRow {
             opt(self.alpha),
             opt(self.entropy),
             opt(self.q_mean),
-            opt(self.consistency_loss),
-            opt(self.reward_loss),
             opt(self.model_holdout_mse),
             opt(self.rollout_length),
             opt(self.model_buffer),
             format!("{:.3}", self.wall_seconds),
             format!("{:.1}", self.env_steps_per_sec),
             format!("{:.1}", self.updates_per_sec),
+            opt(self.consistency_loss),
+            opt(self.reward_loss),
         ]
     }
 
@@ -155,14 +155,14 @@ impl MetricsRow {
             self.alpha,
             self.entropy,
             self.q_mean,
-            self.consistency_loss,
-            self.reward_loss,
             self.model_holdout_mse,
             self.rollout_length,
             self.model_buffer,
             Some(self.wall_seconds),
             Some(self.env_steps_per_sec),
             Some(self.updates_per_sec),
+            self.consistency_loss,
+            self.reward_loss,
         ];
         TENSORBOARD_TAGS
             .iter()
@@ -639,14 +639,14 @@ mod tests {
             alpha: Some(8.0),
             entropy: Some(9.0),
             q_mean: Some(10.0),
-            consistency_loss: Some(11.0),
-            reward_loss: Some(12.0),
-            model_holdout_mse: Some(13.0),
-            rollout_length: Some(14.0),
-            model_buffer: Some(15.0),
-            wall_seconds: 16.0,
-            env_steps_per_sec: 17.0,
-            updates_per_sec: 18.0,
+            model_holdout_mse: Some(11.0),
+            rollout_length: Some(12.0),
+            model_buffer: Some(13.0),
+            wall_seconds: 14.0,
+            env_steps_per_sec: 15.0,
+            updates_per_sec: 16.0,
+            consistency_loss: Some(17.0),
+            reward_loss: Some(18.0),
         };
         let cells = row.cells();
         assert_eq!(cells.len(), METRIC_COLUMNS.len());
