@@ -35,6 +35,8 @@
 # file and the older checkpoints (the `checkpoint.keep_every` ones `bench breakdown`/`diagnose`
 # start from) are never parked.
 #
+# A checkpoint parked before at the same step is kept as it is (no second packing: a run restored
+# from it, or parked by another script that stopped at the same time; parks run one at a time).
 # Parking without --with-checkpoints keeps a checkpoint parked before (older than the run, it
 # still saves its steps; a completed run drops it). Restoring never touches a run directory that
 # exists: the live one is always at least as new.
@@ -53,6 +55,14 @@ newest_complete() {
             return
         fi
     done
+}
+
+# The env steps (directory name) of the checkpoint parked in $1, or nothing.
+parked_step() {
+    if [ -f "$1/checkpoint.tar.zst" ]; then
+        zstd -d --long=27 -q -c "$1/checkpoint.tar.zst" | tar -t 2>/dev/null | head -n 1 |
+            cut -d/ -f1 || true
+    fi
 }
 
 completed() {
@@ -92,6 +102,10 @@ park() {
             # Too early to be worth the repository's growth: the run would redo these steps.
             echo "parked $run: its curve so far (checkpoint $(basename "$ckpt") is below" \
                 "$min_checkpoint_steps env steps, not parked)" >&2
+        elif [ -n "$ckpt" ] && [ "$(parked_step "$dest")" = "$(basename "$ckpt")" ]; then
+            # Parked already (restored from it, or parked by another script's stop): kept as is.
+            mv "$dest/checkpoint.tar.zst" "$dest.tmp/"
+            echo "parked $run: checkpoint $(basename "$ckpt"), parked before" >&2
         elif [ -n "$ckpt" ]; then
             # The directory's name is its env steps; the tar keeps it so restoring recreates it.
             tar -C "$run/checkpoints" -cf - "$(basename "$ckpt")" |
@@ -144,6 +158,11 @@ case "${1:-}" in
         exit 2
         ;;
 esac
+# The learning scripts park when they stop, often together (one SIGTERM each): one park at a
+# time, or two would write the same run's .tmp directory at once.
+mkdir -p results/runs
+exec 9> results/runs/.park.lock
+flock 9
 if [ "${1:-}" = "--restore" ]; then
     for src in "$parked"/runs/*/ "$parked"/*/runs/*/; do
         case "$src" in *.tmp/) continue ;; esac # a park that did not finish
