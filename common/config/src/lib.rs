@@ -26,4 +26,4 @@ pub use config::{
 pub use env_config::RolloutTerminationError;
 pub use schedule::Schedule;
 pub use solved::SolvedRule;
-pub use tdmpc::{LatentPlannerConfig, TdmpcConfig, TdmpcSize};
+pub use tdmpc::{LatentPlannerConfig, PlanPrecision, TdmpcConfig, TdmpcSize};

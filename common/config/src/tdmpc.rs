@@ -126,6 +126,22 @@ pub struct LatentPlannerConfig {
     /// plans within its period; the log reports the iterations per plan. A budget makes plans
     /// depend on the machine's speed, so two runs differ.
     pub budget_ms: f64,
+    /// Arithmetic of the plan's matrix products: "f32", or "bf16" -- inputs rounded to bf16,
+    /// sums in f32, on Intel AMX (Xeon 4th generation and later), where a plan costs about
+    /// half (results/RESULTS.md); on a CPU without AMX the plan stays f32 and the log says so.
+    /// Plans differ from f32 ones by the rounding; learning is unchanged (the learner is f32).
+    pub precision: PlanPrecision,
+}
+
+/// The arithmetic of a plan's matrix products (`tdmpc.planner.precision`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum PlanPrecision {
+    /// f32 throughout (the paper's).
+    #[default]
+    F32,
+    /// bf16 inputs and f32 sums on AMX where the CPU has it, f32 elsewhere.
+    Bf16,
 }
 
 impl Default for LatentPlannerConfig {
@@ -139,6 +155,7 @@ impl Default for LatentPlannerConfig {
             max_std: 2.0,
             temperature: 0.5,
             budget_ms: 0.0,
+            precision: PlanPrecision::F32,
         }
     }
 }

@@ -32,6 +32,8 @@ pub struct StepCost {
     pub update_ms_median: f64,
     /// Their sum: one env step of TD-MPC2 at one update per step.
     pub per_env_step_ms: f64,
+    /// Whether the plans' products ran in bf16 on AMX.
+    pub plan_bf16: bool,
 }
 
 /// Time `calls` plans and `calls` updates (after two of each untimed) of a world model of
@@ -50,6 +52,7 @@ pub fn step_cost(
     let buffer = random_episodes(obs, act, episode_length);
     let mut seq = Sequences::zeros(batch, model.cfg.horizon, obs, act);
     let mut mppi = LatentMppi::new(&model, planner);
+    let plan_bf16 = mppi.multiplies_in_bf16();
     let mut encoder = NormedCache::new(&model.encoder, 1);
     let mut rng = stream(0, "bench.tdmpc.draws", 0);
     let (mut ob, mut action) = (vec![0.0f32; obs], vec![0.0f32; act]);
@@ -89,6 +92,7 @@ pub fn step_cost(
         plan_ms_median: plan,
         update_ms_median: update,
         per_env_step_ms: plan + update,
+        plan_bf16,
     }
 }
 

@@ -33,6 +33,10 @@ pub struct MppiConfig {
     /// Wall-clock budget of one plan: iterations stop before one that would overrun it (the
     /// first always runs; at most `iterations`). `None`: every iteration runs.
     pub budget: Option<std::time::Duration>,
+    /// Multiply in bf16 on AMX where the CPU has it (inputs rounded to bf16, sums in f32):
+    /// the candidates' scores move by the rounding, the plan's cost drops (see
+    /// `mbpo_nn::gemm::bf16`). Elsewhere, and when false, every product is f32.
+    pub bf16: bool,
 }
 
 impl Default for MppiConfig {
@@ -46,6 +50,7 @@ impl Default for MppiConfig {
             max_std: 2.0,
             temperature: 0.5,
             budget: None,
+            bf16: false,
         }
     }
 }
@@ -72,6 +77,8 @@ pub struct LatentMppi {
     order: Vec<usize>,
     weights: Vec<f32>,
     iterations_done: usize,
+    /// Whether the forward caches multiply in bf16 ([`MppiConfig::bf16`] where AMX runs).
+    bf16: bool,
 }
 
 impl LatentMppi {
@@ -87,7 +94,7 @@ impl LatentMppi {
             cfg.policy_samples < n && cfg.elites <= n,
             "policy samples and elites fit in the samples"
         );
-        Self {
+        let mut planner = Self {
             cfg,
             horizon: h,
             act: a,
@@ -106,7 +113,35 @@ impl LatentMppi {
             order: (0..n).collect(),
             weights: vec![0.0; cfg.elites],
             iterations_done: 0,
+            bf16: false,
+        };
+        if cfg.bf16 {
+            planner.bf16 = planner.dynamics.use_bf16(&model.dynamics)
+                && planner.reward.use_bf16(&model.reward)
+                && planner.q.iter_mut().all(|c| c.use_bf16(&model.q))
+                && planner.policy.policy_cache().use_bf16(&model.policy);
         }
+        planner
+    }
+
+    /// Whether this planner's products are bf16 on AMX (asked for, and the CPU has it).
+    pub fn multiplies_in_bf16(&self) -> bool {
+        self.bf16
+    }
+
+    /// The bf16 copies of the weights from `params` (each plan: the actor's parameters change
+    /// between plans, and packing is about 1 % of a plan).
+    fn pack_bf16(&mut self, model: &WorldModel, params: &[f32]) {
+        self.dynamics
+            .pack_bf16(&model.dynamics, &params[model.dynamics_range()]);
+        self.reward
+            .pack_bf16(&model.reward, &params[model.reward_range()]);
+        for (k, cache) in self.q.iter_mut().enumerate() {
+            cache.pack_bf16(&model.q, &params[model.q_head_range(k % model.cfg.q_heads)]);
+        }
+        self.policy
+            .policy_cache()
+            .pack_bf16(&model.policy, &params[model.policy_range()]);
     }
 
     /// Forget the warm start (a new episode).
@@ -131,6 +166,9 @@ impl LatentMppi {
         self.mean[(h - 1) * a..].fill(0.0);
         self.std.fill(self.cfg.max_std);
         let budget = Budget::start(self.cfg.budget);
+        if self.bf16 {
+            self.pack_bf16(model, params);
+        }
         self.policy_rollouts(model, params, z0, rng);
         self.iterations_done = 0;
         while self.iterations_done < self.cfg.iterations && budget.allows(self.iterations_done) {
@@ -418,5 +456,59 @@ mod tests {
         };
         assert_eq!(plan(1), plan(1));
         assert_ne!(plan(1).0, plan(2).0);
+    }
+
+    /// One iteration's values of the same candidates (same seed) in `bf16` or f32.
+    fn first_iteration_values(bf16: bool) -> (bool, Vec<f32>) {
+        let (model, params, z0) = model();
+        let cfg = MppiConfig {
+            samples: 96,
+            policy_samples: 8,
+            elites: 16,
+            iterations: 1,
+            bf16,
+            ..Default::default()
+        };
+        let mut mppi = LatentMppi::new(&model, cfg);
+        let rng = &mut stream(12, "test.mppi.bf16", 0);
+        mppi.plan(&model, &params, &z0, false, rng, &mut [0.0; 2]);
+        (mppi.multiplies_in_bf16(), mppi.values().to_vec())
+    }
+
+    #[test]
+    fn bf16_products_score_the_candidates_as_f32_does_up_to_their_rounding() {
+        let (on_amx, bf16) = first_iteration_values(true);
+        let (f32_ran_as_f32, exact) = first_iteration_values(false);
+        assert!(!f32_ran_as_f32, "precision f32 never multiplies in bf16");
+        if !on_amx {
+            eprintln!("skipped: this CPU or kernel has no AMX bf16 (the planner stays f32)");
+            assert_eq!(bf16, exact, "without AMX a bf16 request plans in f32");
+            return;
+        }
+        let spread = exact.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        let worst = bf16
+            .iter()
+            .zip(&exact)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(
+            bf16 != exact,
+            "the bf16 products ran (their rounding shows)"
+        );
+        // bf16 keeps 8 significant bits: values within a few percent of their range.
+        assert!(
+            worst <= 0.03 * spread,
+            "largest difference {worst} against values up to {spread}"
+        );
+        // And the ranking the elites come from is nearly the same.
+        let top = |v: &[f32]| {
+            let mut order: Vec<usize> = (0..v.len()).collect();
+            order.sort_by(|&i, &j| v[j].total_cmp(&v[i]));
+            order[..16].to_vec()
+        };
+        let (a, b) = (top(&bf16), top(&exact));
+        let shared = a.iter().filter(|i| b.contains(i)).count();
+        eprintln!("bf16 against f32: largest difference {worst} (values up to {spread}), {shared} of 16 elites shared");
+        assert!(shared >= 12, "{shared} of the 16 elites shared");
     }
 }

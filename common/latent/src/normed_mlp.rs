@@ -11,6 +11,7 @@
 use std::ops::Range;
 
 use mbpo_core::rng::{normal_f32, uniform_f64, Rng};
+use mbpo_nn::gemm::bf16::{self, gemm_bf16, Bf16Scratch, PackedBf16};
 use mbpo_nn::gemm::{gemm, Op};
 use mbpo_nn::ParamLayout;
 
@@ -143,17 +144,20 @@ impl NormedMlp {
             };
             let c = &mut todo[0];
             let z = &mut c.z[..batch * n_out];
-            gemm(
-                z,
-                input,
-                Op::N,
-                &params[p.w.clone()],
-                Op::N,
-                batch,
-                n_in,
-                n_out,
-                false,
-            );
+            match cache.bf16.as_mut() {
+                Some(w) => gemm_bf16(z, input, batch, &w.layers[l], &mut w.scratch),
+                None => gemm(
+                    z,
+                    input,
+                    Op::N,
+                    &params[p.w.clone()],
+                    Op::N,
+                    batch,
+                    n_in,
+                    n_out,
+                    false,
+                ),
+            }
             add_bias(z, &params[p.b.clone()]);
             if l == 0 && cache.dropout_on {
                 z.iter_mut().zip(&cache.dropout).for_each(|(z, m)| *z *= m);
@@ -306,6 +310,15 @@ pub struct NormedCache {
     /// applied by the passes while `dropout_on`.
     dropout: Vec<f32>,
     dropout_on: bool,
+    /// The weights in bf16 when the forward passes multiply on AMX ([`NormedCache::use_bf16`]).
+    bf16: Option<Bf16Weights>,
+}
+
+/// A network's weight matrices packed for AMX bf16 products, and the scratch they need.
+#[derive(Debug, Clone)]
+struct Bf16Weights {
+    layers: Vec<PackedBf16>,
+    scratch: Bf16Scratch,
 }
 
 impl NormedCache {
@@ -333,6 +346,37 @@ impl NormedCache {
             } else {
                 keep
             };
+        }
+    }
+
+    /// From now on this cache's forward passes multiply in bf16 on AMX (inputs rounded to bf16,
+    /// sums in f32), for up to the rows it was made for -- planning, where a product's rounding
+    /// is noise next to the sampling. False, and the passes stay f32, where the CPU or kernel
+    /// has no AMX. Call [`NormedCache::pack_bf16`] after every change of the parameters.
+    pub fn use_bf16(&mut self, net: &NormedMlp) -> bool {
+        if !bf16::available() {
+            return false;
+        }
+        let widest = net.dims.iter().copied().max().unwrap_or(0);
+        self.bf16 = Some(Bf16Weights {
+            layers: net
+                .dims
+                .windows(2)
+                .map(|d| PackedBf16::new(d[0], d[1]))
+                .collect(),
+            scratch: Bf16Scratch::new(self.batch, widest, widest),
+        });
+        true
+    }
+
+    /// Packs the weight matrices of `params` (the network's own slice) for the bf16 products;
+    /// nothing when the cache multiplies in f32. No allocation.
+    pub fn pack_bf16(&mut self, net: &NormedMlp, params: &[f32]) {
+        let Some(w) = self.bf16.as_mut() else {
+            return;
+        };
+        for (packed, p) in w.layers.iter_mut().zip(&net.layers) {
+            packed.pack(&params[p.w.clone()]);
         }
     }
 

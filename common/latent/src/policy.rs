@@ -55,6 +55,11 @@ impl PolicyWorkspace {
         }
     }
 
+    /// The policy network's forward cache (the planner makes it multiply in bf16).
+    pub(crate) fn policy_cache(&mut self) -> &mut NormedCache {
+        &mut self.policy
+    }
+
     /// Buffers for `rows` latents of `model`.
     pub fn new(model: &WorldModel, rows: usize) -> Self {
         let (z, a, bins) = (model.cfg.latent, model.act_dim(), model.cfg.two_hot.bins);

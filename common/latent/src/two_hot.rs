@@ -4,7 +4,7 @@
 //! distance -- and a head's logits are trained by cross-entropy against it. The head's scalar
 //! is symexp of the expected bin under softmax(logits). One scale fits every task's rewards.
 
-use mbpo_nn::math::exp_neg_f32;
+use mbpo_nn::math::{exp_neg_f32, lane_fold, lane_max, lane_sum, tree_sum, LANES};
 
 /// symlog(x) = sign(x)·ln(1 + |x|).
 pub fn symlog(x: f32) -> f32 {
@@ -62,14 +62,14 @@ impl TwoHot {
 
     #[inline(always)]
     fn decode_kernel(&self, logits: &[f32]) -> f32 {
-        let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-        let (mut sum, mut weighted) = (0.0f32, 0.0f32);
-        for (i, &l) in logits.iter().enumerate() {
+        let max = lane_max(logits);
+        let (mut sum, mut weighted) = ([0.0f32; LANES], [0.0f32; LANES]);
+        lane_fold(logits, |i, l, lane| {
             let p = exp_neg_f32(max - l);
-            sum += p;
-            weighted += p * (self.v_min + i as f32 * self.bin_size());
-        }
-        symexp(weighted / sum)
+            sum[lane] += p;
+            weighted[lane] += p * (self.v_min + i as f32 * self.bin_size());
+        });
+        symexp(tree_sum(weighted) / tree_sum(sum))
     }
 
     /// Cross-entropy of `logits` against the two-hot encoding of `target`; writes
@@ -81,13 +81,8 @@ impl TwoHot {
     #[inline(always)]
     fn cross_entropy_kernel(&self, logits: &[f32], target: f32, d_logits: &mut [f32]) -> f32 {
         self.encode(target, d_logits);
-        let max = logits.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-        let log_sum = logits
-            .iter()
-            .map(|&l| exp_neg_f32(max - l))
-            .sum::<f32>()
-            .ln()
-            + max;
+        let max = lane_max(logits);
+        let log_sum = lane_sum(logits, |_, l| exp_neg_f32(max - l)).ln() + max;
         let mut loss = 0.0;
         for (d, &l) in d_logits.iter_mut().zip(logits) {
             let log_p = l - log_sum;

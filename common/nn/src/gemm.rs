@@ -14,6 +14,7 @@
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+pub mod bf16;
 #[cfg(target_arch = "x86_64")]
 mod ragged;
 

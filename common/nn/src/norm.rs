@@ -6,35 +6,7 @@
 /// LayerNorm's ε (PyTorch's default, as TD-MPC2 uses it).
 pub const LAYER_NORM_EPS: f32 = 1e-5;
 
-/// Lanes of the row sums: 16 running sums, added together at the end in a fixed order, so the
-/// sums vectorise (one AVX-512 register, two AVX2 ones) and give the same bits at every SIMD
-/// level. One running sum per row had made LayerNorm a quarter of a plan's time (each add
-/// waiting for the last).
-const LANES: usize = 16;
-
-/// Σ f(xᵢ) over `x` in [`LANES`] running sums.
-#[inline(always)]
-fn lane_sum(x: &[f32], f: impl Fn(usize, f32) -> f32) -> f32 {
-    let mut acc = [0.0f32; LANES];
-    let full = x.len() / LANES * LANES;
-    for (c, chunk) in x[..full].chunks_exact(LANES).enumerate() {
-        for (l, (a, &v)) in acc.iter_mut().zip(chunk).enumerate() {
-            *a += f(c * LANES + l, v);
-        }
-    }
-    for (l, &v) in x[full..].iter().enumerate() {
-        acc[l] += f(full + l, v);
-    }
-    // A fixed tree: 16 → 8 → 4 → 2 → 1.
-    let mut width = LANES;
-    while width > 1 {
-        width /= 2;
-        for l in 0..width {
-            acc[l] += acc[l + width];
-        }
-    }
-    acc[0]
-}
+use crate::math::lane_sum;
 
 /// Row-wise LayerNorm of `rows` rows of `z` (width `gamma.len()`) into `y`, keeping the
 /// normalised `x_hat` and each row's `inv_std` for the backward pass.

@@ -50,8 +50,8 @@ pub use mbpo_config::SolvedRule;
 /// The configuration (`mbpo-config`), re-exported: paths such as `mbpo_train::config::...` hold.
 pub use mbpo_config::{config, env_config, reference as config_reference, schedule, solved};
 pub use mbpo_config::{
-    Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanReward,
-    TdmpcConfig, TdmpcSize,
+    Algo, CatchUp, ConfigError, ExperimentConfig, ImaginedStateClip, MpcConfig, PlanPrecision,
+    PlanReward, TdmpcConfig, TdmpcSize,
 };
 /// A run's directory (`mbpo-rundir`), re-exported: paths such as `mbpo_train::run_dir::...` hold.
 pub use mbpo_rundir::{checkpoint, checkpoint_writer, progress, run_dir, tensorboard};

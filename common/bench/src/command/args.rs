@@ -112,6 +112,10 @@ pub struct TdmpcStepArgs {
     /// Episode length of the task (its discount; DeepMind Control's 1000).
     #[arg(long, default_value_t = 1000)]
     pub episode_length: usize,
+    /// Arithmetic of the plan's products: "f32", or "bf16" on AMX (f32 where the CPU has none;
+    /// the line's `plan_bf16` says which ran).
+    #[arg(long, default_value = "f32")]
+    pub plan_precision: String,
 }
 
 #[derive(Debug, Args)]

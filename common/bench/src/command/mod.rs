@@ -503,8 +503,16 @@ fn tdmpc_step(args: &TdmpcStepArgs) -> anyhow::Result<()> {
     use mbpo_train::tdmpc::roles::{model_config, mppi_config};
     let size: mbpo_train::TdmpcSize = serde_json::from_value(json!(args.size))
         .map_err(|_| anyhow::anyhow!("--size {}: expected \"1m\" or \"5m\"", args.size))?;
+    let precision: mbpo_train::PlanPrecision = serde_json::from_value(json!(args.plan_precision))
+        .map_err(|_| {
+        anyhow::anyhow!(
+            "--plan-precision {}: expected \"f32\" or \"bf16\"",
+            args.plan_precision
+        )
+    })?;
     let mut cfg = ExperimentConfig::default();
     cfg.tdmpc.size = size;
+    cfg.tdmpc.planner.precision = precision;
     let cost = mbpo_latent::bench::step_cost(
         (args.obs, args.act),
         model_config(&cfg, args.episode_length),

@@ -20,6 +20,7 @@ use serde::{Deserialize, Serialize};
 use crate::actor::{Behaviour, EnvActor, EnvActorState};
 use crate::config::ExperimentConfig;
 use crate::error::TrainError;
+use crate::PlanPrecision;
 
 /// The world model `cfg` describes for `env` (its widths, horizon, loss weights, and γ from
 /// the task's episode length unless the config sets one).
@@ -66,6 +67,7 @@ pub fn mppi_config(cfg: &ExperimentConfig) -> MppiConfig {
         max_std: p.max_std,
         temperature: p.temperature,
         budget: p.budget(),
+        bf16: p.precision == PlanPrecision::Bf16,
     }
 }
 
@@ -109,10 +111,19 @@ impl IterationCount {
 impl LatentPlanner {
     fn new(cfg: &ExperimentConfig, env: &dyn Env, explore: bool) -> Self {
         let model = world_model(cfg, env);
+        let mppi = LatentMppi::new(&model, mppi_config(cfg));
+        match (mppi_config(cfg).bf16, mppi.multiplies_in_bf16()) {
+            (true, true) => tracing::info!("planning with bf16 products on AMX"),
+            (true, false) => tracing::warn!(
+                "tdmpc.planner.precision = \"bf16\", but this CPU or kernel has no AMX bf16: \
+                 planning in f32"
+            ),
+            _ => {}
+        }
         Self {
             params: vec![0.0; model.num_params()],
             version: 0,
-            mppi: LatentMppi::new(&model, mppi_config(cfg)),
+            mppi,
             encoder: NormedCache::new(&model.encoder, 1),
             model,
             explore,
