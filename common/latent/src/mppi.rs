@@ -115,6 +115,10 @@ impl LatentMppi {
             iterations_done: 0,
             bf16: false,
         };
+        planner.dynamics.forward_only();
+        planner.reward.forward_only();
+        planner.q.iter_mut().for_each(NormedCache::forward_only);
+        planner.policy.policy_cache().forward_only();
         if cfg.bf16 {
             planner.bf16 = planner.dynamics.use_bf16(&model.dynamics)
                 && planner.reward.use_bf16(&model.reward)

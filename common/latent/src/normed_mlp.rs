@@ -16,8 +16,8 @@ use mbpo_nn::gemm::{gemm, Op};
 use mbpo_nn::ParamLayout;
 
 use crate::elementwise::{
-    layer_norm_backward, layer_norm_forward, mish_backward, mish_forward, simnorm_backward,
-    simnorm_forward, SIMNORM_GROUP,
+    layer_norm_backward, layer_norm_forward, layer_norm_mish_forward, mish_backward, mish_forward,
+    simnorm_backward, simnorm_forward, SIMNORM_GROUP,
 };
 
 /// What the output layer is.
@@ -167,6 +167,10 @@ impl NormedMlp {
                 continue;
             };
             let (gamma, beta) = (&params[g.clone()], &params[b.clone()]);
+            if cache.forward_only && l != last {
+                layer_norm_mish_forward(z, gamma, beta, &mut c.a[..batch * n_out]);
+                continue;
+            }
             layer_norm_forward(
                 z,
                 gamma,
@@ -194,6 +198,10 @@ impl NormedMlp {
         mut grads: Option<&mut [f32]>,
         d_input: Option<&mut [f32]>,
     ) {
+        assert!(
+            !cache.forward_only,
+            "a forward-only cache keeps nothing for a backward pass"
+        );
         let batch = cache.batch;
         let last = self.layers.len() - 1;
         cache.d_a[..batch * self.out_dim()].copy_from_slice(&d_out[..batch * self.out_dim()]);
@@ -312,6 +320,9 @@ pub struct NormedCache {
     dropout_on: bool,
     /// The weights in bf16 when the forward passes multiply on AMX ([`NormedCache::use_bf16`]).
     bf16: Option<Bf16Weights>,
+    /// No backward pass follows ([`NormedCache::forward_only`]): hidden layers keep only their
+    /// outputs.
+    forward_only: bool,
 }
 
 /// A network's weight matrices packed for AMX bf16 products, and the scratch they need.
@@ -347,6 +358,12 @@ impl NormedCache {
                 keep
             };
         }
+    }
+
+    /// From now on no backward pass goes through this cache (a planner's): each hidden layer's
+    /// LayerNorm and Mish run as one pass that keeps only its output, with the same bits.
+    pub fn forward_only(&mut self) {
+        self.forward_only = true;
     }
 
     /// From now on this cache's forward passes multiply in bf16 on AMX (inputs rounded to bf16,
@@ -486,6 +503,33 @@ mod tests {
         assert_eq!(kept, Some(1.0 / 0.7));
         cache.draw_dropout(&net, 4, 0.0, &mut stream(4, "test.dropout", 0));
         assert!(!cache.dropout_on, "p = 0 drops nothing");
+    }
+
+    #[test]
+    fn a_forward_only_pass_gives_the_same_bits_and_refuses_a_backward_pass() {
+        for head in [Head::Linear, Head::SimNorm] {
+            let net = NormedMlp::new(&[7, 40, 33, 16], head);
+            let mut params = vec![0.0; net.num_params()];
+            net.init(&mut params, false, &mut stream(5, "test.forward_only", 0));
+            for (i, p) in params.iter_mut().enumerate() {
+                *p += 0.3 * ((i as f32) * 0.71).sin();
+            }
+            let x: Vec<f32> = (0..6 * 7).map(|i| (i as f32 * 0.37).cos()).collect();
+            let mut kept = NormedCache::new(&net, 6);
+            let mut planning = NormedCache::new(&net, 6);
+            planning.forward_only();
+            let full = net.forward(&params, &x, 6, &mut kept).to_vec();
+            let fused = net.forward(&params, &x, 6, &mut planning).to_vec();
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&full), bits(&fused), "{head:?}");
+            let refused = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                net.backward(&params, &x, &mut planning, &full, None, None)
+            }));
+            assert!(
+                refused.is_err(),
+                "a backward pass through a forward-only cache"
+            );
+        }
     }
 
     #[test]

@@ -33,15 +33,24 @@ fn layer_norm_forward_kernel(
     let n = gamma.len();
     for (r, inv) in inv_std.iter_mut().enumerate() {
         let row = &z[r * n..(r + 1) * n];
-        let mean = lane_sum(row, |_, v| v) / n as f32;
-        let var = lane_sum(row, |_, v| (v - mean) * (v - mean)) / n as f32;
-        *inv = 1.0 / (var + LAYER_NORM_EPS).sqrt();
+        let mean;
+        (mean, *inv) = row_moments(row);
         let (xh, out) = (&mut x_hat[r * n..(r + 1) * n], &mut y[r * n..(r + 1) * n]);
         for j in 0..n {
             xh[j] = (row[j] - mean) * *inv;
             out[j] = gamma[j] * xh[j] + beta[j];
         }
     }
+}
+
+/// A row's mean and 1/√(σ² + ε): what LayerNorm normalises it by (every forward pass here
+/// takes them from this one function, so fused passes give the same bits).
+#[inline(always)]
+pub fn row_moments(row: &[f32]) -> (f32, f32) {
+    let n = row.len() as f32;
+    let mean = lane_sum(row, |_, v| v) / n;
+    let var = lane_sum(row, |_, v| (v - mean) * (v - mean)) / n;
+    (mean, 1.0 / (var + LAYER_NORM_EPS).sqrt())
 }
 
 /// LayerNorm's backward pass, in place: `d` holds ∂L/∂y and receives ∂L/∂z; `dγ`, `dβ` are
