@@ -134,7 +134,7 @@ impl LatentMppi {
     }
 
     /// The bf16 copies of the weights from `params` (each plan: the actor's parameters change
-    /// between plans, and packing is about 1 % of a plan).
+    /// between plans; packing was 3 % of a bf16 plan's time on walker-walk's 1M preset).
     fn pack_bf16(&mut self, model: &WorldModel, params: &[f32]) {
         self.dynamics
             .pack_bf16(&model.dynamics, &params[model.dynamics_range()]);

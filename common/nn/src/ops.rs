@@ -9,12 +9,27 @@ pub fn polyak(target: &mut [f32], source: &[f32], tau: f32) {
         .for_each(|(t, &s)| *t += tau * (s - *t));
 }
 
-/// Euclidean norm, accumulated in f64.
+/// Euclidean norm, accumulated in f64 over 8 running sums added in a fixed order (one sum
+/// had each add wait for the last: 1.6 % of a TD-MPC2 update, over 1.2M gradients).
 pub fn l2_norm(x: &[f32]) -> f32 {
-    x.iter()
-        .map(|&v| (v as f64) * (v as f64))
-        .sum::<f64>()
-        .sqrt() as f32
+    const LANES: usize = 8;
+    let mut acc = [0.0f64; LANES];
+    let full = x.len() / LANES * LANES;
+    for chunk in x[..full].chunks_exact(LANES) {
+        for (a, &v) in acc.iter_mut().zip(chunk) {
+            *a += (v as f64) * (v as f64);
+        }
+    }
+    for (a, &v) in acc.iter_mut().zip(&x[full..]) {
+        *a += (v as f64) * (v as f64);
+    }
+    let pairs = [
+        acc[0] + acc[4],
+        acc[1] + acc[5],
+        acc[2] + acc[6],
+        acc[3] + acc[7],
+    ];
+    ((pairs[0] + pairs[2]) + (pairs[1] + pairs[3])).sqrt() as f32
 }
 
 /// Scale `grads` so that their norm is at most `max_norm`; returns the norm before clipping
@@ -37,6 +52,23 @@ mod tests {
         let mut t = [0.0f32, 10.0];
         polyak(&mut t, &[1.0, 0.0], 0.005);
         assert!((t[0] - 0.005).abs() < 1e-7 && (t[1] - 9.95).abs() < 1e-6);
+    }
+
+    #[test]
+    fn the_norm_over_lanes_equals_one_running_sum_up_to_rounding() {
+        for len in [0usize, 1, 7, 8, 9, 1003] {
+            let x: Vec<f32> = (0..len).map(|i| ((i as f32) * 0.77).sin() * 3.0).collect();
+            let one_sum = x
+                .iter()
+                .map(|&v| (v as f64) * (v as f64))
+                .sum::<f64>()
+                .sqrt();
+            let lanes = l2_norm(&x) as f64;
+            assert!(
+                (lanes - one_sum).abs() <= 1e-6 * one_sum.max(1.0),
+                "{len}: {lanes} vs {one_sum}"
+            );
+        }
     }
 
     #[test]
