@@ -381,7 +381,7 @@ impl NormedCache {
                 .windows(2)
                 .map(|d| PackedBf16::new(d[0], d[1]))
                 .collect(),
-            scratch: Bf16Scratch::new(self.batch, widest, widest),
+            scratch: Bf16Scratch::new(self.rows_made_for(), widest, widest),
         });
         true
     }
@@ -395,6 +395,12 @@ impl NormedCache {
         for (packed, p) in w.layers.iter_mut().zip(&net.layers) {
             packed.pack(&params[p.w.clone()]);
         }
+    }
+
+    /// The most rows a forward pass through this cache can take (its buffers' size; `batch`
+    /// is only the last pass's).
+    fn rows_made_for(&self) -> usize {
+        self.layers.first().map_or(0, |l| l.inv_std.len())
     }
 
     fn ensure(&mut self, net: &NormedMlp, batch: usize) {

@@ -85,9 +85,9 @@ pub fn lane_fold(x: &[f32], mut f: impl FnMut(usize, f32, usize)) {
     }
 }
 
-/// The lanes' sums added in a fixed tree: 16 → 8 → 4 → 2 → 1.
+/// The lanes' sums added in a fixed tree: 16 → 8 → 4 → 2 → 1 (f32 sums, or f64 ones).
 #[inline(always)]
-pub fn tree_sum(mut acc: [f32; LANES]) -> f32 {
+pub fn tree_sum<T: Copy + std::ops::AddAssign>(mut acc: [T; LANES]) -> T {
     let mut width = LANES;
     while width > 1 {
         width /= 2;

@@ -97,6 +97,22 @@ fn gemm(t: &BenchTime) -> anyhow::Result<()> {
                    "gflops": (gflops * 10.0).round() / 10.0})
         )?;
     }
+    // The bf16 products a TD-MPC2 plan makes (512 candidates through 1M-preset layers), and a
+    // square one, where the CPU has AMX.
+    for &(m, k, n) in &[
+        (512, 512, 512),
+        (512, 134, 384),
+        (512, 384, 384),
+        (512, 384, 101),
+    ] {
+        if let Some(gflops) = mbpo_nn::bench::gemm_bf16_gflops(m, k, n, time) {
+            out!(
+                "{}",
+                json!({"bench": "gemm", "precision": "bf16 (AMX)", "m": m, "k": k, "n": n,
+                       "threads": 1, "gflops": (gflops * 10.0).round() / 10.0})
+            )?;
+        }
+    }
     let batch = 256;
     for &(n_in, n_out) in MODEL_TRAIN_LAYERS {
         let products = [

@@ -2,10 +2,9 @@
 //! next to what it is used for (a planner scoring hundreds of sampled action sequences).
 //!
 //! AMX's `TDPBF16PS` multiplies a 16 x 32 tile of bf16 by a 32 x 16 one and adds the products
-//! into a 16 x 16 tile of f32 sums: 16,384 flops per instruction. On a 2-core Sapphire Rapids
-//! VM a 512 x 512 x 512 product ran at about 500 GFLOP/s here, against 188 for faer's f32
-//! AVX-512 kernel on the same core (measured 2026-12-06, `mbpo bench tdmpc-step` in
-//! results/measurements.md). The inputs are rounded to bf16 (8 significant bits, the f32
+//! into a 16 x 16 tile of f32 sums: 16,384 flops per instruction, several times what f32
+//! AVX-512 FMAs give a core (`mbpo bench gemm` prints both where the CPU has AMX; figures in
+//! results/measurements.md, 2026-12-06). The inputs are rounded to bf16 (8 significant bits, the f32
 //! exponent range); every sum is f32.
 //!
 //! Layouts: the weights `W` (`k x n`, row-major f32) are packed once per parameter change into

@@ -111,8 +111,9 @@ impl IterationCount {
 impl LatentPlanner {
     fn new(cfg: &ExperimentConfig, env: &dyn Env, explore: bool) -> Self {
         let model = world_model(cfg, env);
-        let mppi = LatentMppi::new(&model, mppi_config(cfg));
-        match (mppi_config(cfg).bf16, mppi.multiplies_in_bf16()) {
+        let planner = mppi_config(cfg);
+        let mppi = LatentMppi::new(&model, planner);
+        match (planner.bf16, mppi.multiplies_in_bf16()) {
             (true, true) => tracing::info!("planning with bf16 products on AMX"),
             (true, false) => tracing::warn!(
                 "tdmpc.planner.precision = \"bf16\", but this CPU or kernel has no AMX bf16: \
